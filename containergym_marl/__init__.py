@@ -1,0 +1,42 @@
+"""containergym-marl: the ContainerGym benchmark with centralised and decentralised views.
+
+Quick start::
+
+    import gymnasium as gym
+    import containergym_marl  # registers the Gymnasium id
+
+    env = gym.make("containergym_marl/ContainerGym-v0", config="n5_m2_dt120")
+    par = containergym_marl.container_agents_v0.parallel_env(config="n5_m2_dt120")
+"""
+
+from gymnasium.envs.registration import register, registry
+
+from containergym_marl.config import (
+    PAPER_TEST_PROTOCOL,
+    ConfigError,
+    ContainerSpec,
+    PlantConfig,
+    list_configs,
+    load_config,
+)
+from containergym_marl.envs import ContainerAgentsParallelEnv, ContainerGymEnv, container_agents_v0
+
+__version__ = "0.1.0"
+
+ENV_ID = "containergym_marl/ContainerGym-v0"
+if ENV_ID not in registry:
+    # No max_episode_steps: the environment truncates itself at the config's T.
+    register(id=ENV_ID, entry_point="containergym_marl.envs.centralised:ContainerGymEnv")
+
+__all__ = [
+    "ENV_ID",
+    "PAPER_TEST_PROTOCOL",
+    "ConfigError",
+    "ContainerAgentsParallelEnv",
+    "ContainerGymEnv",
+    "ContainerSpec",
+    "PlantConfig",
+    "container_agents_v0",
+    "list_configs",
+    "load_config",
+]

@@ -1,0 +1,522 @@
+"""Plant configurations: frozen, validated, loaded from our TOML files or the reference JSON format.
+
+A :class:`PlantConfig` is the immutable description of one plant (the paper's "instance"):
+its containers, its processing units (PUs) and the episode settings. The physics core never reads
+a config directly; it reads :class:`~containergym_marl.core.params.PlantParams`, the array form
+built by :meth:`PlantConfig.params`.
+
+Units: volumes in the plant's volume units, times in seconds, rates per second.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+__all__ = [
+    "ConfigError",
+    "ContainerSpec",
+    "PlantConfig",
+    "PAPER_TEST_PROTOCOL",
+    "load_config",
+    "list_configs",
+    "config_from_reference_json",
+]
+
+#: The paper's test protocol (section 6.1): every policy is evaluated with δ = 120 s and T = 600.
+PAPER_TEST_PROTOCOL: Mapping[str, Any] = {"timestep_s": 120.0, "episode_length_steps": 600}
+_PROTOCOLS = {"paper_test": PAPER_TEST_PROTOCOL}
+
+
+class ConfigError(ValueError):
+    """An invalid plant configuration. The message names the offending field and container."""
+
+
+@dataclass(frozen=True)
+class ContainerSpec:
+    """One container and how its material is processed.
+
+    Attributes:
+        name: container name, e.g. ``"C1-20"``; also the agent name in the decentralised view.
+        fill_rate_per_s: drift μ of the fill random walk (volume units per second).
+        fill_noise_per_sqrt_s: σ of the fill random walk; a step of δ seconds adds N(μδ, σ²δ).
+        max_volume: capacity v_max; reaching it ends the episode with the overflow reward.
+        product_size: volume b of one product (bale).
+        pu_offset_s: β, time to actuate a PU before products are made (s).
+        pu_time_per_product_s: λ, PU time per product (s); a PU is busy β + λ⌊v/b⌋ seconds.
+        reward_peaks: optimal emptying volumes v*_k.
+        reward_heights: heights h_k ∈ (0, 1] of the reward peaks.
+        reward_widths: widths w_k > 0 of the reward peaks.
+    """
+
+    name: str
+    fill_rate_per_s: float
+    fill_noise_per_sqrt_s: float
+    max_volume: float
+    product_size: float
+    pu_offset_s: float
+    pu_time_per_product_s: float
+    reward_peaks: tuple[float, ...]
+    reward_heights: tuple[float, ...]
+    reward_widths: tuple[float, ...]
+
+    @property
+    def target_volume(self) -> float:
+        """The global optimum: the peak with the greatest height (first one on ties)."""
+        best = max(range(len(self.reward_heights)), key=lambda k: (self.reward_heights[k], -k))
+        return self.reward_peaks[best]
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """A whole plant: containers, PUs and episode settings. Immutable and validated on creation.
+
+    Derived quantities (``n_containers``, ``container_names``, ``params``) are computed, never
+    stored, so an override can never leave them stale.
+    """
+
+    name: str
+    containers: tuple[ContainerSpec, ...]
+    num_processing_units: int
+    timestep_s: float
+    episode_length_steps: int
+    initial_volume_min: float
+    initial_volume_max: float
+    overflow_reward: float
+    penalty_reward: float
+    description: str = ""
+    _params_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        _validate(self)
+
+    # ---- derived -------------------------------------------------------------------------
+    @property
+    def n_containers(self) -> int:
+        return len(self.containers)
+
+    @property
+    def container_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.containers)
+
+    def params(self):
+        """The array form read by the physics core (cached; the config is immutable)."""
+        if "params" not in self._params_cache:
+            from containergym_marl.core.params import PlantParams
+
+            self._params_cache["params"] = PlantParams.from_config(self)
+        return self._params_cache["params"]
+
+    def replace(self, **overrides: Any) -> "PlantConfig":
+        """A new, re-validated config with plant-level fields overridden.
+
+        Per-container fields are changed through ``containers=``. Unknown names raise
+        :class:`ConfigError`; values are cast to the field's type.
+        """
+        allowed = {f.name for f in dataclasses.fields(self) if f.init}
+        unknown = sorted(set(overrides) - allowed)
+        if unknown:
+            raise ConfigError(
+                f"unknown config override(s) {unknown}; valid names: {sorted(allowed)}"
+            )
+        cast = {}
+        for key, value in overrides.items():
+            if key in _INT_FIELDS:
+                cast[key] = _as_int(value, key)
+            elif key in _FLOAT_FIELDS:
+                cast[key] = _as_float(value, key)
+            elif key == "containers":
+                cast[key] = tuple(value)
+            else:
+                cast[key] = str(value)
+        return dataclasses.replace(self, **cast)
+
+    def to_toml(self) -> str:
+        """This config in our TOML format (what ``configs/*.toml`` hold), with units as comments."""
+        def row(key: str, value: str, comment: str) -> str:
+            return f"{key} = {value}".ljust(48) + f"# {comment}"
+
+        def floats(xs) -> str:
+            return "[" + ", ".join(_fmt(x) for x in xs) + "]"
+
+        lines = [f"# {self.description}" if self.description else "# plant configuration", ""]
+        lines += [
+            f'name = "{self.name}"',
+            f"description = {json.dumps(self.description)}",
+            row("num_processing_units", str(self.num_processing_units), "m, identical PUs"),
+            row("timestep_s", _fmt(self.timestep_s), "delta, seconds per step"),
+            row("episode_length_steps", str(self.episode_length_steps), "T, steps before truncation"),
+            row("initial_volume_min", _fmt(self.initial_volume_min), "v(0) ~ U[min, max], volume units"),
+            row("initial_volume_max", _fmt(self.initial_volume_max), "must be below every max_volume"),
+            row("overflow_reward", _fmt(self.overflow_reward), "r_min, reward when a container reaches max_volume"),
+            row("penalty_reward", _fmt(self.penalty_reward), "r_pen, emptying with no free PU or an empty container"),
+        ]
+        for c in self.containers:
+            lines += [
+                "",
+                "[[containers]]",
+                f'name = "{c.name}"',
+                row("fill_rate_per_s", _fmt(c.fill_rate_per_s), "mu, volume units per second"),
+                row("fill_noise_per_sqrt_s", _fmt(c.fill_noise_per_sqrt_s), "sigma; a step adds N(mu*delta, sigma^2*delta)"),
+                row("max_volume", _fmt(c.max_volume), "v_max, volume units"),
+                row("product_size", _fmt(c.product_size), "b, volume units per product"),
+                row("pu_offset_s", _fmt(c.pu_offset_s), "beta, seconds to actuate a PU"),
+                row("pu_time_per_product_s", _fmt(c.pu_time_per_product_s), "lambda, seconds per product"),
+                row("reward_peaks", floats(c.reward_peaks), "optimal emptying volumes v*"),
+                row("reward_heights", floats(c.reward_heights), "h in (0, 1]"),
+                row("reward_widths", floats(c.reward_widths), "w > 0"),
+            ]
+        return "\n".join(lines) + "\n"
+
+
+_INT_FIELDS = {"num_processing_units", "episode_length_steps"}
+_FLOAT_FIELDS = {
+    "timestep_s",
+    "initial_volume_min",
+    "initial_volume_max",
+    "overflow_reward",
+    "penalty_reward",
+}
+_CONTAINER_FLOAT_FIELDS = (
+    "fill_rate_per_s",
+    "fill_noise_per_sqrt_s",
+    "max_volume",
+    "product_size",
+    "pu_offset_s",
+    "pu_time_per_product_s",
+)
+_CONTAINER_LIST_FIELDS = ("reward_peaks", "reward_heights", "reward_widths")
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x)) if not float(x).is_integer() else f"{float(x):.1f}"
+
+
+def _as_float(value: Any, where: str) -> float:
+    if isinstance(value, (bool, str)) or not hasattr(value, "__float__"):
+        raise ConfigError(f"{where}: expected a number, got {value!r}")
+    try:
+        out = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{where}: expected a number, got {value!r}") from exc
+    if not math.isfinite(out):
+        raise ConfigError(f"{where}: must be finite, got {value!r}")
+    return out
+
+
+def _as_int(value: Any, where: str) -> int:
+    if isinstance(value, bool):
+        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, int) and not (hasattr(value, "__index__")):
+        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+    return int(value)
+
+
+# ---- validation ----------------------------------------------------------------------------
+def _validate(cfg: PlantConfig) -> None:
+    if not isinstance(cfg.containers, tuple) or len(cfg.containers) == 0:
+        raise ConfigError("containers: a plant needs at least one container")
+    names = [c.name for c in cfg.containers]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ConfigError(f"containers: duplicate container name(s) {dup}")
+    if not isinstance(cfg.num_processing_units, int) or cfg.num_processing_units < 1:
+        raise ConfigError(
+            f"num_processing_units: need at least one processing unit (m >= 1), "
+            f"got {cfg.num_processing_units!r}"
+        )
+    if not (cfg.timestep_s > 0):
+        raise ConfigError(f"timestep_s: must be > 0, got {cfg.timestep_s!r}")
+    if not isinstance(cfg.episode_length_steps, int) or cfg.episode_length_steps < 1:
+        raise ConfigError(
+            f"episode_length_steps: must be a positive integer, got {cfg.episode_length_steps!r}"
+        )
+    if not (cfg.penalty_reward < 0):
+        raise ConfigError(
+            f"penalty_reward: r_pen must be < 0 (paper: r_min < r_pen < 0), got {cfg.penalty_reward!r}"
+        )
+    if not (cfg.overflow_reward < cfg.penalty_reward):
+        raise ConfigError(
+            f"overflow_reward: r_min must be < penalty_reward r_pen={cfg.penalty_reward!r}, "
+            f"got {cfg.overflow_reward!r}"
+        )
+    if not (0 <= cfg.initial_volume_min <= cfg.initial_volume_max):
+        raise ConfigError(
+            f"initial_volume_min: need 0 <= initial_volume_min <= initial_volume_max, got "
+            f"[{cfg.initial_volume_min!r}, {cfg.initial_volume_max!r}]"
+        )
+    for c in cfg.containers:
+        _validate_container(c)
+        if not cfg.initial_volume_max < c.max_volume:
+            raise ConfigError(
+                f"initial_volume_max: must be below every container's max_volume; container "
+                f"{c.name!r} has max_volume={c.max_volume!r} <= {cfg.initial_volume_max!r}"
+            )
+
+
+def _validate_container(c: ContainerSpec) -> None:
+    where = f"container {c.name!r}"
+    if not isinstance(c.name, str) or not c.name:
+        raise ConfigError(f"name: container names must be non-empty strings, got {c.name!r}")
+    for key in ("max_volume", "product_size", "pu_offset_s", "pu_time_per_product_s"):
+        value = getattr(c, key)
+        if not value > 0:
+            raise ConfigError(f"{where}: {key} must be > 0, got {value!r}")
+    if not c.fill_noise_per_sqrt_s >= 0:
+        raise ConfigError(f"{where}: fill_noise_per_sqrt_s must be >= 0, got {c.fill_noise_per_sqrt_s!r}")
+    lengths = {k: len(getattr(c, k)) for k in _CONTAINER_LIST_FIELDS}
+    if lengths["reward_peaks"] == 0:
+        raise ConfigError(f"{where}: reward_peaks must list at least one optimum")
+    if len(set(lengths.values())) != 1:
+        raise ConfigError(
+            f"{where}: reward_peaks, reward_heights and reward_widths must have equal lengths, "
+            f"got {lengths}"
+        )
+    for h in c.reward_heights:
+        if not 0 < h <= 1:
+            raise ConfigError(f"{where}: reward_heights must lie in (0, 1], got {h!r}")
+    for w in c.reward_widths:
+        if not w > 0:
+            raise ConfigError(f"{where}: reward_widths must be > 0, got {w!r}")
+    for p in c.reward_peaks:
+        if not p > 0:
+            raise ConfigError(f"{where}: reward_peaks must be > 0, got {p!r}")
+
+
+# ---- building from mappings ----------------------------------------------------------------
+_PLANT_KEYS = {
+    "name",
+    "description",
+    "num_processing_units",
+    "timestep_s",
+    "episode_length_steps",
+    "initial_volume_min",
+    "initial_volume_max",
+    "overflow_reward",
+    "penalty_reward",
+    "containers",
+}
+_CONTAINER_KEYS = {"name", *_CONTAINER_FLOAT_FIELDS, *_CONTAINER_LIST_FIELDS}
+
+
+def config_from_dict(data: Mapping[str, Any], *, default_name: str = "custom") -> PlantConfig:
+    """Build a config from a mapping in our format (the TOML files' structure)."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"config: expected a table/mapping, got {type(data).__name__}")
+    unknown = sorted(set(data) - _PLANT_KEYS)
+    if unknown:
+        raise ConfigError(f"unknown config key(s) {unknown}; valid keys: {sorted(_PLANT_KEYS)}")
+    missing = sorted(_PLANT_KEYS - {"name", "description"} - set(data))
+    if missing:
+        raise ConfigError(f"missing config key(s) {missing}")
+    raw_containers = data["containers"]
+    if not isinstance(raw_containers, (list, tuple)):
+        raise ConfigError("containers: expected a list of container tables")
+    containers = []
+    for i, rc in enumerate(raw_containers):
+        if not isinstance(rc, Mapping):
+            raise ConfigError(f"containers[{i}]: expected a table, got {type(rc).__name__}")
+        cname = rc.get("name", f"#{i}")
+        where = f"container {cname!r}"
+        unknown = sorted(set(rc) - _CONTAINER_KEYS)
+        if unknown:
+            raise ConfigError(f"{where}: unknown key(s) {unknown}; valid keys: {sorted(_CONTAINER_KEYS)}")
+        missing = sorted(_CONTAINER_KEYS - set(rc))
+        if missing:
+            raise ConfigError(f"{where}: missing key(s) {missing}")
+        kwargs: dict[str, Any] = {"name": str(rc["name"])}
+        for key in _CONTAINER_FLOAT_FIELDS:
+            kwargs[key] = _as_float(rc[key], f"{where}: {key}")
+        for key in _CONTAINER_LIST_FIELDS:
+            values = rc[key]
+            if not isinstance(values, (list, tuple)):
+                raise ConfigError(f"{where}: {key} must be a list of numbers, got {values!r}")
+            kwargs[key] = tuple(_as_float(v, f"{where}: {key}") for v in values)
+        containers.append(ContainerSpec(**kwargs))
+    return PlantConfig(
+        name=str(data.get("name", default_name)),
+        description=str(data.get("description", "")),
+        containers=tuple(containers),
+        num_processing_units=_as_int(data["num_processing_units"], "num_processing_units"),
+        timestep_s=_as_float(data["timestep_s"], "timestep_s"),
+        episode_length_steps=_as_int(data["episode_length_steps"], "episode_length_steps"),
+        initial_volume_min=_as_float(data["initial_volume_min"], "initial_volume_min"),
+        initial_volume_max=_as_float(data["initial_volume_max"], "initial_volume_max"),
+        overflow_reward=_as_float(data["overflow_reward"], "overflow_reward"),
+        penalty_reward=_as_float(data["penalty_reward"], "penalty_reward"),
+    )
+
+
+_REFERENCE_KEYS = {
+    "MAX_EPISODE_LENGTH",
+    "TIMESTEP",
+    "ENABLED_CONTAINERS",
+    "N_PRESSES",
+    "MIN_STARTING_VOLUME",
+    "MAX_STARTING_VOLUME",
+    "FAILURE_PENALTY",
+    "RW_MUS",
+    "RW_SIGMAS",
+    "MAX_VOLUMES",
+    "BALE_SIZES",
+    "PRESS_OFFSETS",
+    "PRESS_SLOPES",
+    "REWARD_PARAMS",
+    "MIN_REWARD",
+}
+_REFERENCE_PER_CONTAINER = {
+    "RW_MUS": "fill_rate_per_s",
+    "RW_SIGMAS": "fill_noise_per_sqrt_s",
+    "MAX_VOLUMES": "max_volume",
+    "BALE_SIZES": "product_size",
+    "PRESS_OFFSETS": "pu_offset_s",
+    "PRESS_SLOPES": "pu_time_per_product_s",
+}
+
+
+def config_from_reference_json(data: Mapping[str, Any], *, name: str = "reference") -> PlantConfig:
+    """Build a config from the earlier reference implementation's JSON format.
+
+    ``ENABLED_CONTAINERS`` is either a list of names (per-container fields are then dicts keyed by
+    name) or a count (per-container fields are then lists in container order). Every key is
+    required: the reference code's silent defaults are not reproduced.
+    """
+    unknown = sorted(set(data) - _REFERENCE_KEYS)
+    if unknown:
+        raise ConfigError(f"unknown reference-format key(s) {unknown}")
+    missing = sorted(_REFERENCE_KEYS - set(data))
+    if missing:
+        raise ConfigError(f"missing reference-format key(s) {missing}")
+    enabled = data["ENABLED_CONTAINERS"]
+    if isinstance(enabled, list):
+        names = [str(x) for x in enabled]
+        keyed = True
+    elif isinstance(enabled, int) and not isinstance(enabled, bool) and enabled > 0:
+        names = [f"C{i + 1}" for i in range(enabled)]
+        keyed = False
+    else:
+        raise ConfigError(f"ENABLED_CONTAINERS: expected a list of names or a positive count, got {enabled!r}")
+
+    def per_container(key: str, idx: int, cname: str) -> Any:
+        table = data[key]
+        if keyed:
+            if not isinstance(table, Mapping):
+                raise ConfigError(f"{key}: expected a mapping from container name to value")
+            if cname not in table:
+                raise ConfigError(f"{key}: missing value for container {cname!r}")
+            return table[cname]
+        if not isinstance(table, (list, tuple)) or len(table) != len(names):
+            raise ConfigError(
+                f"{key}: expected a list of {len(names)} values (one per container), got {table!r}"
+            )
+        return table[idx]
+
+    containers = []
+    for i, cname in enumerate(names):
+        entry: dict[str, Any] = {"name": cname}
+        for key, ours in _REFERENCE_PER_CONTAINER.items():
+            entry[ours] = per_container(key, i, cname)
+        rp = per_container("REWARD_PARAMS", i, cname)
+        if isinstance(rp, Mapping):
+            try:
+                entry["reward_peaks"], entry["reward_heights"], entry["reward_widths"] = (
+                    rp["peaks"], rp["heights"], rp["widths"])
+            except KeyError as exc:
+                raise ConfigError(f"REWARD_PARAMS: container {cname!r} lacks {exc.args[0]!r}") from None
+        elif isinstance(rp, (list, tuple)):  # [(peak, height, width), ...]
+            entry["reward_peaks"] = [t[0] for t in rp]
+            entry["reward_heights"] = [t[1] for t in rp]
+            entry["reward_widths"] = [t[2] for t in rp]
+        else:
+            raise ConfigError(f"REWARD_PARAMS: container {cname!r}: unreadable entry {rp!r}")
+        containers.append(entry)
+    return config_from_dict(
+        {
+            "name": name,
+            "description": f"read from reference-format JSON {name!r}",
+            "num_processing_units": data["N_PRESSES"],
+            "timestep_s": data["TIMESTEP"],
+            "episode_length_steps": data["MAX_EPISODE_LENGTH"],
+            "initial_volume_min": data["MIN_STARTING_VOLUME"],
+            "initial_volume_max": data["MAX_STARTING_VOLUME"],
+            "overflow_reward": data["FAILURE_PENALTY"],
+            "penalty_reward": data["MIN_REWARD"],
+            "containers": containers,
+        }
+    )
+
+
+# ---- files and built-ins -------------------------------------------------------------------
+def _builtin_dir():
+    return resources.files("containergym_marl.configs")
+
+
+def list_configs() -> list[str]:
+    """Names of the built-in configurations (the paper's eight rows and the 16-container plant)."""
+    return sorted(p.name[: -len(".toml")] for p in _builtin_dir().iterdir() if p.name.endswith(".toml"))
+
+
+def _read_file(path: Path) -> PlantConfig:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {str(path)!r}: {exc.strerror or exc}") from exc
+    try:
+        if path.suffix == ".toml":
+            data = tomllib.loads(text)
+        elif path.suffix == ".json":
+            data = json.loads(text)
+        else:
+            raise ConfigError(f"config file {str(path)!r}: expected a .toml or .json file")
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"config file {str(path)!r} is not valid {path.suffix[1:].upper()}: {exc}") from exc
+    if isinstance(data, Mapping) and "ENABLED_CONTAINERS" in data:
+        return config_from_reference_json(data, name=path.stem)
+    return config_from_dict(data, default_name=path.stem)
+
+
+def load_config(
+    name_or_path: "str | Path | PlantConfig",
+    *,
+    protocol: str | None = None,
+    **overrides: Any,
+) -> PlantConfig:
+    """Load a validated, immutable config.
+
+    Args:
+        name_or_path: a built-in name (see :func:`list_configs`), a path to a ``.toml`` file in our
+            format or a ``.json`` file in ours or the reference format, or a :class:`PlantConfig`.
+        protocol: ``"paper_test"`` applies the paper's test protocol (δ = 120 s, T = 600).
+        **overrides: plant-level fields to replace, e.g. ``timestep_s=60``; applied after
+            ``protocol``.
+    """
+    if isinstance(name_or_path, PlantConfig):
+        cfg = name_or_path
+    else:
+        text = str(name_or_path)
+        builtin = _builtin_dir() / f"{text}.toml"
+        if isinstance(name_or_path, str) and "/" not in text and builtin.is_file():
+            cfg = config_from_dict(tomllib.loads(builtin.read_text(encoding="utf-8")), default_name=text)
+        else:
+            path = Path(text)
+            if not path.exists():
+                raise ConfigError(
+                    f"unknown config {text!r}: not a built-in name ({', '.join(list_configs())}) "
+                    f"and no such file"
+                )
+            cfg = _read_file(path)
+    if protocol is not None:
+        if protocol not in _PROTOCOLS:
+            raise ConfigError(f"protocol: unknown protocol {protocol!r}; known: {sorted(_PROTOCOLS)}")
+        cfg = cfg.replace(**_PROTOCOLS[protocol])
+    if overrides:
+        cfg = cfg.replace(**overrides)
+    return cfg

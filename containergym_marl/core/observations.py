@@ -1,0 +1,127 @@
+"""Observations built from the state: the global state and the container agents' view.
+
+Global state (the centralised observation and ``state()`` of the decentralised view):
+``[v_1..v_n, p_1..p_m]`` in physical units (volume units, seconds), float32. Volumes are bounded
+by 2·v_max for the space's sake; only the terminal observation of an overflow can exceed v_max.
+
+Container-agent observation: one float32 vector per container, the same layout and bounds for every
+agent so that one shared policy can act for all of them. Entries (F = 11 + m + n):
+
+====  =======================  ===================================================  ==============
+idx   name                     meaning                                              bounds
+====  =======================  ===================================================  ==============
+0     volume_frac              own volume v / v_max                                 [0, 2]
+1     target_frac              own global-optimum volume v* / v_max                 [0, 1]
+2     gap_to_target_frac       (v* − v) / v_max; 0 at the target, < 0 past it       [-2, 1]
+3     max_volume_frac          own v_max / largest v_max of the plant               [0, 1]
+4     fill_rate_frac           expected inflow per step μδ / v_max                  [0, 1]
+5     fill_noise_frac          inflow noise per step σ√δ / v_max                    [0, 1]
+6     product_size_frac        product size b / v_max                               [0, 1]
+7     reward_if_emptied        reward of emptying now, given a free PU              [r_pen, 1]
+8     free_pu_frac             free PUs / m                                         [0, 1]
+9     others_requested_frac    share of the other agents that requested last step   [0, 1]
+10    others_ready_frac        share of the others within 1 volume unit of their    [0, 1]
+                               target or past it (the rule-based controller's cue)
+11    others_fuller_frac       share of the others with a larger v / v_max (who     [0, 1]
+                               win the default "fullest" arbitration)
+12+j  pu_timer_frac[j]         PU j's timer / largest possible PU time, j < m       [0, 1]
+12+m  container_one_hot[i]     1 for the agent's own container index, i < n         [0, 1]
+====  =======================  ===================================================  ==============
+
+Entries 1 and 3–6 identify the container by its physics; the one-hot makes identity explicit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from containergym_marl.core.dynamics import PlantState, emptying_reward
+from containergym_marl.core.params import PlantParams
+
+#: The rule-based controller's margin (paper, section 6.2), also used by ``others_ready_frac``.
+READY_MARGIN = 1.0
+VOLUME_BOUND_FACTOR = 2.0
+
+SCALAR_FEATURES = (
+    "volume_frac",
+    "target_frac",
+    "gap_to_target_frac",
+    "max_volume_frac",
+    "fill_rate_frac",
+    "fill_noise_frac",
+    "product_size_frac",
+    "reward_if_emptied",
+    "free_pu_frac",
+    "others_requested_frac",
+    "others_ready_frac",
+    "others_fuller_frac",
+)
+
+
+def agent_feature_names(params: PlantParams) -> list[str]:
+    return (
+        list(SCALAR_FEATURES)
+        + [f"pu_timer_frac[{j}]" for j in range(params.n_pus)]
+        + [f"container_one_hot[{i}]" for i in range(params.n_containers)]
+    )
+
+
+def global_state_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarray]:
+    low = np.zeros(params.n_containers + params.n_pus, dtype=np.float32)
+    high = np.concatenate(
+        [VOLUME_BOUND_FACTOR * params.max_volume, np.full(params.n_pus, params.max_pu_time_s)]
+    ).astype(np.float32)
+    return low, high
+
+
+def global_state(state: PlantState, params: PlantParams) -> np.ndarray:
+    """(B, n + m) float32 ``[v, p]``, clipped into :func:`global_state_bounds`."""
+    low, high = global_state_bounds(params)
+    out = np.concatenate([state.volumes, state.pu_timers_s], axis=1).astype(np.float32)
+    return np.clip(out, low, high)
+
+
+def agent_observation_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarray]:
+    n, m = params.n_containers, params.n_pus
+    low = np.zeros(len(SCALAR_FEATURES) + m + n, dtype=np.float32)
+    high = np.ones_like(low)
+    high[0] = VOLUME_BOUND_FACTOR
+    low[2] = -VOLUME_BOUND_FACTOR
+    low[7] = params.penalty_reward
+    return low, high
+
+
+def agent_observations(
+    state: PlantState, params: PlantParams, previous_requests: np.ndarray
+) -> np.ndarray:
+    """(B, n, F) float32 observations of every container agent; see the module docstring."""
+    v, p = state.volumes, state.pu_timers_s
+    bsz, n = v.shape
+    m = params.n_pus
+    vmax = params.max_volume
+    others = max(n - 1, 1)  # with one container the "others" shares are 0
+
+    vol_frac = v / vmax
+    ready = v >= params.target_volume - READY_MARGIN
+    # Number of containers fuller than each one: rank of v/v_max among the plant's containers.
+    fuller = (vol_frac[:, None, :] > vol_frac[:, :, None]).sum(axis=2)
+
+    scalars = np.empty((bsz, n, len(SCALAR_FEATURES)))
+    scalars[..., 0] = vol_frac
+    scalars[..., 1] = params.target_volume / vmax
+    scalars[..., 2] = (params.target_volume - v) / vmax
+    scalars[..., 3] = vmax / vmax.max()
+    scalars[..., 4] = params.fill_mean_per_step / vmax
+    scalars[..., 5] = params.fill_std_per_step / vmax
+    scalars[..., 6] = params.product_size / vmax
+    scalars[..., 7] = emptying_reward(v, params)
+    scalars[..., 8] = (p == 0.0).sum(axis=1, keepdims=True) / m
+    scalars[..., 9] = (previous_requests.sum(axis=1, keepdims=True) - previous_requests) / others
+    scalars[..., 10] = (ready.sum(axis=1, keepdims=True) - ready) / others
+    scalars[..., 11] = fuller / others
+
+    timers = np.broadcast_to((p / params.max_pu_time_s)[:, None, :], (bsz, n, m))
+    one_hot = np.broadcast_to(np.eye(n), (bsz, n, n))
+    obs = np.concatenate([scalars, timers, one_hot], axis=2).astype(np.float32)
+    low, high = agent_observation_bounds(params)
+    return np.clip(obs, low, high)

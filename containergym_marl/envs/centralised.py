@@ -1,0 +1,144 @@
+"""Centralised view: the paper's single controller as a Gymnasium environment."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from containergym_marl.config import PlantConfig, load_config
+from containergym_marl.core.observations import global_state, global_state_bounds
+from containergym_marl.core.simulator import PlantSimulator
+from containergym_marl.envs._common import discrete_action, render_ansi
+
+
+class ContainerGymEnv(gym.Env):
+    """ContainerGym, centralised: one controller decides which container to empty.
+
+    ## Description
+    A waste-sorting plant has n containers that fill stochastically (random walk with drift) and
+    m ≪ n processing units (PUs). Emptying a container occupies a free PU for β + λ·⌊v/b⌋ seconds
+    and earns a reward that peaks at the container's optimal volumes. This is the MDP of the
+    ContainerGym paper (section 5), stepped by the shared core of ``containergym_marl.core``.
+
+    ## Action space
+    ``Discrete(n + 1)``: 0 does nothing, i ∈ 1..n empties container i (``config.container_names[i-1]``).
+    :meth:`action_masks` masks the emptying actions while no PU is free (for sb3-contrib's
+    MaskablePPO); unmasked, such an action earns r_pen and empties nothing.
+
+    ## Observation space
+    ``Box(float32, shape=(n + m,))``, the paper's state in physical units:
+
+    | index      | entry                          | unit         | bounds              |
+    |------------|--------------------------------|--------------|---------------------|
+    | 0 … n-1    | volume v_i of container i      | volume units | [0, 2·v_max,i]      |
+    | n … n+m-1  | timer p_j of PU j (0 = free)   | seconds      | [0, max_i g_i(v_max,i)] |
+
+    Volumes above v_max occur only in the terminal observation of an overflow.
+
+    ## Rewards
+    Emptying container i with a free PU: ``r_pen + Σ_k (h_k − r_pen)·exp(−(v_i − v*_k)²/(2w_k²))``
+    of its volume before this step's inflow (r_pen if it was empty; the PU is still used).
+    Emptying with no free PU: r_pen. Doing nothing: 0. If any container reaches v_max the step's
+    reward is replaced by r_min.
+
+    ## Starting state
+    ``v_i ~ U[initial_volume_min, initial_volume_max]`` i.i.d., all PUs free.
+
+    ## Episode end
+    ``terminated`` when a container reaches v_max (overflow). ``truncated`` after
+    ``episode_length_steps`` (T) steps without overflow. Stepping a finished episode raises
+    :class:`~containergym_marl.core.simulator.EpisodeFinishedError`.
+
+    ## Arguments
+    ``config``: built-in name, path or :class:`PlantConfig` (default ``"n5_m2_dt120"``);
+    ``protocol="paper_test"`` sets the paper's test protocol (δ = 120 s, T = 600); further keyword
+    arguments override plant-level config fields (``timestep_s=60``, ``episode_length_steps=600``…);
+    ``render_mode``: ``None`` or ``"ansi"``.
+
+    ## Info
+    ``emptied_container`` (name or None), ``emptied_volume``, ``emptying_reward`` (reward of this
+    step's emptying decision, before any overflow replacement), ``pu_index`` (PU used or None),
+    ``no_free_pu`` (an emptying action found every PU busy), ``overflowed_containers`` (names),
+    ``free_pus`` (free PUs before the step), ``step``.
+
+    ## Version history
+    * v0: first release. Differences from the earlier reference implementation: the PU timer is
+      g(v) at t+1 (the reference also subtracted δ in the emptying step), one normal draw per
+      container and step instead of δ per-second draws (same distribution), all randomness from
+      the seed given to ``reset``, and time-limit ends are ``truncated`` rather than ``done``.
+    """
+
+    metadata = {"render_modes": ["ansi"], "render_fps": 4}
+
+    def __init__(
+        self,
+        config: str | PlantConfig = "n5_m2_dt120",
+        *,
+        render_mode: str | None = None,
+        protocol: str | None = None,
+        **overrides: Any,
+    ):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode: {render_mode!r} not supported; choose from {self.metadata['render_modes']}"
+            )
+        self.config = load_config(config, protocol=protocol, **overrides)
+        self.render_mode = render_mode
+        self._sim = PlantSimulator(self.config, batch_size=1)
+        params = self._sim.params
+        self.n_containers, self.n_pus = params.n_containers, params.n_pus
+        self.action_space = spaces.Discrete(self.n_containers + 1)
+        low, high = global_state_bounds(params)
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+
+    @property
+    def simulator(self) -> PlantSimulator:
+        """The underlying single-simulation core (read it, do not step it directly)."""
+        return self._sim
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self._sim.reset(generators=[self.np_random])
+        return self._observation(), {"step": 0, "free_pus": self.n_pus}
+
+    def step(self, action):
+        a = discrete_action(action, self.n_containers + 1, "action")
+        requests = np.zeros((1, self.n_containers), dtype=bool)
+        if a > 0:
+            requests[0, a - 1] = True
+        out = self._sim.step(requests)
+        names = self.config.container_names
+        emptied = np.flatnonzero(out.granted[0])
+        info = {
+            "step": int(self._sim.state.step_count[0]),
+            "emptied_container": names[emptied[0]] if emptied.size else None,
+            "emptied_volume": float(out.emptied_volume[0, emptied[0]]) if emptied.size else None,
+            "emptying_reward": float(out.container_reward[0].sum()),
+            "pu_index": int(out.pu_index[0, emptied[0]]) if emptied.size else None,
+            "no_free_pu": bool(out.denied[0].any()),
+            "overflowed_containers": tuple(names[i] for i in np.flatnonzero(out.overflowed[0])),
+            "free_pus": int(out.free_pus_before[0]),
+        }
+        return (
+            self._observation(),
+            float(out.plant_reward[0]),
+            bool(out.terminated[0]),
+            bool(out.truncated[0]),
+            info,
+        )
+
+    def action_masks(self) -> np.ndarray:
+        """Valid actions for MaskablePPO: 'do nothing' always; emptying only while a PU is free."""
+        any_free = bool(self._sim.free_pu_count()[0] > 0)
+        return np.array([True] + [any_free] * self.n_containers, dtype=bool)
+
+    def render(self):
+        if self.render_mode == "ansi":
+            return render_ansi(self._sim)
+        return None
+
+    def _observation(self) -> np.ndarray:
+        return global_state(self._sim.state, self._sim.params)[0]

@@ -1,0 +1,254 @@
+"""Decentralised view: every container is an agent (PettingZoo parallel and AEC APIs).
+
+Use ``parallel_env(...)`` for the parallel API (what SuperSuit wraps) and ``env(...)`` for the AEC
+API. Both take the same arguments as :class:`ContainerAgentsParallelEnv`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from pettingzoo import ParallelEnv
+from pettingzoo.utils import conversions, wrappers
+
+from containergym_marl.config import PlantConfig, load_config
+from containergym_marl.core.dynamics import ARBITRATION_RULES
+from containergym_marl.core.observations import (
+    agent_feature_names,
+    agent_observation_bounds,
+    agent_observations,
+    global_state,
+    global_state_bounds,
+)
+from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
+from containergym_marl.envs._common import discrete_action, render_ansi
+
+REWARD_MODES = ("individual", "team")
+
+
+class ContainerAgentsParallelEnv(ParallelEnv):
+    """ContainerGym, decentralised: each container asks to be emptied; the plant arbitrates.
+
+    ## Description
+    The same plant and physics as :class:`~containergym_marl.envs.centralised.ContainerGymEnv`
+    (one shared core), seen by n agents, one per container, named after their container. Every
+    step each agent may request emptying; when k requests compete for f < k free PUs an
+    arbitration rule inside the environment grants f of them and denies the rest.
+
+    ## Agents
+    ``possible_agents = config.container_names`` (fixed at construction). All agents act every
+    step; all terminate together on overflow and truncate together at T, after which ``agents``
+    is empty.
+
+    ## Action space (per agent)
+    ``Discrete(2)``: 0 waits, 1 requests emptying. With ``action_masking=True`` each agent's info
+    holds ``action_mask`` (int8, request masked while no PU is free).
+
+    ## Observation space (per agent, identical for all agents)
+    ``Box(float32, shape=(11 + m + n,))`` of normalised, bounded features: own volume, target,
+    gap to target, v_max, fill rate and noise, product size, reward if emptied now, free-PU share,
+    competing demand (others' requests last step, others ready to be emptied, others fuller), the
+    PU timers and a one-hot container index. The table with every entry and bound is in
+    :mod:`containergym_marl.core.observations`; names via :meth:`feature_names`.
+
+    ## State
+    ``state()`` returns the global state ``[v_1..v_n, p_1..p_m]`` (float32, physical units), equal
+    to the centralised view's observation; ``state_space`` is its Box.
+
+    ## Arbitration (``arbitration=``)
+    ``"fullest"`` (default): highest v / v_max first. ``"random"``: uniformly random order drawn
+    from the environment's generator. ``"index"``: fixed priority, lower container index first.
+    ``"best_reward"``: highest immediate emptying reward first. Ties go to the lower index.
+    Granted containers are emptied on distinct PUs; denied requests earn r_pen, like the paper's
+    "no free PU".
+
+    ## Rewards (``reward_mode=``)
+    ``"individual"`` (default): each agent gets its own emptying reward, r_pen if denied, 0 if it
+    waited; overflowing containers get r_min. ``"team"``: every agent gets the plant reward (sum of
+    the step's emptying rewards and penalties, replaced by r_min on overflow), exactly the
+    centralised view's reward.
+
+    ## Info (per agent)
+    ``requested``, ``granted``, ``denied`` (bool), ``pu_index`` (int, -1 if not emptied),
+    ``emptied_volume``, ``emptying_reward`` (this agent's reward before overflow replacement),
+    ``overflowed`` (bool), ``free_pus`` (before the step), ``step``; and ``action_mask`` if asked.
+
+    ## Arguments
+    ``config``, ``protocol`` and plant-level overrides as for the centralised view;
+    ``arbitration``, ``reward_mode``, ``action_masking`` as above; ``render_mode``: None or "ansi".
+
+    ## Version history
+    * v0: first release.
+    """
+
+    metadata = {
+        "name": "container_agents_v0",
+        "render_modes": ["ansi"],
+        "is_parallelizable": True,
+        "render_fps": 4,
+    }
+
+    def __init__(
+        self,
+        config: str | PlantConfig = "n5_m2_dt120",
+        *,
+        arbitration: str = "fullest",
+        reward_mode: str = "individual",
+        action_masking: bool = False,
+        render_mode: str | None = None,
+        protocol: str | None = None,
+        **overrides: Any,
+    ):
+        if arbitration not in ARBITRATION_RULES:
+            raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
+        if reward_mode not in REWARD_MODES:
+            raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose one of {REWARD_MODES}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode: {render_mode!r} not supported; choose from {self.metadata['render_modes']}"
+            )
+        self.config = load_config(config, protocol=protocol, **overrides)
+        self.arbitration = arbitration
+        self.reward_mode = reward_mode
+        self.action_masking = bool(action_masking)
+        self.render_mode = render_mode
+        self._sim = PlantSimulator(self.config, batch_size=1, arbitration=arbitration)
+        params = self._sim.params
+
+        self.possible_agents = list(self.config.container_names)
+        self._agent_index = {a: i for i, a in enumerate(self.possible_agents)}
+        self.agents: list[str] = []
+        low, high = agent_observation_bounds(params)
+        # One (equal) space object per agent, each returned every time: SuperSuit needs equal
+        # spaces, PettingZoo's seeding tests need a cached object per agent.
+        self.observation_spaces = {a: spaces.Box(low, high, dtype=np.float32) for a in self.possible_agents}
+        self.action_spaces = {a: spaces.Discrete(2) for a in self.possible_agents}
+        s_low, s_high = global_state_bounds(params)
+        self.state_space = spaces.Box(s_low, s_high, dtype=np.float32)
+        self._np_random: np.random.Generator | None = None
+
+    # ---- spaces ------------------------------------------------------------------------------
+    def _check_agent(self, agent: str) -> str:
+        if agent not in self._agent_index:
+            raise KeyError(f"unknown agent {agent!r}; agents are {self.possible_agents}")
+        return agent
+
+    def observation_space(self, agent: str) -> spaces.Box:
+        return self.observation_spaces[self._check_agent(agent)]
+
+    def action_space(self, agent: str) -> spaces.Discrete:
+        return self.action_spaces[self._check_agent(agent)]
+
+    def feature_names(self) -> list[str]:
+        """Names of the observation entries, in order."""
+        return agent_feature_names(self._sim.params)
+
+    @property
+    def simulator(self) -> PlantSimulator:
+        return self._sim
+
+    @property
+    def np_random(self) -> np.random.Generator:
+        if self._np_random is None:
+            self._np_random, _ = seeding.np_random()
+        return self._np_random
+
+    # ---- API ---------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self._np_random, _ = seeding.np_random(seed)
+        self._sim.reset(generators=[self.np_random])
+        self.agents = self.possible_agents[:]
+        observations = self._observations()
+        free = int(self._sim.free_pu_count()[0])
+        infos = {a: {"step": 0, "free_pus": free} for a in self.agents}
+        if self.action_masking:
+            for a in self.agents:
+                infos[a]["action_mask"] = self._mask(free)
+        return observations, infos
+
+    def step(self, actions: dict[str, Any]):
+        if not self.agents:
+            raise EpisodeFinishedError(
+                "the episode has finished (overflow or time limit) or was never started; call reset()"
+            )
+        if not isinstance(actions, dict):
+            raise TypeError(f"actions: expected a dict from agent name to action, got {type(actions).__name__}")
+        unknown = [a for a in actions if a not in self._agent_index]
+        if unknown:
+            raise KeyError(f"unknown agent(s) {unknown}; agents are {self.agents}")
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise KeyError(f"missing action(s) for agent(s) {missing}; every live agent must act")
+        requests = np.zeros((1, len(self.possible_agents)), dtype=bool)
+        for agent, action in actions.items():
+            requests[0, self._agent_index[agent]] = discrete_action(action, 2, f"agent {agent!r}") == 1
+
+        out = self._sim.step(requests)
+        observations = self._observations()
+        if self.reward_mode == "team":
+            plant = float(out.plant_reward[0])
+            rewards = {a: plant for a in self.agents}
+        else:
+            rewards = {a: float(out.individual_reward[0, i]) for i, a in enumerate(self.agents)}
+        terminated, truncated = bool(out.terminated[0]), bool(out.truncated[0])
+        terminations = {a: terminated for a in self.agents}
+        truncations = {a: truncated for a in self.agents}
+        step_count = int(self._sim.state.step_count[0])
+        free_now = int(self._sim.free_pu_count()[0])
+        infos = {}
+        for i, a in enumerate(self.agents):
+            infos[a] = {
+                "requested": bool(out.requested[0, i]),
+                "granted": bool(out.granted[0, i]),
+                "denied": bool(out.denied[0, i]),
+                "pu_index": int(out.pu_index[0, i]),
+                "emptied_volume": float(out.emptied_volume[0, i]),
+                "emptying_reward": float(out.container_reward[0, i]),
+                "overflowed": bool(out.overflowed[0, i]),
+                "free_pus": int(out.free_pus_before[0]),
+                "step": step_count,
+            }
+            if self.action_masking:
+                infos[a]["action_mask"] = self._mask(free_now)
+        if terminated or truncated:
+            self.agents = []
+        return observations, rewards, terminations, truncations, infos
+
+    def state(self) -> np.ndarray:
+        return global_state(self._sim.state, self._sim.params)[0]
+
+    def render(self):
+        if self.render_mode == "ansi":
+            return render_ansi(self._sim)
+        return None
+
+    def close(self):
+        pass
+
+    # ---- helpers -----------------------------------------------------------------------------
+    def _observations(self) -> dict[str, np.ndarray]:
+        obs = agent_observations(self._sim.state, self._sim.params, self._sim.previous_requests)[0]
+        return {a: obs[i] for i, a in enumerate(self.possible_agents)}
+
+    @staticmethod
+    def _mask(free_pus: int) -> np.ndarray:
+        return np.array([1, 1 if free_pus > 0 else 0], dtype=np.int8)
+
+
+def parallel_env(**kwargs: Any) -> ContainerAgentsParallelEnv:
+    """The parallel-API environment (what SuperSuit and the training code use)."""
+    return ContainerAgentsParallelEnv(**kwargs)
+
+
+def raw_env(**kwargs: Any):
+    """The AEC-API environment without wrappers (``parallel_to_aec`` of the parallel env)."""
+    return conversions.parallel_to_aec(parallel_env(**kwargs))
+
+
+def env(**kwargs: Any):
+    """The AEC-API environment with PettingZoo's order-enforcing wrapper."""
+    return wrappers.OrderEnforcingWrapper(raw_env(**kwargs))
