@@ -39,7 +39,7 @@ from containergym_marl.core.dynamics import PlantState, emptying_reward
 from containergym_marl.core.params import PlantParams
 
 #: The rule-based controller's margin (paper, section 6.2), also used by ``others_ready_frac``.
-READY_MARGIN = 1.0
+READY_MARGIN = 1.0  # v >= v* − margin counts as ready
 VOLUME_BOUND_FACTOR = 2.0
 
 SCALAR_FEATURES = (
