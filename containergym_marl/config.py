@@ -145,10 +145,12 @@ class PlantConfig:
         def floats(xs) -> str:
             return "[" + ", ".join(_fmt(x) for x in xs) + "]"
 
-        lines = [f"# {self.description}" if self.description else "# plant configuration", ""]
+        # A TOML comment ends at a line break and may not hold control characters.
+        header = "".join(ch if ch.isprintable() else " " for ch in self.description)
+        lines = [f"# {header}" if header else "# plant configuration", ""]
         lines += [
-            f'name = "{self.name}"',
-            f"description = {json.dumps(self.description)}",
+            f"name = {_toml_str(self.name)}",
+            f"description = {_toml_str(self.description)}",
             row("num_processing_units", str(self.num_processing_units), "m, identical PUs"),
             row("timestep_s", _fmt(self.timestep_s), "delta, seconds per step"),
             row("episode_length_steps", str(self.episode_length_steps), "T, steps before truncation"),
@@ -161,7 +163,7 @@ class PlantConfig:
             lines += [
                 "",
                 "[[containers]]",
-                f'name = "{c.name}"',
+                f"name = {_toml_str(c.name)}",
                 row("fill_rate_per_s", _fmt(c.fill_rate_per_s), "mu, volume units per second"),
                 row("fill_noise_per_sqrt_s", _fmt(c.fill_noise_per_sqrt_s), "sigma; a step adds N(mu*delta, sigma^2*delta)"),
                 row("max_volume", _fmt(c.max_volume), "v_max, volume units"),
@@ -196,6 +198,17 @@ _CONTAINER_LIST_FIELDS = ("reward_peaks", "reward_heights", "reward_widths")
 
 def _fmt(x: float) -> str:
     return repr(float(x)) if not float(x).is_integer() else f"{float(x):.1f}"
+
+
+def _toml_str(s: str) -> str:
+    """A TOML basic string: escape quote, backslash and control characters, keep the rest as is
+    (json.dumps would write characters outside the BMP as surrogate pairs, which TOML rejects)."""
+    def esc(ch: str) -> str:
+        if ch in '"\\':
+            return "\\" + ch
+        return f"\\u{ord(ch):04x}" if ord(ch) < 0x20 or ord(ch) == 0x7F else ch
+
+    return '"' + "".join(esc(ch) for ch in s) + '"'
 
 
 def _as_float(value: Any, where: str) -> float:

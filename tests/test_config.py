@@ -650,7 +650,7 @@ def test_to_toml_round_trip_awkward_strings(tmp_path):
     base = load_config(_write(tmp_path, "ok.toml", _plant_dict()))
     cfg = base.replace(
         name='plant "Süd" \\ 2',
-        description="line one\nline two: ü, 🙂, tab\there",
+        description="line one\nline two: ü, 🙂, tab\there\r\nend\x7f",
         containers=(dataclasses.replace(base.containers[0], name='C "1" \\ é 🙂'),
                     base.containers[1]),
     )
