@@ -45,7 +45,8 @@ def step_one(cfg, volumes, timers, step_count, requests, normals, uniforms, rule
     # Highest priority first; among equals the lower index (sorted is stable on index order).
     candidates.sort(key=lambda i: -priority(i))
     granted = candidates[: len(free_pus)]
-    pus = {i: free_pus[r] for r, i in enumerate(granted)}
+    # granted containers in index order take the free PUs in index order
+    pus = {i: free_pus[r] for r, i in enumerate(sorted(granted))}
 
     rewards = [0.0] * n
     for i in candidates:

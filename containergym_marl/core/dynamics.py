@@ -15,8 +15,8 @@ One step, for each simulation (all quantities at time t unless marked):
    ``max(0, v + N(μδ, σ²δ))`` (one normal draw per container).
 4. Timers at t+1: the PU taken by granted container i is set to g_i(v_i) = β_i + λ_i⌊v_i / b_i⌋
    (the paper's equation; the earlier reference code also subtracted δ in the same step); every
-   other timer becomes ``max(0, p − δ)``. Granted containers take the free PUs in index order,
-   highest-priority request first (PUs are identical, so this choice does not change dynamics).
+   other timer becomes ``max(0, p − δ)``. The granted containers, in container-index order, take
+   the free PUs in PU-index order (PUs are identical, so this choice does not change dynamics).
 5. Overflow: if any v_j(t+1) ≥ v_max,j the plant reward is r_min (replacing the step's reward) and
    the episode terminates. Otherwise it is truncated when the step count reaches T.
 """
@@ -78,9 +78,13 @@ def emptying_reward(volumes: np.ndarray, params: PlantParams) -> np.ndarray:
     return np.where(v == 0.0, params.penalty_reward, reward)
 
 
-def pu_busy_time_s(volumes: np.ndarray, params: PlantParams) -> np.ndarray:
-    """g_i(v) = β_i + λ_i·⌊v / b_i⌋: seconds a PU is busy after emptying (paper eq. 2)."""
-    return params.pu_offset_s + params.pu_time_per_product_s * np.floor(volumes / params.product_size)
+def pu_busy_time_s(volumes: np.ndarray, params: PlantParams, containers=slice(None)) -> np.ndarray:
+    """g_i(v) = β_i + λ_i·⌊v / b_i⌋: seconds a PU is busy after emptying (paper eq. 2).
+
+    ``volumes`` is (…, n), or matches ``containers`` (indices of the containers it belongs to).
+    """
+    return (params.pu_offset_s[containers]
+            + params.pu_time_per_product_s[containers] * np.floor(volumes / params.product_size[containers]))
 
 
 def reset_state(params: PlantParams, uniforms: np.ndarray) -> PlantState:
@@ -109,20 +113,14 @@ def priority_keys(
     raise ValueError(f"arbitration: unknown rule {rule!r}; choose one of {ARBITRATION_RULES}")
 
 
-def arbitrate(
-    requests: np.ndarray, free_count: np.ndarray, keys: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Grant the ``free_count[b]`` highest-priority requests of each simulation.
-
-    Returns ``(granted, rank)``: rank 0 is the highest-priority request; non-requests rank last.
-    """
+def arbitrate(requests: np.ndarray, free_count: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Grant the ``free_count[b]`` highest-priority requests of each simulation, (B, n) bool."""
     b, n = requests.shape
     sort_key = np.where(requests, -keys, np.inf)
     order = np.argsort(sort_key, axis=1, kind="stable")  # stable: ties go to the lower index
     rank = np.empty((b, n), dtype=np.int64)
     np.put_along_axis(rank, order, np.broadcast_to(np.arange(n), (b, n)), axis=1)
-    granted = requests & (rank < free_count[:, None])
-    return granted, rank
+    return requests & (rank < free_count[:, None])
 
 
 def step(
@@ -147,30 +145,41 @@ def step(
     requests = np.asarray(requests, dtype=bool)
     if requests.shape != (bsz, n):
         raise ValueError(f"requests: expected shape {(bsz, n)}, got {requests.shape}")
+    if arbitration not in ARBITRATION_RULES:
+        raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
 
     free = p == 0.0
     free_count = free.sum(axis=1)
-    keys = priority_keys(arbitration, v, uniforms, params)
-    granted, rank = arbitrate(requests, free_count, keys)
-    denied = requests & ~granted
-
-    # Rewards of this step's decisions, from the volumes before this step's inflow.
-    container_reward = np.where(granted, emptying_reward(v, params), 0.0)
-    container_reward = np.where(denied, params.penalty_reward, container_reward)
-
-    # Volumes at t+1.
     filled = np.maximum(0.0, v + params.fill_mean_per_step + params.fill_std_per_step * normals)
-    v_next = np.where(granted, 0.0, filled)
-
-    # Timers at t+1: the r-th granted request takes the r-th free PU (PUs in index order).
     p_next = np.maximum(0.0, p - params.timestep_s)
-    free_pus_in_order = np.argsort(~free, axis=1, kind="stable")
-    pu_index = np.full((bsz, n), -1, dtype=np.int64)
-    sim_idx, cont_idx = np.nonzero(granted)
-    if sim_idx.size:
-        pus = free_pus_in_order[sim_idx, rank[sim_idx, cont_idx]]
-        pu_index[sim_idx, cont_idx] = pus
-        p_next[sim_idx, pus] = pu_busy_time_s(v, params)[sim_idx, cont_idx]
+
+    if requests.any():
+        # Ranking is only needed where requests outnumber free PUs; elsewhere all are granted.
+        contested = requests.sum(axis=1) > free_count
+        granted = requests.copy()
+        if contested.any():
+            c = np.flatnonzero(contested)
+            keys = priority_keys(arbitration, v[c], uniforms[c], params)
+            granted[c] = arbitrate(requests[c], free_count[c], keys)
+        denied = requests & ~granted
+        # Rewards of this step's decisions, from the volumes before this step's inflow.
+        container_reward = np.where(granted, emptying_reward(v, params), 0.0)
+        container_reward[denied] = params.penalty_reward
+        v_next = np.where(granted, 0.0, filled)
+        # The k-th granted container (index order) takes the k-th free PU (index order).
+        pu_index = np.full((bsz, n), -1, dtype=np.int64)
+        sim_idx, cont_idx = np.nonzero(granted)
+        if sim_idx.size:
+            position = (np.cumsum(granted, axis=1) - 1)[sim_idx, cont_idx]
+            pus = np.argsort(~free, axis=1, kind="stable")[sim_idx, position]
+            pu_index[sim_idx, cont_idx] = pus
+            p_next[sim_idx, pus] = pu_busy_time_s(v[sim_idx, cont_idx], params, cont_idx)
+        emptied_volume = np.where(granted, v, 0.0)
+    else:
+        granted = denied = requests
+        container_reward = emptied_volume = np.zeros((bsz, n))
+        v_next = filled
+        pu_index = np.full((bsz, n), -1, dtype=np.int64)
 
     step_count = state.step_count + 1
     overflowed = v_next >= params.max_volume
@@ -184,7 +193,7 @@ def step(
         granted=granted,
         denied=denied,
         pu_index=pu_index,
-        emptied_volume=np.where(granted, v, 0.0),
+        emptied_volume=emptied_volume,
         container_reward=container_reward,
         overflowed=overflowed,
         individual_reward=individual_reward,
@@ -194,4 +203,3 @@ def step(
         truncated=truncated,
     )
     return PlantState(v_next, p_next, step_count), outcome
-

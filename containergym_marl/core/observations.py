@@ -33,6 +33,8 @@ Entries 1 and 3–6 identify the container by its physics; the one-hot makes ide
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from containergym_marl.core.dynamics import PlantState, emptying_reward
@@ -66,12 +68,19 @@ def agent_feature_names(params: PlantParams) -> list[str]:
     )
 
 
+def _read_only(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    for a in arrays:
+        a.setflags(write=False)
+    return arrays
+
+
+@lru_cache(maxsize=64)  # params are immutable and hashed by identity
 def global_state_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarray]:
     low = np.zeros(params.n_containers + params.n_pus, dtype=np.float32)
     high = np.concatenate(
         [VOLUME_BOUND_FACTOR * params.max_volume, np.full(params.n_pus, params.max_pu_time_s)]
     ).astype(np.float32)
-    return low, high
+    return _read_only(low, high)
 
 
 def global_state(state: PlantState, params: PlantParams) -> np.ndarray:
@@ -81,6 +90,7 @@ def global_state(state: PlantState, params: PlantParams) -> np.ndarray:
     return np.clip(out, low, high)
 
 
+@lru_cache(maxsize=64)
 def agent_observation_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarray]:
     n, m = params.n_containers, params.n_pus
     low = np.zeros(len(SCALAR_FEATURES) + m + n, dtype=np.float32)
@@ -88,7 +98,7 @@ def agent_observation_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarra
     high[0] = VOLUME_BOUND_FACTOR
     low[2] = -VOLUME_BOUND_FACTOR
     low[7] = params.penalty_reward
-    return low, high
+    return _read_only(low, high)
 
 
 def agent_observations(

@@ -90,6 +90,7 @@ class ContainerGymEnv(gym.Env):
         self._sim = PlantSimulator(self.config, batch_size=1)
         params = self._sim.params
         self.n_containers, self.n_pus = params.n_containers, params.n_pus
+        self._names = self.config.container_names
         self.action_space = spaces.Discrete(self.n_containers + 1)
         low, high = global_state_bounds(params)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
@@ -110,7 +111,7 @@ class ContainerGymEnv(gym.Env):
         if a > 0:
             requests[0, a - 1] = True
         out = self._sim.step(requests)
-        names = self.config.container_names
+        names = self._names
         emptied = np.flatnonzero(out.granted[0])
         info = {
             "step": int(self._sim.state.step_count[0]),
