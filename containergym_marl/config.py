@@ -234,9 +234,22 @@ def _as_int(value: Any, where: str) -> int:
 
 
 # ---- validation ----------------------------------------------------------------------------
+def _check_finite(value: Any, where: str) -> None:
+    """Direct construction bypasses the loaders' casting: still insist on finite real numbers."""
+    if isinstance(value, (bool, str)) or not isinstance(value, (int, float)) and not hasattr(value, "__float__"):
+        raise ConfigError(f"{where}: expected a number, got {value!r}")
+    if not math.isfinite(float(value)):
+        raise ConfigError(f"{where}: must be finite, got {value!r}")
+
+
 def _validate(cfg: PlantConfig) -> None:
     if not isinstance(cfg.containers, tuple) or len(cfg.containers) == 0:
         raise ConfigError("containers: a plant needs at least one container")
+    for c in cfg.containers:
+        if not isinstance(c, ContainerSpec):
+            raise ConfigError(f"containers: expected ContainerSpec entries, got {type(c).__name__}")
+    for key in _FLOAT_FIELDS:
+        _check_finite(getattr(cfg, key), key)
     names = [c.name for c in cfg.containers]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -279,6 +292,13 @@ def _validate_container(c: ContainerSpec) -> None:
     where = f"container {c.name!r}"
     if not isinstance(c.name, str) or not c.name:
         raise ConfigError(f"name: container names must be non-empty strings, got {c.name!r}")
+    for key in _CONTAINER_FLOAT_FIELDS:
+        _check_finite(getattr(c, key), f"{where}: {key}")
+    for key in _CONTAINER_LIST_FIELDS:
+        for x in getattr(c, key):
+            _check_finite(x, f"{where}: {key}")
+    if not c.fill_rate_per_s >= 0:
+        raise ConfigError(f"{where}: fill_rate_per_s must be >= 0 (containers only fill), got {c.fill_rate_per_s!r}")
     for key in ("max_volume", "product_size", "pu_offset_s", "pu_time_per_product_s"):
         value = getattr(c, key)
         if not value > 0:
@@ -445,6 +465,9 @@ def config_from_reference_json(data: Mapping[str, Any], *, name: str = "referenc
             except KeyError as exc:
                 raise ConfigError(f"REWARD_PARAMS: container {cname!r} lacks {exc.args[0]!r}") from None
         elif isinstance(rp, (list, tuple)):  # [(peak, height, width), ...]
+            if not all(isinstance(t, (list, tuple)) and len(t) == 3 for t in rp):
+                raise ConfigError(f"REWARD_PARAMS: container {cname!r}: expected a list of "
+                                  f"(peak, height, width) triples, got {rp!r}")
             entry["reward_peaks"] = [t[0] for t in rp]
             entry["reward_heights"] = [t[1] for t in rp]
             entry["reward_widths"] = [t[2] for t in rp]

@@ -563,7 +563,7 @@ REFERENCE_ERRORS = {
 
 @pytest.mark.parametrize("case", sorted(REFERENCE_ERRORS))
 def test_reference_format_validation_errors(case, tmp_path):
-    """Errors in a keyed reference-format file name the reference key and the container."""
+    """Errors in a keyed reference-format file name the key (or our field) and the container."""
     mutate, pattern = REFERENCE_ERRORS[case]
     d = _reference_dict()
     mutate(d)
@@ -686,13 +686,19 @@ def test_wheel_install_loads_builtin_configs(tmp_path):
         zf.extractall(site)
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
+    # The venv's editable install must not fill gaps in the wheel: drop its import hook, then
+    # check that every containergym_marl module (the configs package too) comes from the wheel.
     script = (
         "import json, pathlib, sys\n"
-        "import containergym_marl\n"
+        "sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in repr(f).lower()]\n"
+        "site = pathlib.Path(sys.argv[1]).resolve()\n"
+        "import containergym_marl, containergym_marl.configs\n"
         "from containergym_marl import list_configs, load_config\n"
         "where = pathlib.Path(containergym_marl.__file__).resolve()\n"
-        "assert pathlib.Path(sys.argv[1]).resolve() in where.parents, where\n"
         "cfg = load_config('n5_m2_dt120')\n"
+        "for name, mod in list(sys.modules.items()):\n"
+        "    if name.split('.')[0] == 'containergym_marl':\n"
+        "        assert site in pathlib.Path(mod.__file__).resolve().parents, (name, mod.__file__)\n"
         "print(json.dumps({'count': len(list_configs()), 'names': list_configs(), 'n': cfg.n_containers, 'file': str(where)}))\n"
     )
     env = {**os.environ, "PYTHONPATH": str(site)}
@@ -705,3 +711,32 @@ def test_wheel_install_loads_builtin_configs(tmp_path):
     assert sorted(out["names"]) == sorted(BUILTINS)
     assert out["n"] == 5
     assert not Path(out["file"]).is_relative_to(REPO_ROOT)
+
+
+# ---- direct construction is validated as strictly as the loaders ------------------------------
+def test_direct_construction_rejects_non_finite_and_non_numeric_values():
+    base = load_config("n5_m2_dt120")
+    with pytest.raises(ConfigError, match="timestep_s"):
+        dataclasses.replace(base, timestep_s=float("inf"))
+    c0 = base.containers[0]
+    with pytest.raises(ConfigError, match=r"container 'C1-20': fill_rate_per_s"):
+        dataclasses.replace(base, containers=(dataclasses.replace(c0, fill_rate_per_s="fast"), *base.containers[1:]))
+    with pytest.raises(ConfigError, match=r"container 'C1-20': fill_rate_per_s must be >= 0"):
+        dataclasses.replace(base, containers=(dataclasses.replace(c0, fill_rate_per_s=-0.01), *base.containers[1:]))
+    with pytest.raises(ConfigError, match=r"container 'C1-20': reward_peaks"):
+        dataclasses.replace(base, containers=(dataclasses.replace(c0, reward_peaks=(float("nan"),)), *base.containers[1:]))
+
+
+def test_reference_reward_params_must_be_triples():
+    from containergym_marl.config import config_from_reference_json
+
+    data = {
+        "MAX_EPISODE_LENGTH": 10, "TIMESTEP": 60, "ENABLED_CONTAINERS": 1, "N_PRESSES": 1,
+        "MIN_STARTING_VOLUME": 0, "MAX_STARTING_VOLUME": 10, "FAILURE_PENALTY": -1,
+        "RW_MUS": [0.01], "RW_SIGMAS": [0.1], "MAX_VOLUMES": [40], "BALE_SIZES": [10],
+        "PRESS_OFFSETS": [50], "PRESS_SLOPES": [100], "REWARD_PARAMS": [[25, 1, 2]], "MIN_REWARD": -0.1,
+    }
+    with pytest.raises(ConfigError, match=r"REWARD_PARAMS: container 'C1'.*triples"):
+        config_from_reference_json(data)
+    data["REWARD_PARAMS"] = [[[25, 1, 2]]]
+    assert config_from_reference_json(data).containers[0].reward_peaks == (25.0,)
