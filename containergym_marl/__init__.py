@@ -26,7 +26,11 @@ __version__ = "0.1.0"
 ENV_ID = "containergym_marl/ContainerGym-v0"
 if ENV_ID not in registry:
     # No max_episode_steps: the environment truncates itself at the config's T.
-    register(id=ENV_ID, entry_point="containergym_marl.envs.centralised:ContainerGymEnv")
+    register(
+        id=ENV_ID,
+        entry_point="containergym_marl.envs.centralised:ContainerGymEnv",
+        vector_entry_point="containergym_marl.envs.vector:ContainerGymVectorEnv",
+    )
 
 __all__ = [
     "ENV_ID",

@@ -72,6 +72,17 @@ def test_gym_make_registered_and_returns_container_gym_env():
     env.close()
 
 
+def test_gym_make_from_spec_recreates_same_configuration():
+    env = gym.make(ENV_ID, config=CFG, episode_length_steps=9, render_mode="ansi")
+    again = gym.make(env.spec)
+    assert again.unwrapped.config == env.unwrapped.config
+    assert again.unwrapped.config.episode_length_steps == 9
+    o1, _ = env.reset(seed=6)
+    o2, _ = again.reset(seed=6)
+    np.testing.assert_array_equal(o1, o2)
+    assert isinstance(again.render(), str)
+
+
 def test_gymnasium_check_env_passes_without_warnings():
     from gymnasium.utils.env_checker import check_env
 
@@ -316,6 +327,24 @@ def test_second_emptying_takes_second_pu_and_first_timer_counts_down():
     assert reward == pytest.approx(paper_reward(cfg.containers[4], v4, cfg.penalty_reward))
     assert obs[n] == pytest.approx(g0 - dt, rel=1e-6)
     assert obs[n + 1] == pytest.approx(busy_time(cfg.containers[4], v4), rel=1e-6)
+
+
+def test_emptying_an_empty_container_gives_r_pen_and_still_uses_a_pu():
+    env = make()
+    cfg = env.config
+    n = cfg.n_containers
+    env.reset(seed=0)
+    env.step(1)  # container 0 is now exactly empty, PU 0 busy
+    assert env.simulator.state.volumes[0, 0] == 0.0
+    obs, reward, _, _, info = env.step(1)
+    assert reward == cfg.penalty_reward
+    assert info["emptying_reward"] == cfg.penalty_reward
+    assert info["emptied_container"] == cfg.container_names[0]
+    assert info["emptied_volume"] == 0.0
+    assert info["pu_index"] == 1
+    assert info["no_free_pu"] is False
+    assert obs[0] == 0.0
+    assert obs[n + 1] == pytest.approx(cfg.containers[0].pu_offset_s, rel=1e-6)  # g(0) = β
 
 
 def test_doing_nothing_gives_zero_reward_and_no_emptying():

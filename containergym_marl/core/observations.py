@@ -5,7 +5,7 @@ Global state (the centralised observation and ``state()`` of the decentralised v
 by 2·v_max for the space's sake; only the terminal observation of an overflow can exceed v_max.
 
 Container-agent observation: one float32 vector per container, the same layout and bounds for every
-agent so that one shared policy can act for all of them. Entries (F = 11 + m + n):
+agent so that one shared policy can act for all of them. Entries (F = 12 + m + n):
 
 ====  =======================  ===================================================  ==============
 idx   name                     meaning                                              bounds

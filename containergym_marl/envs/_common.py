@@ -12,9 +12,9 @@ from containergym_marl.core.simulator import PlantSimulator
 def discrete_action(action, n_actions: int, who: str) -> int:
     """``action`` as a Python int in ``[0, n_actions)``; a clear error for anything else.
 
-    Accepts what ``gymnasium.spaces.Discrete.contains`` accepts: Python and numpy integers and
-    0-d integer arrays (what SB3's ``predict`` returns). Floats and bools are rejected rather than
-    silently truncated.
+    Accepts Python and numpy integers and integer arrays holding one value (shape ``()`` as SB3's
+    ``predict`` returns for one observation, or ``(1,)``). Floats and bools are rejected rather
+    than silently truncated or cast.
     """
     value = action
     if isinstance(value, np.ndarray):

@@ -48,7 +48,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     holds ``action_mask`` (int8, request masked while no PU is free).
 
     ## Observation space (per agent, identical for all agents)
-    ``Box(float32, shape=(11 + m + n,))`` of normalised, bounded features: own volume, target,
+    ``Box(float32, shape=(12 + m + n,))`` of normalised, bounded features: own volume, target,
     gap to target, v_max, fill rate and noise, product size, reward if emptied now, free-PU share,
     competing demand (others' requests last step, others ready to be emptied, others fuller), the
     PU timers and a one-hot container index. The table with every entry and bound is in

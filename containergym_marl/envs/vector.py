@@ -1,0 +1,300 @@
+"""Native vectorised environments: B simulations stepped by one core call, with autoreset.
+
+* :class:`ContainerGymVecEnv` — SB3 ``VecEnv`` of the centralised view (B slots).
+* :class:`ContainerAgentsVecEnv` — SB3 ``VecEnv`` for parameter sharing: its B × n slots are the
+  container agents of B simulations (slot ``b * n + i`` is agent i of simulation b), the layout that
+  SuperSuit's ``pettingzoo_env_to_vec_env_v1`` + ``concat_vec_envs_v1`` produce, without Python
+  loops over environments.
+* :class:`ContainerGymVectorEnv` — Gymnasium ``VectorEnv`` of the centralised view, registered as
+  the ``vector_entry_point`` of ``containergym_marl/ContainerGym-v0``.
+
+Seeding: simulation b is seeded with ``seed + b`` (``VecEnv.seed(seed)`` then ``reset()``, or
+``reset(seed=seed)`` for the Gymnasium one), exactly as a single environment ``reset(seed=seed + b)``;
+after an episode ends it is reset automatically and continues its own random stream, as a single
+environment's ``reset()`` without a seed would. So B vectorised simulations equal B single
+environments with those seeds.
+
+Autoreset: when simulation b ends, the returned observation is the first of its next episode; the
+last observation of the finished episode is in ``infos[k]["terminal_observation"]`` (SB3) or
+``infos["final_obs"]`` (Gymnasium, ``SAME_STEP`` mode), and SB3's ``infos[k]["TimeLimit.truncated"]``
+tells a time-limit cut (bootstrap) from an overflow (terminal).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from containergym_marl.config import PlantConfig, load_config
+from containergym_marl.core.dynamics import StepOutcome
+from containergym_marl.core.observations import (
+    agent_observation_bounds,
+    agent_observations,
+    global_state,
+    global_state_bounds,
+)
+from containergym_marl.core.simulator import PlantSimulator
+
+try:  # SB3 is an optional (training) dependency
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+except ImportError:  # pragma: no cover - exercised only without the training extra
+    VecEnv = object  # type: ignore[misc,assignment]
+
+
+class _AutoresetBatch:
+    """B simulations with per-simulation seeds and automatic reset (shared by all vector envs)."""
+
+    def __init__(self, config: PlantConfig, num_sims: int, arbitration: str = "fullest"):
+        self.sim = PlantSimulator(config, batch_size=num_sims, arbitration=arbitration)
+        self.params = self.sim.params
+        self.num_sims = num_sims
+
+    def reset_all(self, seeds: Sequence[int | None]) -> None:
+        self.sim.reset(generators=[seeding.np_random(s)[0] for s in seeds])
+
+    def step(self, requests: np.ndarray) -> tuple[StepOutcome, np.ndarray, Any]:
+        """Step all simulations; reset the finished ones. Returns the outcome, the indices of the
+        finished simulations and their final state (before the reset)."""
+        out = self.sim.step(requests)
+        done = np.flatnonzero(out.terminated | out.truncated)
+        final_state = self.sim.state.select(done) if done.size else None
+        final_previous = self.sim.previous_requests[done].copy() if done.size else None
+        if done.size:
+            self.sim.reset(sims=done)
+        return out, done, (final_state, final_previous)
+
+
+def _centralised_requests(actions: np.ndarray, num_sims: int, n: int) -> np.ndarray:
+    a = np.asarray(actions)
+    if a.shape != (num_sims,):
+        a = a.reshape(-1) if a.size == num_sims else a
+    if a.shape != (num_sims,) or not np.issubdtype(a.dtype, np.integer):
+        raise ValueError(f"actions: expected {num_sims} integer actions, got {np.asarray(actions)!r}")
+    bad = np.flatnonzero((a < 0) | (a > n))
+    if bad.size:
+        raise ValueError(f"actions: env {int(bad[0])} has action {int(a[bad[0]])} outside [0, {n}]")
+    requests = np.zeros((num_sims, n), dtype=bool)
+    rows = np.flatnonzero(a > 0)
+    requests[rows, a[rows] - 1] = True
+    return requests
+
+
+def _agent_requests(actions: np.ndarray, num_sims: int, n: int) -> np.ndarray:
+    a = np.asarray(actions).reshape(-1) if np.asarray(actions).size == num_sims * n else np.asarray(actions)
+    if a.shape != (num_sims * n,) or not np.issubdtype(a.dtype, np.integer):
+        raise ValueError(f"actions: expected {num_sims * n} integer actions (0 wait, 1 request)")
+    bad = np.flatnonzero((a != 0) & (a != 1))
+    if bad.size:
+        raise ValueError(f"actions: slot {int(bad[0])} (simulation {int(bad[0]) // n}, agent "
+                         f"{int(bad[0]) % n}) has action {int(a[bad[0]])}, expected 0 or 1")
+    return a.reshape(num_sims, n).astype(bool)
+
+
+class _SB3Base(VecEnv):
+    """SB3 VecEnv plumbing shared by both SB3 vector envs."""
+
+    render_mode = None
+
+    def _init_sb3(self, config, num_sims, arbitration, protocol, overrides, num_slots, obs_space, act_space):
+        self.config = load_config(config, protocol=protocol, **overrides)
+        self._batch = _AutoresetBatch(self.config, num_sims, arbitration)
+        self.num_sims = num_sims
+        self._sim_seeds: list[int | None] = [None] * num_sims
+        self._actions: np.ndarray | None = None
+        VecEnv.__init__(self, num_slots, obs_space, act_space)
+
+    @property
+    def simulator(self) -> PlantSimulator:
+        return self._batch.sim
+
+    def seed(self, seed: int | None = None) -> list[int | None]:
+        """Simulation b gets ``seed + b`` at the next ``reset()``."""
+        if seed is None:
+            self._sim_seeds = [None] * self.num_sims
+        else:
+            self._sim_seeds = [int(seed) + b for b in range(self.num_sims)]
+        return list(self._sim_seeds)
+
+    def reset(self):
+        self._batch.reset_all(self._sim_seeds)
+        self._sim_seeds = [None] * self.num_sims
+        self._reset_seeds()
+        self._reset_options()
+        return self._observe(self._batch.sim.state, self._batch.sim.previous_requests)
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def close(self) -> None:
+        pass
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return [getattr(self, attr_name)] * len(self._indices(indices))
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        raise AttributeError(f"{type(self).__name__} does not support set_attr({attr_name!r})")
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        if method_name == "action_masks":
+            return list(self.action_masks()[self._indices(indices)])
+        raise AttributeError(f"{type(self).__name__} has no per-environment method {method_name!r}")
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False] * len(self._indices(indices))
+
+    def _indices(self, indices) -> np.ndarray:
+        if indices is None:
+            return np.arange(self.num_envs)
+        return np.atleast_1d(np.arange(self.num_envs)[indices])
+
+
+class ContainerGymVecEnv(_SB3Base):
+    """SB3 VecEnv of B centralised controllers (one slot per simulation).
+
+    Observations, actions and rewards are those of :class:`~containergym_marl.envs.ContainerGymEnv`.
+    ``action_masks()`` returns the (B, n + 1) masks for MaskablePPO.
+    """
+
+    def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_envs: int = 8, *,
+                 protocol: str | None = None, **overrides: Any):
+        cfg = load_config(config, protocol=protocol, **overrides)
+        low, high = global_state_bounds(cfg.params())
+        self._init_sb3(cfg, int(num_envs), "fullest", None, {}, int(num_envs),
+                       spaces.Box(low, high, dtype=np.float32), spaces.Discrete(cfg.n_containers + 1))
+
+    def _observe(self, state, previous_requests) -> np.ndarray:
+        return global_state(state, self._batch.params)
+
+    def step_wait(self):
+        n = self._batch.params.n_containers
+        requests = _centralised_requests(self._actions, self.num_sims, n)
+        out, done, (final_state, final_prev) = self._batch.step(requests)
+        obs = self._observe(self._batch.sim.state, None)
+        dones = out.terminated | out.truncated
+        infos: list[dict] = [{} for _ in range(self.num_envs)]
+        if done.size:
+            final_obs = self._observe(final_state, final_prev)
+            for k, b in enumerate(done):
+                infos[b]["terminal_observation"] = final_obs[k]
+                infos[b]["TimeLimit.truncated"] = bool(out.truncated[b])
+        return obs, out.plant_reward.astype(np.float32), dones, infos
+
+    def action_masks(self) -> np.ndarray:
+        free = self._batch.sim.free_pu_count() > 0
+        masks = np.ones((self.num_sims, self._batch.params.n_containers + 1), dtype=bool)
+        masks[:, 1:] = free[:, None]
+        return masks
+
+
+class ContainerAgentsVecEnv(_SB3Base):
+    """SB3 VecEnv whose B × n slots are the container agents of B simulations (parameter sharing).
+
+    Slot ``b * n + i`` is agent i (``config.container_names[i]``) of simulation b, with the
+    observation, ``Discrete(2)`` action and reward of the PettingZoo view
+    (:class:`~containergym_marl.envs.ContainerAgentsParallelEnv`). All n slots of a simulation end
+    together and are reset together.
+    """
+
+    def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_sims: int = 8, *,
+                 arbitration: str = "fullest", reward_mode: str = "individual",
+                 protocol: str | None = None, **overrides: Any):
+        if reward_mode not in ("individual", "team"):
+            raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose 'individual' or 'team'")
+        cfg = load_config(config, protocol=protocol, **overrides)
+        self.reward_mode = reward_mode
+        self.n_agents = cfg.n_containers
+        low, high = agent_observation_bounds(cfg.params())
+        self._init_sb3(cfg, int(num_sims), arbitration, None, {}, int(num_sims) * cfg.n_containers,
+                       spaces.Box(low, high, dtype=np.float32), spaces.Discrete(2))
+
+    def _observe(self, state, previous_requests) -> np.ndarray:
+        obs = agent_observations(state, self._batch.params, previous_requests)
+        return obs.reshape(-1, obs.shape[-1])
+
+    def step_wait(self):
+        n = self.n_agents
+        requests = _agent_requests(self._actions, self.num_sims, n)
+        out, done, (final_state, final_prev) = self._batch.step(requests)
+        obs = self._observe(self._batch.sim.state, self._batch.sim.previous_requests)
+        if self.reward_mode == "team":
+            rewards = np.repeat(out.plant_reward, n)
+        else:
+            rewards = out.individual_reward.reshape(-1)
+        dones = np.repeat(out.terminated | out.truncated, n)
+        infos: list[dict] = [{} for _ in range(self.num_envs)]
+        if done.size:
+            final_obs = self._observe(final_state, final_prev).reshape(done.size, n, -1)
+            for k, b in enumerate(done):
+                truncated = bool(out.truncated[b])
+                for i in range(n):
+                    infos[b * n + i]["terminal_observation"] = final_obs[k, i]
+                    infos[b * n + i]["TimeLimit.truncated"] = truncated
+        return obs, rewards.astype(np.float32), dones, infos
+
+    def action_masks(self) -> np.ndarray:
+        free = np.repeat(self._batch.sim.free_pu_count() > 0, self.n_agents)
+        return np.stack([np.ones_like(free), free], axis=1)
+
+
+class ContainerGymVectorEnv(VectorEnv):
+    """Gymnasium VectorEnv of the centralised view (autoreset mode ``SAME_STEP``).
+
+    Created by ``gym.make_vec("containergym_marl/ContainerGym-v0", num_envs=B,
+    vectorization_mode="vector_entry_point", config=...)``.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int = 8, config: str | PlantConfig = "n5_m2_dt120", *,
+                 protocol: str | None = None, render_mode: str | None = None, **overrides: Any):
+        if render_mode is not None:
+            raise ValueError("render_mode: the vector env does not render; render a single env instead")
+        self.config = load_config(config, protocol=protocol, **overrides)
+        self.num_envs = int(num_envs)
+        self._batch = _AutoresetBatch(self.config, self.num_envs)
+        params = self._batch.params
+        low, high = global_state_bounds(params)
+        self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.single_action_space = spaces.Discrete(params.n_containers + 1)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.render_mode = None
+        self._started = False
+
+    @property
+    def simulator(self) -> PlantSimulator:
+        return self._batch.sim
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
+        if seed is None or isinstance(seed, (list, tuple)):
+            seeds = list(seed) if seed is not None else [None] * self.num_envs
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed: expected {self.num_envs} seeds, got {len(seeds)}")
+        else:
+            seeds = [int(seed) + b for b in range(self.num_envs)]
+        if seed is None and self._started:
+            self._batch.sim.reset()  # continue every simulation's own stream
+        else:
+            self._batch.reset_all(seeds)
+        self._started = True
+        return global_state(self._batch.sim.state, self._batch.params), {}
+
+    def step(self, actions):
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        n = self._batch.params.n_containers
+        out, done, (final_state, _) = self._batch.step(_centralised_requests(actions, self.num_envs, n))
+        obs = global_state(self._batch.sim.state, self._batch.params)
+        infos: dict[str, Any] = {}
+        if done.size:
+            final = np.zeros_like(obs)
+            final[done] = global_state(final_state, self._batch.params)
+            mask = np.zeros(self.num_envs, dtype=bool)
+            mask[done] = True
+            infos = {"final_obs": final, "_final_obs": mask}
+        return obs, out.plant_reward.astype(np.float64), out.terminated.copy(), out.truncated.copy(), infos
