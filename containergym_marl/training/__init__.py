@@ -1,0 +1,1 @@
+"""Training glue: SB3 / sb3-contrib / SuperSuit, run directories, checkpoints."""
