@@ -24,7 +24,8 @@ from containergym_marl.core.observations import (
     global_state_bounds,
 )
 from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
-from containergym_marl.envs._common import discrete_action, render_ansi
+from containergym_marl.envs._common import discrete_action
+from containergym_marl.render import RENDER_FPS, RENDER_MODES, EnvRenderer
 
 REWARD_MODES = ("individual", "team")
 
@@ -74,11 +75,15 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ## Info (per agent)
     ``requested``, ``granted``, ``denied`` (bool), ``pu_index`` (int, -1 if not emptied),
     ``emptied_volume``, ``emptying_reward`` (this agent's reward before overflow replacement),
-    ``overflowed`` (bool), ``free_pus`` (before the step), ``step``; and ``action_mask`` if asked.
+    ``overflowed`` (bool), ``plant_reward`` (the step's plant reward, as in "team" mode),
+    ``free_pus`` (before the step), ``step``; and ``action_mask`` if asked.
 
     ## Arguments
     ``config``, ``protocol`` and plant-level overrides as for the centralised view;
-    ``arbitration``, ``reward_mode``, ``action_masking`` as above; ``render_mode``: None or "ansi".
+    ``arbitration``, ``reward_mode``, ``action_masking`` as above; ``render_mode``: None, ``"human"`` (a live diagram drawn at every
+    reset and step, in a window only when a display is available, otherwise off-screen without
+    blocking), ``"rgb_array"`` (that diagram as an ``(H, W, 3)`` uint8 frame, with the last step's
+    granted and denied requests marked per container) or ``"ansi"`` (text).
 
     ## Version history
     * v0: first release.
@@ -86,9 +91,9 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
     metadata = {
         "name": "container_agents_v0",
-        "render_modes": ["ansi"],
+        "render_modes": list(RENDER_MODES),
         "is_parallelizable": True,
-        "render_fps": 4,
+        "render_fps": RENDER_FPS,
     }
 
     def __init__(
@@ -116,6 +121,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self.action_masking = bool(action_masking)
         self.render_mode = render_mode
         self._sim = PlantSimulator(self.config, batch_size=1, arbitration=arbitration)
+        self._renderer = EnvRenderer(self._sim, render_mode, view="decentralised")
         params = self._sim.params
 
         self.possible_agents = list(self.config.container_names)
@@ -168,6 +174,8 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         if self.action_masking:
             for a in self.agents:
                 infos[a]["action_mask"] = self._mask(free)
+        if self.render_mode == "human":
+            self.render()
         return observations, infos
 
     def step(self, actions: dict[str, Any]):
@@ -198,6 +206,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         terminations = {a: terminated for a in self.agents}
         truncations = {a: truncated for a in self.agents}
         step_count = int(self._sim.state.step_count[0])
+        plant_reward = float(out.plant_reward[0])
         free_now = int(self._sim.free_pu_count()[0])
         infos = {}
         for i, a in enumerate(self.agents):
@@ -209,6 +218,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
                 "emptied_volume": float(out.emptied_volume[0, i]),
                 "emptying_reward": float(out.container_reward[0, i]),
                 "overflowed": bool(out.overflowed[0, i]),
+                "plant_reward": plant_reward,
                 "free_pus": int(out.free_pus_before[0]),
                 "step": step_count,
             }
@@ -216,18 +226,20 @@ class ContainerAgentsParallelEnv(ParallelEnv):
                 infos[a]["action_mask"] = self._mask(free_now)
         if terminated or truncated:
             self.agents = []
+        if self.render_mode == "human":
+            self.render()
         return observations, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
         return global_state(self._sim.state, self._sim.params)[0]
 
     def render(self):
-        if self.render_mode == "ansi":
-            return render_ansi(self._sim)
-        return None
+        """The current state in ``render_mode``: text ("ansi"), a frame ("rgb_array") or None."""
+        return self._renderer.render()
 
     def close(self):
-        pass
+        """Close the rendering figure (and its window, if any)."""
+        self._renderer.close()
 
     # ---- helpers -----------------------------------------------------------------------------
     def _observations(self) -> dict[str, np.ndarray]:

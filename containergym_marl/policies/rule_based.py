@@ -23,10 +23,13 @@ def within_margin(volumes: np.ndarray, params: PlantParams, margin: float) -> np
 class RuleBasedController:
     """Centralised rule: reads the centralised observation ``[v, p]`` (one or a batch)."""
 
+    name = "rule_based"
+    view = "centralised"
+
     def __init__(self, params: PlantParams, margin: float = 1.0):
         self.params, self.margin = params, float(margin)
 
-    def act(self, observation: np.ndarray) -> np.ndarray | int:
+    def act(self, observation: np.ndarray, env=None) -> np.ndarray | int:
         obs = np.asarray(observation, dtype=np.float64)
         ready = within_margin(obs[..., : self.params.n_containers], self.params, self.margin)
         action = np.where(ready.any(axis=-1), ready.argmax(axis=-1) + 1, 0)
@@ -39,10 +42,13 @@ class RuleBasedAgents:
     Reads the agents' observations (``gap_to_target_frac`` and the one-hot index).
     """
 
+    name = "rule_based_agents"
+    view = "decentralised"
+
     def __init__(self, params: PlantParams, margin: float = 1.0):
         self.params, self.margin = params, float(margin)
 
-    def act(self, observations: dict[str, np.ndarray]) -> dict[str, int]:
+    def act(self, observations: dict[str, np.ndarray], env=None) -> dict[str, int]:
         names = list(observations)
         obs = np.stack([observations[a] for a in names])
         vmax = self.params.max_volume[np.argmax(obs[:, -self.params.n_containers:], axis=1)]

@@ -1,0 +1,148 @@
+"""The ``containergym-marl`` command: train and evaluate baselines.
+
+    containergym-marl train --algo ppo --config n5_m2_dt120 --seed 1 --timesteps 2000000
+    containergym-marl train --algo shared_ppo --config n5_m2_dt120 --seed 1 --out runs/x --resume
+    containergym-marl evaluate runs/ppo_n5_m2_dt120_s1            # the run's best model, paper protocol
+    containergym-marl evaluate rule_based --config n11_m2_dt120 --episodes 15
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from containergym_marl.config import ConfigError, list_configs, load_config
+
+BUILTIN_POLICIES = ("rule_based", "rule_based_agents")
+
+
+def _parse_kv(items: list[str], what: str) -> dict[str, Any]:
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise SystemExit(f"{what}: expected KEY=VALUE, got {item!r}")
+        key, value = item.split("=", 1)
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def _cmd_train(ns: argparse.Namespace) -> int:
+    from containergym_marl.training.runs import TrainArgs, train
+
+    args = TrainArgs(
+        algo=ns.algo, config=ns.config, seed=ns.seed, timesteps=ns.timesteps, out=ns.out, resume=ns.resume,
+        n_envs=ns.n_envs, vec=ns.vec, num_cpus=ns.num_cpus, reward_mode=ns.reward_mode,
+        arbitration=ns.arbitration, checkpoint_every=ns.checkpoint_every, gamma=ns.gamma,
+        hyperparams=_parse_kv(ns.hp, "--hp"), progress_bar=not ns.no_progress,
+        overrides=_parse_kv(ns.override, "--override"),
+    )
+    run = train(args)
+    print(f"run directory: {run}")
+    if ns.evaluate:
+        return _print_evaluation(_evaluate_target(str(run), ns.config, ns.episodes, "best"), ns.json)
+    return 0
+
+
+def _evaluate_target(target: str, config: str | None, episodes: int, which: str, arbitration: str | None = None):
+    from pathlib import Path
+
+    from containergym_marl.evaluation import PAPER, EvalProtocol, evaluate
+    from containergym_marl.policies import RuleBasedAgents, RuleBasedController
+    from containergym_marl.training.runs import evaluate_run
+
+    protocol = EvalProtocol(episodes=episodes) if episodes != PAPER.episodes else PAPER
+    if target in BUILTIN_POLICIES:
+        plant = load_config(config or "n5_m2_dt120")
+        cls = RuleBasedController if target == "rule_based" else RuleBasedAgents
+        return evaluate(cls(plant.params()), plant, protocol, arbitration=arbitration or "fullest")
+    if Path(target).is_dir():
+        return evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration)
+    raise SystemExit(
+        f"evaluate: {target!r} is neither a run directory nor a built-in policy ({', '.join(BUILTIN_POLICIES)})"
+    )
+
+
+def _print_evaluation(result, json_path: str | None) -> int:
+    s = result.summary()
+    print(f"{result.policy} on {result.config} ({result.view} view), {s['episodes']} episodes, "
+          f"delta={result.protocol.timestep_s:g} s, T={result.protocol.episode_length_steps}")
+    print(f"{'seed':>6} {'return':>9} {'steps':>6} {'overflow':>9} {'emptyings':>10} {'r>=0.75':>8} "
+          f"{'r<0':>6} {'denied':>7} {'PU busy':>8}")
+    for e in result.episodes:
+        print(f"{e.seed:>6} {e.cumulative_reward:>9.2f} {e.steps:>6} {str(e.overflow):>9} {e.emptyings:>10} "
+              f"{e.good_emptying_share:>8.2f} {e.negative_emptying_share:>6.2f} {e.denied_requests:>7} "
+              f"{e.pu_utilisation:>8.2f}")
+    print(f"cumulative reward {s['return_mean']:.2f} ± {s['return_std']:.2f}; overflow rate "
+          f"{s['overflow_rate']:.2f}; emptyings/episode {s['emptyings_mean']:.1f}; share r>=0.75 "
+          f"{s['good_emptying_share']:.2f}, r<0 {s['negative_emptying_share']:.2f}; denied/episode "
+          f"{s['denied_requests_mean']:.1f}; PU utilisation {s['pu_utilisation']:.2f}")
+    if json_path:
+        with open(json_path, "w") as f:
+            f.write(result.to_json())
+    return 0
+
+
+def _cmd_evaluate(ns: argparse.Namespace) -> int:
+    return _print_evaluation(_evaluate_target(ns.target, ns.config, ns.episodes, ns.model, ns.arbitration), ns.json)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from containergym_marl.training.runs import ALGORITHMS
+
+    parser = argparse.ArgumentParser(prog="containergym-marl", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    t = sub.add_parser("train", help="train a baseline; writes a run directory")
+    t.add_argument("--algo", required=True, choices=ALGORITHMS)
+    t.add_argument("--config", default="n5_m2_dt120", help=f"built-in ({', '.join(list_configs())}) or a path")
+    t.add_argument("--seed", type=int, default=1)
+    t.add_argument("--timesteps", type=int, default=2_000_000,
+                   help="budget in samples (agent steps for shared_ppo); paper: 2M (n=5), 5M (n=11)")
+    t.add_argument("--out", default=None, help="run directory (default runs/<algo>_<config>_s<seed>)")
+    t.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    t.add_argument("--n-envs", type=int, default=None, help="parallel simulations (default 8, DQN 1)")
+    t.add_argument("--vec", choices=("native", "supersuit"), default="native",
+                   help="shared_ppo's vectorisation: our batched env or the SuperSuit stack")
+    t.add_argument("--num-cpus", type=int, default=0, help="SuperSuit worker processes")
+    t.add_argument("--reward-mode", choices=("individual", "team"), default="individual")
+    t.add_argument("--arbitration", default="fullest", choices=("fullest", "random", "index", "best_reward"))
+    t.add_argument("--checkpoint-every", type=int, default=200_000, help="samples between checkpoints")
+    t.add_argument("--gamma", type=float, default=0.99)
+    t.add_argument("--hp", nargs="*", default=[], metavar="KEY=VALUE", help="extra SB3 hyperparameters")
+    t.add_argument("--override", nargs="*", default=[], metavar="KEY=VALUE", help="plant config overrides")
+    t.add_argument("--no-progress", action="store_true", help="no progress bar")
+    t.add_argument("--evaluate", action="store_true", help="evaluate the best model when training ends")
+    t.add_argument("--episodes", type=int, default=15)
+    t.add_argument("--json", default=None, help="write the evaluation as JSON here")
+    t.set_defaults(func=_cmd_train)
+
+    e = sub.add_parser("evaluate", help="evaluate a run directory or a built-in policy (paper protocol)")
+    e.add_argument("target", help=f"a run directory or one of {BUILTIN_POLICIES}")
+    e.add_argument("--config", default=None, help="plant (default: the run's own, or n5_m2_dt120)")
+    e.add_argument("--episodes", type=int, default=15)
+    e.add_argument("--model", choices=("best", "final"), default="best")
+    e.add_argument("--arbitration", default=None, choices=("fullest", "random", "index", "best_reward"))
+    e.add_argument("--json", default=None, help="write the evaluation as JSON here")
+    e.set_defaults(func=_cmd_evaluate)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from containergym_marl.training.runs import RunError
+
+    ns = build_parser().parse_args(argv)
+    try:
+        return ns.func(ns)
+    except (ConfigError, RunError, FileNotFoundError, ValueError) as exc:
+        print(f"containergym-marl {ns.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,46 @@
+"""Adapters that let :func:`~containergym_marl.evaluation.evaluate` run trained SB3 models."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+class CentralisedModelPolicy:
+    """A centralised SB3 / sb3-contrib model acting on the Gymnasium view.
+
+    MaskablePPO models get the environment's ``action_masks()``.
+    """
+
+    view = "centralised"
+
+    def __init__(self, model: Any, name: str = "model", deterministic: bool = True):
+        self.model, self.name, self.deterministic = model, name, deterministic
+        self.observation_space = model.observation_space
+        self._masked = type(model).__name__ == "MaskablePPO"
+
+    def act(self, observation: np.ndarray, env: Any) -> int:
+        if self._masked:
+            action, _ = self.model.predict(observation, deterministic=self.deterministic,
+                                           action_masks=env.action_masks())
+        else:
+            action, _ = self.model.predict(observation, deterministic=self.deterministic)
+        return int(action)
+
+
+class SharedModelPolicy:
+    """One SB3 policy shared by all container agents: every agent's observation goes through a
+    single batched ``predict`` call."""
+
+    view = "decentralised"
+
+    def __init__(self, model: Any, name: str = "shared_model", deterministic: bool = True):
+        self.model, self.name, self.deterministic = model, name, deterministic
+        self.observation_space = model.observation_space
+
+    def act(self, observations: dict[str, np.ndarray], env: Any = None) -> dict[str, int]:
+        agents = list(observations)
+        actions, _ = self.model.predict(np.stack([observations[a] for a in agents]),
+                                        deterministic=self.deterministic)
+        return {a: int(x) for a, x in zip(agents, actions)}
