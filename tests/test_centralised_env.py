@@ -474,7 +474,7 @@ def test_render_without_mode_returns_none():
     assert env.render() is None
 
 
-@pytest.mark.parametrize("mode", ["human", "rgb_array", "bogus"])
+@pytest.mark.parametrize("mode", ["bogus", "rgb", "depth_array"])
 def test_unsupported_render_mode_raises(mode):
     with pytest.raises(ValueError, match="render_mode"):
         make(render_mode=mode)

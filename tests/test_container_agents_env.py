@@ -295,7 +295,7 @@ def test_every_observation_lies_in_its_space_during_long_rollout(p_request):
 def test_metadata():
     md = parallel_env(config=CFG).metadata
     assert md["name"] == "container_agents_v0"
-    assert md["render_modes"] == ["ansi"]
+    assert md["render_modes"] == ["human", "rgb_array", "ansi"]
     assert md["is_parallelizable"] is True
     assert aec_env(config=CFG).metadata["name"] == "container_agents_v0"
 
@@ -452,7 +452,7 @@ def test_step_after_episode_end_raises_until_reset():
     assert not any(terms.values()) and not any(truncs.values())
 
 
-@pytest.mark.parametrize("kw", [{"reward_mode": "selfish"}, {"arbitration": "loudest"}, {"render_mode": "human"}])
+@pytest.mark.parametrize("kw", [{"reward_mode": "selfish"}, {"arbitration": "loudest"}, {"render_mode": "bogus"}])
 def test_invalid_constructor_arguments_raise_value_error(kw):
     key = next(iter(kw))
     with pytest.raises(ValueError, match=key):

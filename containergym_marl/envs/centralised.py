@@ -11,7 +11,8 @@ from gymnasium import spaces
 from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.observations import global_state, global_state_bounds
 from containergym_marl.core.simulator import PlantSimulator
-from containergym_marl.envs._common import discrete_action, render_ansi
+from containergym_marl.envs._common import discrete_action
+from containergym_marl.render import RENDER_FPS, RENDER_MODES, EnvRenderer
 
 
 class ContainerGymEnv(gym.Env):
@@ -56,7 +57,10 @@ class ContainerGymEnv(gym.Env):
     ``config``: built-in name, path or :class:`PlantConfig` (default ``"n5_m2_dt120"``);
     ``protocol="paper_test"`` sets the paper's test protocol (δ = 120 s, T = 600); further keyword
     arguments override plant-level config fields (``timestep_s=60``, ``episode_length_steps=600``…);
-    ``render_mode``: ``None`` or ``"ansi"``.
+    ``render_mode``: ``None``, ``"human"`` (a live diagram, drawn at every reset and step; shown in
+    a window only when a display is available, otherwise drawn off-screen without blocking),
+    ``"rgb_array"`` (that diagram as an ``(H, W, 3)`` uint8 frame) or ``"ansi"`` (text); see
+    :mod:`containergym_marl.render`.
 
     ## Info
     ``emptied_container`` (name or None), ``emptied_volume``, ``emptying_reward`` (reward of this
@@ -71,7 +75,7 @@ class ContainerGymEnv(gym.Env):
       the seed given to ``reset``, and time-limit ends are ``truncated`` rather than ``done``.
     """
 
-    metadata = {"render_modes": ["ansi"], "render_fps": 4}
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": RENDER_FPS}
 
     def __init__(
         self,
@@ -88,6 +92,7 @@ class ContainerGymEnv(gym.Env):
         self.config = load_config(config, protocol=protocol, **overrides)
         self.render_mode = render_mode
         self._sim = PlantSimulator(self.config, batch_size=1)
+        self._renderer = EnvRenderer(self._sim, render_mode, view="centralised")
         params = self._sim.params
         self.n_containers, self.n_pus = params.n_containers, params.n_pus
         self._names = self.config.container_names
@@ -103,6 +108,8 @@ class ContainerGymEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         self._sim.reset(generators=[self.np_random])
+        if self.render_mode == "human":
+            self.render()
         return self._observation(), {"step": 0, "free_pus": self.n_pus}
 
     def step(self, action):
@@ -123,6 +130,8 @@ class ContainerGymEnv(gym.Env):
             "overflowed_containers": tuple(names[i] for i in np.flatnonzero(out.overflowed[0])),
             "free_pus": int(out.free_pus_before[0]),
         }
+        if self.render_mode == "human":
+            self.render()
         return (
             self._observation(),
             float(out.plant_reward[0]),
@@ -137,9 +146,12 @@ class ContainerGymEnv(gym.Env):
         return np.array([True] + [any_free] * self.n_containers, dtype=bool)
 
     def render(self):
-        if self.render_mode == "ansi":
-            return render_ansi(self._sim)
-        return None
+        """The current state in ``render_mode``: text ("ansi"), a frame ("rgb_array") or None."""
+        return self._renderer.render()
+
+    def close(self):
+        """Close the rendering figure (and its window, if any)."""
+        self._renderer.close()
 
     def _observation(self) -> np.ndarray:
         return global_state(self._sim.state, self._sim.params)[0]

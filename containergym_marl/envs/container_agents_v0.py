@@ -80,10 +80,11 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
     ## Arguments
     ``config``, ``protocol`` and plant-level overrides as for the centralised view;
-    ``arbitration``, ``reward_mode``, ``action_masking`` as above; ``render_mode``: None, ``"human"`` (a live diagram drawn at every
-    reset and step, in a window only when a display is available, otherwise off-screen without
-    blocking), ``"rgb_array"`` (that diagram as an ``(H, W, 3)`` uint8 frame, with the last step's
-    granted and denied requests marked per container) or ``"ansi"`` (text).
+    ``arbitration``, ``reward_mode``, ``action_masking`` as above; ``render_mode``: None,
+    ``"human"`` (a live diagram drawn at every reset and step, in a window only when a display is
+    available, otherwise off-screen without blocking), ``"rgb_array"`` (that diagram as an
+    ``(H, W, 3)`` uint8 frame, with the last step's granted and denied requests marked per
+    container) or ``"ansi"`` (text); see :mod:`containergym_marl.render`.
 
     ## Version history
     * v0: first release.
