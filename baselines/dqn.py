@@ -1,0 +1,46 @@
+"""Centralised DQN (Stable-Baselines3): one controller picks which container to empty.
+
+Paper settings: gamma = 0.99 and SB3's defaults otherwise (one environment, replay buffer of 1M,
+train_freq 4, ...), training episodes of T = 1500, budget 2M samples (n = 5) or 5M (n = 11).
+Checkpoints include the replay buffer so that --resume continues the same learning process.
+
+    python baselines/dqn.py --config n5_m2_dt120 --seed 1
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from containergym_marl.evaluation import EvalProtocol
+from containergym_marl.training.runs import TrainArgs, evaluate_run, train
+from containergym_marl.training.script_args import parse_args
+
+
+@dataclass
+class Args:
+    """Centralised DQN on one plant, then evaluation of its best and final policies."""
+
+    config: str = "n5_m2_dt120"  # plant configuration (built-in name or path)
+    seed: int = 1  # training seed
+    timesteps: int = 2_000_000  # budget in samples (paper: 2M for n=5, 5M for n=11)
+    n_envs: int = 1  # simulations stepped together (SB3's DQN default is one environment)
+    out: str = ""  # run directory (default runs/dqn_<config>_s<seed>)
+    resume: bool = False  # continue an interrupted run from its last checkpoint
+    progress_bar: bool = True  # show training progress
+    episodes: int = 15  # evaluation episodes (paper protocol: delta=120 s, T=600)
+
+
+def main(args: Args) -> dict:
+    run = train(TrainArgs(algo="dqn", config=args.config, seed=args.seed, timesteps=args.timesteps,
+                          n_envs=args.n_envs, out=args.out or None, resume=args.resume,
+                          progress_bar=args.progress_bar))
+    protocol = EvalProtocol(episodes=args.episodes)
+    results = {which: evaluate_run(run, which=which, protocol=protocol) for which in ("best", "final")}
+    for which, result in results.items():
+        s = result.summary()
+        print(f"{which} policy: {s['return_mean']:.2f} ± {s['return_std']:.2f} (overflow rate {s['overflow_rate']:.2f})")
+    return results
+
+
+if __name__ == "__main__":
+    main(parse_args(Args))

@@ -1,0 +1,127 @@
+"""Training runs: save/load/evaluate, determinism, resume, overwrite protection, clear errors."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from containergym_marl import ConfigError
+from containergym_marl.cli import main as cli_main
+from containergym_marl.evaluation import EvalProtocol, evaluate
+from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
+from containergym_marl.training.runs import (
+    RunError,
+    TrainArgs,
+    evaluate_run,
+    latest_checkpoint,
+    load_model,
+    read_metrics,
+    train,
+)
+
+TINY = dict(timesteps=512, n_envs=2, checkpoint_every=128, progress_bar=False,
+            hyperparams={"n_steps": 64, "batch_size": 64})
+SHORT = EvalProtocol(episodes=3)
+
+
+def test_save_load_evaluate_gives_identical_numbers(tmp_path):
+    from stable_baselines3 import PPO
+
+    from containergym_marl.envs.vector import ContainerAgentsVecEnv, ContainerGymVecEnv
+
+    for venv, policy_cls in ((ContainerGymVecEnv("n5_m2_dt120", 2), CentralisedModelPolicy),
+                             (ContainerAgentsVecEnv("n5_m2_dt120", 2), SharedModelPolicy)):
+        model = PPO("MlpPolicy", venv, n_steps=64, batch_size=64, seed=0, device="cpu")
+        model.learn(256)
+        before = evaluate(policy_cls(model), "n5_m2_dt120", SHORT)
+        model.save(tmp_path / "m.zip")
+        after = evaluate(policy_cls(PPO.load(tmp_path / "m.zip", device="cpu")), "n5_m2_dt120", SHORT)
+        np.testing.assert_array_equal(before.returns, after.returns)
+        assert [e.emptyings for e in before.episodes] == [e.emptyings for e in after.episodes]
+
+
+def test_evaluation_is_deterministic_and_uses_fixed_seeds(tmp_path):
+    run = train(TrainArgs(algo="ppo", out=str(tmp_path / "r"), **TINY))
+    a = evaluate_run(run, protocol=SHORT, write=False)
+    b = evaluate_run(run, protocol=SHORT, write=False)
+    np.testing.assert_array_equal(a.returns, b.returns)
+    assert [e.seed for e in a.episodes] == [10_000, 10_001, 10_002]
+
+
+def test_run_directory_contents_and_metrics(tmp_path):
+    run = train(TrainArgs(algo="ppo", out=str(tmp_path / "r"), **{**TINY, "overrides": {"episode_length_steps": 50}}))
+    names = {p.name for p in run.iterdir()}
+    assert {"args.json", "config.toml", "metrics.csv", "best_model.zip", "final_model.zip", "checkpoints", "tb"} <= names
+    rows = read_metrics(run)
+    assert rows and rows[-1]["timesteps"] >= 512
+    # short training episodes (T = 50) finish, so the best-model tracker saw plant returns
+    assert rows[-1]["episodes"] > 0 and np.isfinite(rows[-1]["best_train_return"])
+    saved = json.loads((run / "args.json").read_text())
+    assert saved["overrides"] == {"episode_length_steps": 50}
+    assert "episode_length_steps = 50" in (run / "config.toml").read_text()
+
+
+def test_resume_continues_the_step_count(tmp_path):
+    out = tmp_path / "r"
+    run = train(TrainArgs(algo="ppo", out=str(out), **TINY))
+    ckpt, steps = latest_checkpoint(run)
+    assert steps >= 128
+    first_final = load_model(run / "final_model.zip", "ppo").num_timesteps
+    # an interrupted run: drop the final model, resume towards a larger budget
+    os.remove(run / "final_model.zip")
+    train(TrainArgs(algo="ppo", out=str(out), resume=True, **{**TINY, "timesteps": 1024}))
+    resumed = load_model(run / "final_model.zip", "ppo").num_timesteps
+    assert resumed >= 1024 and resumed > first_final
+    assert latest_checkpoint(run)[1] > steps
+
+
+def test_refuses_to_overwrite_a_run_with_results(tmp_path):
+    out = tmp_path / "r"
+    run = train(TrainArgs(algo="ppo", out=str(out), **TINY))
+    stamp = (run / "final_model.zip").stat().st_mtime_ns
+    with pytest.raises(RunError, match="refusing to overwrite"):
+        train(TrainArgs(algo="ppo", out=str(out), **TINY))
+    assert (run / "final_model.zip").stat().st_mtime_ns == stamp
+    with pytest.raises(RunError, match="seed"):
+        train(TrainArgs(algo="ppo", out=str(out), resume=True, **{**TINY, "seed": 99}))
+    with pytest.raises(RunError, match="nothing to resume"):
+        train(TrainArgs(algo="ppo", out=str(tmp_path / "empty"), resume=True, **TINY))
+
+
+def test_clear_errors_for_unknown_algorithm_config_and_mismatched_model(tmp_path, capsys):
+    with pytest.raises(ValueError, match="unknown algorithm 'a2c'"):
+        train(TrainArgs(algo="a2c", out=str(tmp_path / "a")))
+    with pytest.raises(ConfigError, match="unknown config 'n7_m3'"):
+        train(TrainArgs(algo="ppo", config="n7_m3", out=str(tmp_path / "b")))
+    assert not (tmp_path / "b").exists()  # nothing half-built
+    run = train(TrainArgs(algo="ppo", out=str(tmp_path / "c"), **TINY))
+    with pytest.raises(ValueError, match=r"expects observations of shape \(7,\).*\(13,\)"):
+        evaluate_run(run, config="n11_m2_dt120", protocol=SHORT, write=False)
+    assert cli_main(["evaluate", str(run), "--config", "n11_m2_dt120", "--episodes", "1"]) == 2
+    assert "expects observations of shape" in capsys.readouterr().err
+
+
+def test_unreadable_checkpoint_gives_a_clear_error(tmp_path):
+    bad = tmp_path / "broken.zip"
+    bad.write_bytes(b"not a zip file")
+    with pytest.raises(ValueError, match="cannot read model file .*broken.zip"):
+        load_model(bad, "ppo")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load_model(tmp_path / "missing.zip", "ppo")
+
+
+def test_cli_train_and_evaluate(tmp_path, capsys):
+    out = tmp_path / "cli"
+    assert cli_main(["train", "--algo", "shared_ppo", "--timesteps", "256", "--n-envs", "1", "--out", str(out),
+                     "--no-progress", "--hp", "n_steps=64", "--override", "episode_length_steps=40"]) == 0
+    assert cli_main(["evaluate", str(out), "--episodes", "2", "--json", str(tmp_path / "e.json")]) == 0
+    report = json.loads((tmp_path / "e.json").read_text())
+    assert report["view"] == "decentralised" and len(report["episodes"]) == 2
+    assert report["protocol"]["timestep_s"] == 120.0 and report["protocol"]["episode_length_steps"] == 600
+    with pytest.raises(SystemExit, match="neither a run directory nor a built-in policy"):
+        cli_main(["evaluate", "no_such_policy"])
+    with pytest.raises(SystemExit):
+        cli_main(["train", "--algo", "a2c"])
