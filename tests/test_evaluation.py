@@ -1,0 +1,103 @@
+"""The evaluation protocol and its metrics against episodes replayed independently."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from containergym_marl import ContainerGymEnv, load_config
+from containergym_marl.evaluation import PAPER, EvalProtocol, EpisodeRecord, evaluate
+from containergym_marl.evaluation.table import markdown_table, method_rows
+from containergym_marl.policies import RuleBasedAgents, RuleBasedController
+
+
+def test_paper_protocol_defaults():
+    assert (PAPER.timestep_s, PAPER.episode_length_steps, PAPER.episodes, PAPER.deterministic) == (120.0, 600, 15, True)
+    assert PAPER.seeds == list(range(10_000, 10_015))
+    plant = PAPER.plant("n5_m2_dt60")
+    assert plant.timestep_s == 120.0 and plant.episode_length_steps == 600
+
+
+def test_metrics_match_a_manual_replay_including_the_final_reward():
+    """Replay each evaluation episode by hand with the same seed and actions: cumulative reward
+    (final step included), steps, overflow, emptyings and denied requests agree."""
+    cfg = load_config("n11_m2_dt120")
+    policy = RuleBasedController(cfg.params())
+    result = evaluate(policy, cfg, EvalProtocol(episodes=4, episode_length_steps=300))
+    for metrics, record in zip(result.episodes, result.records):
+        env = ContainerGymEnv(cfg, timestep_s=120, episode_length_steps=300)
+        obs, _ = env.reset(seed=metrics.seed)
+        total, emptied, denied, good, negative, rewards = 0.0, 0, 0, 0, 0, []
+        while True:
+            obs, r, term, trunc, info = env.step(policy.act(obs))
+            total += r
+            if info["emptied_container"] is not None:
+                emptied += 1
+                good += info["emptying_reward"] >= 0.75
+                negative += info["emptying_reward"] < 0
+            denied += info["no_free_pu"]
+            rewards.append(r)
+            if term or trunc:
+                break
+        assert metrics.cumulative_reward == pytest.approx(total, abs=1e-9)
+        assert metrics.steps == info["step"] and metrics.overflow == term
+        assert metrics.emptyings == emptied and metrics.denied_requests == denied
+        assert metrics.good_emptying_share == pytest.approx(good / emptied)
+        assert metrics.negative_emptying_share == pytest.approx(negative / emptied)
+        np.testing.assert_allclose(record.plant_reward, rewards)
+
+
+class NeverEmpty:
+    name, view = "never_empty", "centralised"
+
+    def act(self, observation, env):
+        return 0
+
+
+def test_final_overflow_reward_is_counted():
+    """A controller that never empties overflows; its only non-zero reward is the final r_min, so
+    its return is exactly r_min (the paper's script, dropping the last reward, reported 0)."""
+    result = evaluate(NeverEmpty(), "n5_m2_dt120", EvalProtocol(episodes=3))
+    for metrics, rec in zip(result.episodes, result.records):
+        assert metrics.overflow and metrics.steps < 600
+        assert metrics.cumulative_reward == -1.0 and rec.plant_reward[-1] == -1.0
+        assert metrics.emptyings == 0 and np.isnan(metrics.good_emptying_share)
+
+
+def test_pu_utilisation_counts_busy_pu_steps():
+    result = evaluate(RuleBasedController(load_config("n5_m2_dt120").params()), "n5_m2_dt120", EvalProtocol(episodes=1))
+    rec = result.records[0]
+    busy = sum(int((timers > 0).sum()) for timers in rec.pu_timers_s[1:])
+    assert result.episodes[0].pu_utilisation == pytest.approx(busy / (rec.steps * 2))
+
+
+def test_decentralised_evaluation_counts_denials_and_records_round_trip(tmp_path):
+    cfg = load_config("n11_m2_dt120")
+    result = evaluate(RuleBasedAgents(cfg.params()), cfg, EvalProtocol(episodes=2, episode_length_steps=200),
+                      arbitration="index")
+    rec = result.records[0]
+    assert result.episodes[0].denied_requests == int(rec.denied.sum())
+    assert np.all(rec.granted.sum(axis=1) <= 2)  # never more emptyings than PUs
+    rec.save_npz(tmp_path / "e.npz")
+    back = EpisodeRecord.load_npz(tmp_path / "e.npz")
+    np.testing.assert_array_equal(back.volumes, rec.volumes)
+    assert back.cumulative_reward == rec.cumulative_reward and back.view == "decentralised"
+
+
+def test_results_table_best_and_median_over_seeds(tmp_path):
+    """Synthetic evaluation files: best = highest mean, median = middle seed by mean."""
+    results = tmp_path / "n5_m2_dt120"
+    means = {1: 10.0, 2: 30.0, 3: 20.0}
+    for seed, mean in means.items():
+        run = results / f"ppo_n5_m2_dt120_s{seed}"
+        run.mkdir(parents=True)
+        (run / "args.json").write_text(json.dumps({"algo": "ppo", "seed": seed}))
+        episodes = [{"cumulative_reward": mean - 1}, {"cumulative_reward": mean + 1}]
+        (run / "evaluation_best.json").write_text(json.dumps({"episodes": episodes, "summary": {"overflow_rate": 0.0}}))
+    (row,) = method_rows(results)
+    assert row.best == (30.0, 1.0, 2) and row.median == (20.0, 1.0, 3)
+    table = markdown_table(results)
+    assert "| ppo | centralised | 3 | 30.00 ± 1.00 | 20.00 ± 1.00 |" in table
+    assert "paper PPO (15 seeds)" in table and "51.43 ± 3.00" in table
