@@ -66,16 +66,61 @@ class StepOutcome:
     truncated: np.ndarray  # (B,) bool: the time limit T was reached without overflow
 
 
-def emptying_reward(volumes: np.ndarray, params: PlantParams) -> np.ndarray:
+#: Up to this many terms, ``np.sum`` over a contiguous axis adds sequentially (numpy switches to
+#: pairwise summation at 8 terms), so an explicit left-to-right sum of the columns gives the same
+#: bits while avoiding numpy's slow per-row reduction over a short axis.
+_SEQUENTIAL_SUM_MAX_TERMS = 7
+
+
+def sum_last_axis(x: np.ndarray) -> np.ndarray:
+    """``np.sum(x, axis=-1)`` with identical results, faster for a short last axis."""
+    k = x.shape[-1]
+    if k == 0 or k > _SEQUENTIAL_SUM_MAX_TERMS:
+        return np.sum(x, axis=-1)
+    out = x[..., 0].copy()
+    for j in range(1, k):
+        out += x[..., j]
+    return out
+
+
+def row_count(mask: np.ndarray) -> np.ndarray:
+    """``mask.sum(axis=1)`` (int64) of a 2-D boolean array; integer sums are exact in any order,
+    so large batches add columns (numpy's row-wise reduction over a short axis is slow)."""
+    if mask.shape[0] < 64 or mask.shape[1] > 64:
+        return mask.sum(axis=1)
+    out = mask[:, 0].astype(np.int64)
+    for j in range(1, mask.shape[1]):
+        out += mask[:, j]
+    return out
+
+
+def emptying_reward(volumes: np.ndarray, params: PlantParams, containers=None) -> np.ndarray:
     """Reward of emptying each container at ``volumes`` (..., n), given a free PU (paper eq. 5).
 
     ``r_pen + Σ_k (h_k − r_pen)·exp(−(v − v*_k)² / (2 w_k²))``, and ``r_pen`` for an empty container.
+    With ``containers`` (integer indices), ``volumes`` is 1-D and entry j belongs to container
+    ``containers[j]``; the values are exactly those of the full form at those entries.
     """
     v = np.asarray(volumes, dtype=np.float64)
-    diff = v[..., None] - params.reward_peaks
-    gauss = np.exp(-(diff * diff) / params.reward_two_width_sq)
-    reward = params.penalty_reward + np.sum(params.reward_coef * gauss, axis=-1)
-    return np.where(v == 0.0, params.penalty_reward, reward)
+    if containers is None:
+        peaks, two_w_sq, coef = params.reward_peaks, params.reward_two_width_sq, params.reward_coef
+    else:
+        peaks = params.reward_peaks[containers]
+        two_w_sq = params.reward_two_width_sq[containers]
+        coef = params.reward_coef[containers]
+    # r_pen + sum(coef * exp(-(diff * diff) / 2w²)), computed in place (same operations, same bits)
+    diff = np.subtract(v[..., None], peaks)
+    np.multiply(diff, diff, out=diff)
+    np.negative(diff, out=diff)
+    np.divide(diff, two_w_sq, out=diff)
+    np.exp(diff, out=diff)
+    np.multiply(coef, diff, out=diff)
+    reward = sum_last_axis(diff)
+    reward = np.add(params.penalty_reward, reward, out=reward)
+    empty = v == 0.0
+    if empty.any():
+        reward[empty] = params.penalty_reward
+    return reward
 
 
 def pu_busy_time_s(volumes: np.ndarray, params: PlantParams, containers=slice(None)) -> np.ndarray:
@@ -99,12 +144,14 @@ def reset_state(params: PlantParams, uniforms: np.ndarray) -> PlantState:
 
 
 def priority_keys(
-    rule: str, volumes: np.ndarray, uniforms: np.ndarray, params: PlantParams
+    rule: str, volumes: np.ndarray, uniforms: np.ndarray | None, params: PlantParams
 ) -> np.ndarray:
     """Arbitration priority of each container, (B, n); larger wins, ties go to the lower index."""
     if rule == "fullest":
         return volumes / params.max_volume
     if rule == "random":
+        if uniforms is None:
+            raise ValueError("the 'random' arbitration needs the step's uniforms")
         return uniforms
     if rule == "index":
         return np.broadcast_to(-np.arange(params.n_containers, dtype=np.float64), volumes.shape)
@@ -114,13 +161,38 @@ def priority_keys(
 
 
 def arbitrate(requests: np.ndarray, free_count: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Grant the ``free_count[b]`` highest-priority requests of each simulation, (B, n) bool."""
+    """Grant the ``free_count[b]`` highest-priority requests of each simulation, (B, n) bool.
+
+    Requests are taken in decreasing key order, ties to the lower index (the order of a stable
+    sort of ``-keys``); keys must be finite. Done as ``max(free_count)`` rounds of a row-wise
+    argmax (at most m rounds), which is much cheaper than sorting every row.
+    """
+    requests = np.asarray(requests, dtype=bool)
     b, n = requests.shape
-    sort_key = np.where(requests, -keys, np.inf)
-    order = np.argsort(sort_key, axis=1, kind="stable")  # stable: ties go to the lower index
-    rank = np.empty((b, n), dtype=np.int64)
-    np.put_along_axis(rank, order, np.broadcast_to(np.arange(n), (b, n)), axis=1)
-    return requests & (rank < free_count[:, None])
+    granted = np.zeros((b, n), dtype=bool)
+    free_count = np.minimum(np.asarray(free_count), row_count(requests))
+    rounds = int(free_count.max()) if b else 0
+    if rounds <= 0:
+        return granted
+    rows = np.arange(b)
+    masked = np.where(requests, keys, -np.inf)
+    for k in range(rounds):
+        best = masked.argmax(axis=1)
+        take = free_count > k  # such a row still has an ungranted request (free_count <= requests)
+        granted[rows[take], best[take]] = True
+        masked[rows, best] = -np.inf
+    return granted
+
+
+def _k_th_free_pu(free: np.ndarray, sims: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """Index of the ``position[j]``-th (0-based) free PU of simulation ``sims[j]``."""
+    m = free.shape[1]
+    seen = np.zeros(sims.size, dtype=np.int64)  # free PUs before PU j
+    pu = np.zeros(sims.size, dtype=np.int64)
+    for j in range(m):  # m is small; a loop over PUs, not over simulations
+        pu += seen <= position  # PU j comes at or before the wanted one
+        seen += free[sims, j]
+    return pu - 1
 
 
 def step(
@@ -128,7 +200,7 @@ def step(
     requests: np.ndarray,
     params: PlantParams,
     normals: np.ndarray,
-    uniforms: np.ndarray,
+    uniforms: np.ndarray | None,
     arbitration: str = "fullest",
 ) -> tuple[PlantState, StepOutcome]:
     """Advance B simulations by one step of δ seconds. Pure: ``state`` is not modified.
@@ -137,8 +209,12 @@ def step(
         state: the current state (B simulations).
         requests: (B, n) bool, which containers ask to be emptied.
         params: the plant.
-        normals, uniforms: (B, n) one random row per simulation (see :mod:`.rng`).
+        normals, uniforms: (B, n) one random row per simulation (see :mod:`.rng`); ``uniforms``
+            is only read by the ``"random"`` arbitration and may be None otherwise.
         arbitration: rule ranking competing requests, one of :data:`ARBITRATION_RULES`.
+
+    The work is proportional to the number of requests, not to B·n, wherever that is possible:
+    the fill is dense, the decisions are computed only at the requested entries.
     """
     v, p = state.volumes, state.pu_timers_s
     bsz, n = v.shape
@@ -149,44 +225,76 @@ def step(
         raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
 
     free = p == 0.0
-    free_count = free.sum(axis=1)
-    filled = np.maximum(0.0, v + params.fill_mean_per_step + params.fill_std_per_step * normals)
-    p_next = np.maximum(0.0, p - params.timestep_s)
+    free_count = row_count(free)
+    # v(t+1) before emptying: max(0, (v + μδ) + σ√δ·ε), in place on fresh arrays
+    v_next = np.add(v, params.fill_mean_per_step)
+    v_next += np.multiply(params.fill_std_per_step, normals)
+    np.maximum(0.0, v_next, out=v_next)
+    p_next = np.subtract(p, params.timestep_s)
+    np.maximum(0.0, p_next, out=p_next)
 
-    if requests.any():
+    container_reward = np.zeros((bsz, n))
+    emptied_volume = np.zeros((bsz, n))
+    pu_index = np.full((bsz, n), -1, dtype=np.int64)
+    flat_req = np.flatnonzero(requests)
+    if flat_req.size:
+        req_sim = flat_req // n
+        req_count = np.bincount(req_sim, minlength=bsz)
         # Ranking is only needed where requests outnumber free PUs; elsewhere all are granted.
-        contested = requests.sum(axis=1) > free_count
-        granted = requests.copy()
+        contested = req_count > free_count
         if contested.any():
             c = np.flatnonzero(contested)
-            keys = priority_keys(arbitration, v[c], uniforms[c], params)
+            keys = priority_keys(arbitration, v[c], None if uniforms is None else uniforms[c], params)
+            granted = requests.copy()
             granted[c] = arbitrate(requests[c], free_count[c], keys)
-        denied = requests & ~granted
-        # Rewards of this step's decisions, from the volumes before this step's inflow.
-        container_reward = np.where(granted, emptying_reward(v, params), 0.0)
-        container_reward[denied] = params.penalty_reward
-        v_next = np.where(granted, 0.0, filled)
-        # The k-th granted container (index order) takes the k-th free PU (index order).
-        pu_index = np.full((bsz, n), -1, dtype=np.int64)
-        sim_idx, cont_idx = np.nonzero(granted)
-        if sim_idx.size:
-            position = (np.cumsum(granted, axis=1) - 1)[sim_idx, cont_idx]
-            pus = np.argsort(~free, axis=1, kind="stable")[sim_idx, position]
-            pu_index[sim_idx, cont_idx] = pus
-            p_next[sim_idx, pus] = pu_busy_time_s(v[sim_idx, cont_idx], params, cont_idx)
-        emptied_volume = np.where(granted, v, 0.0)
+            req_granted = granted.reshape(-1)[flat_req]
+            flat_g = flat_req[req_granted]
+            flat_denied = flat_req[~req_granted]
+        else:
+            granted = requests
+            flat_g, flat_denied = flat_req, flat_req[:0]
+        if flat_g.size:
+            sim_g = flat_g // n
+            cont_g = flat_g - sim_g * n
+            vol_g = v[sim_g, cont_g]
+            # Rewards of this step's decisions, from the volumes before this step's inflow.
+            container_reward.reshape(-1)[flat_g] = emptying_reward(vol_g, params, cont_g)
+            emptied_volume.reshape(-1)[flat_g] = vol_g
+            v_next[sim_g, cont_g] = 0.0
+            # The k-th granted container (index order) takes the k-th free PU (index order).
+            # flat_g is sorted, so a simulation's grants are consecutive: k = j - (first j of it).
+            first = np.ones(flat_g.size, dtype=bool)
+            first[1:] = sim_g[1:] != sim_g[:-1]
+            j = np.arange(flat_g.size)
+            position = j - np.maximum.accumulate(np.where(first, j, 0))
+            pus = _k_th_free_pu(free, sim_g, position)
+            pu_index.reshape(-1)[flat_g] = pus
+            p_next[sim_g, pus] = pu_busy_time_s(vol_g, params, cont_g)
+        if flat_denied.size:
+            container_reward.reshape(-1)[flat_denied] = params.penalty_reward
+        denied = requests & ~granted if flat_denied.size else np.zeros((bsz, n), dtype=bool)
+        # The plant reward is the row sum; a row with one request sums to that entry exactly.
+        plant_reward = np.zeros(bsz)
+        single = req_count[req_sim] == 1
+        plant_reward[req_sim[single]] = container_reward.reshape(-1)[flat_req[single]]
+        multi = np.flatnonzero(req_count > 1)
+        if multi.size:
+            plant_reward[multi] = container_reward[multi].sum(axis=1)
     else:
         granted = denied = requests
-        container_reward = emptied_volume = np.zeros((bsz, n))
-        v_next = filled
-        pu_index = np.full((bsz, n), -1, dtype=np.int64)
+        plant_reward = np.zeros(bsz)
 
     step_count = state.step_count + 1
     overflowed = v_next >= params.max_volume
-    terminated = overflowed.any(axis=1)
-    truncated = (step_count >= params.episode_length_steps) & ~terminated
-    plant_reward = np.where(terminated, params.overflow_reward, container_reward.sum(axis=1))
-    individual_reward = np.where(overflowed, params.overflow_reward, container_reward)
+    individual_reward = container_reward.copy()
+    if overflowed.any():
+        terminated = overflowed.any(axis=1)
+        individual_reward[overflowed] = params.overflow_reward
+        plant_reward[terminated] = params.overflow_reward
+    else:
+        terminated = np.zeros(bsz, dtype=bool)
+    truncated = step_count >= params.episode_length_steps
+    truncated &= ~terminated
 
     outcome = StepOutcome(
         requested=requests,

@@ -37,7 +37,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from containergym_marl.core.dynamics import PlantState, emptying_reward
+from containergym_marl.core.dynamics import PlantState, emptying_reward, row_count
 from containergym_marl.core.params import PlantParams
 
 #: The rule-based controller's margin (paper, section 6.2), also used by ``others_ready_frac``.
@@ -86,8 +86,11 @@ def global_state_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarray]:
 def global_state(state: PlantState, params: PlantParams) -> np.ndarray:
     """(B, n + m) float32 ``[v, p]``, clipped into :func:`global_state_bounds`."""
     low, high = global_state_bounds(params)
-    out = np.concatenate([state.volumes, state.pu_timers_s], axis=1).astype(np.float32)
-    return np.clip(out, low, high)
+    n = params.n_containers
+    out = np.empty((state.volumes.shape[0], n + params.n_pus), dtype=np.float32)
+    out[:, :n] = state.volumes  # cast to float32, then clipped in float32 (as astype + clip)
+    out[:, n:] = state.pu_timers_s
+    return np.clip(out, low, high, out=out)
 
 
 @lru_cache(maxsize=64)
@@ -101,37 +104,65 @@ def agent_observation_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarra
     return _read_only(low, high)
 
 
+@lru_cache(maxsize=64)
+def _agent_observation_template(params: PlantParams) -> np.ndarray:
+    """(n, F) float32: the entries that never change (1, 3–6 and the one-hot), clipped; the
+    others are filled by :func:`agent_observations`."""
+    n, m = params.n_containers, params.n_pus
+    vmax = params.max_volume
+    t = np.zeros((n, len(SCALAR_FEATURES) + m + n))
+    t[:, 1] = params.target_volume / vmax
+    t[:, 3] = vmax / vmax.max()
+    t[:, 4] = params.fill_mean_per_step / vmax
+    t[:, 5] = params.fill_std_per_step / vmax
+    t[:, 6] = params.product_size / vmax
+    t[:, len(SCALAR_FEATURES) + m:] = np.eye(n)
+    low, high = agent_observation_bounds(params)
+    return _read_only(np.clip(t.astype(np.float32), low, high))[0]
+
+
+def _count_greater(x: np.ndarray) -> np.ndarray:
+    """(B, n) int64: for each entry, how many entries of its row are strictly larger."""
+    b, n = x.shape
+    if b < 64:
+        return (x[:, None, :] > x[:, :, None]).sum(axis=2)
+    out = np.zeros((b, n), dtype=np.int64)
+    for j in range(n):  # a loop over containers, not simulations
+        out += x[:, j:j + 1] > x
+    return out
+
+
 def agent_observations(
     state: PlantState, params: PlantParams, previous_requests: np.ndarray
 ) -> np.ndarray:
-    """(B, n, F) float32 observations of every container agent; see the module docstring."""
+    """(B, n, F) float32 observations of every container agent; see the module docstring.
+
+    Every entry is computed in float64, cast to float32 and clipped into
+    :func:`agent_observation_bounds`.
+    """
     v, p = state.volumes, state.pu_timers_s
     bsz, n = v.shape
     m = params.n_pus
     vmax = params.max_volume
     others = max(n - 1, 1)  # with one container the "others" shares are 0
+    ns = len(SCALAR_FEATURES)
 
+    out = np.empty((bsz, n, ns + m + n), dtype=np.float32)
+    out[...] = _agent_observation_template(params)
     vol_frac = v / vmax
+    out[..., 0] = vol_frac
+    out[..., 2] = (params.target_volume - v) / vmax
+    out[..., 7] = emptying_reward(v, params)
+    out[..., 8] = (row_count(p == 0.0) / m)[:, None]
+    prev = np.asarray(previous_requests, dtype=bool)
+    out[..., 9] = (row_count(prev)[:, None] - prev) / others
     ready = v >= params.target_volume - READY_MARGIN
-    # Number of containers fuller than each one: rank of v/v_max among the plant's containers.
-    fuller = (vol_frac[:, None, :] > vol_frac[:, :, None]).sum(axis=2)
-
-    scalars = np.empty((bsz, n, len(SCALAR_FEATURES)))
-    scalars[..., 0] = vol_frac
-    scalars[..., 1] = params.target_volume / vmax
-    scalars[..., 2] = (params.target_volume - v) / vmax
-    scalars[..., 3] = vmax / vmax.max()
-    scalars[..., 4] = params.fill_mean_per_step / vmax
-    scalars[..., 5] = params.fill_std_per_step / vmax
-    scalars[..., 6] = params.product_size / vmax
-    scalars[..., 7] = emptying_reward(v, params)
-    scalars[..., 8] = (p == 0.0).sum(axis=1, keepdims=True) / m
-    scalars[..., 9] = (previous_requests.sum(axis=1, keepdims=True) - previous_requests) / others
-    scalars[..., 10] = (ready.sum(axis=1, keepdims=True) - ready) / others
-    scalars[..., 11] = fuller / others
-
-    timers = np.broadcast_to((p / params.max_pu_time_s)[:, None, :], (bsz, n, m))
-    one_hot = np.broadcast_to(np.eye(n), (bsz, n, n))
-    obs = np.concatenate([scalars, timers, one_hot], axis=2).astype(np.float32)
+    out[..., 10] = (row_count(ready)[:, None] - ready) / others
+    # Containers fuller than each one: they win the default "fullest" arbitration.
+    out[..., 11] = _count_greater(vol_frac) / others
+    out[..., ns:ns + m] = (p / params.max_pu_time_s)[:, None, :]
     low, high = agent_observation_bounds(params)
-    return np.clip(obs, low, high)
+    dyn = slice(0, 3), slice(7, ns + m)  # entries 1 and the one-hot come clipped from the template
+    for cols in dyn:
+        np.clip(out[..., cols], low[cols], high[cols], out=out[..., cols])
+    return out

@@ -20,14 +20,24 @@ BLOCK_ROWS = 32
 
 
 class NoiseStreams:
-    """Block-buffered random rows for B simulations with n containers."""
+    """Block-buffered random rows for B simulations with n containers.
+
+    Buffers are laid out ``(B·BLOCK_ROWS, n)``: row ``b·BLOCK_ROWS + k`` is row k of simulation
+    b's current block, so one step's rows are a single row gather. A refill writes the
+    generator's output straight into the buffer (``out=``), which yields the same numbers as
+    drawing a new ``(BLOCK_ROWS, n)`` array.
+    """
 
     def __init__(self, generators: Sequence[np.random.Generator], n_containers: int):
         self.n_containers = int(n_containers)
         self._generators = list(generators)
         b = len(self._generators)
-        self._normals = np.empty((b, BLOCK_ROWS, self.n_containers))
-        self._uniforms = np.empty((b, BLOCK_ROWS, self.n_containers))
+        self._normals = np.empty((b * BLOCK_ROWS, self.n_containers))
+        self._uniforms = np.empty((b * BLOCK_ROWS, self.n_containers))
+        # per-simulation blocks as views, so a refill creates no view objects
+        self._normal_blocks = [self._normals[i * BLOCK_ROWS:(i + 1) * BLOCK_ROWS] for i in range(b)]
+        self._uniform_blocks = [self._uniforms[i * BLOCK_ROWS:(i + 1) * BLOCK_ROWS] for i in range(b)]
+        self._row_base = np.arange(b, dtype=np.int64) * BLOCK_ROWS
         # A cursor at BLOCK_ROWS means "buffer exhausted": refill before the next draw.
         self._cursor = np.full(b, BLOCK_ROWS, dtype=np.int64)
 
@@ -43,21 +53,38 @@ class NoiseStreams:
         self._generators[index] = generator
         self._cursor[index] = BLOCK_ROWS
 
-    def _refill(self, index: int) -> None:
-        gen = self._generators[index]
-        self._normals[index] = gen.standard_normal((BLOCK_ROWS, self.n_containers))
-        self._uniforms[index] = gen.random((BLOCK_ROWS, self.n_containers))
-        self._cursor[index] = 0
+    def _refill(self, sims: np.ndarray) -> None:
+        """Draw a new block for each simulation in ``sims``, in that order."""
+        gens, nb, ub = self._generators, self._normal_blocks, self._uniform_blocks
+        for i in sims.tolist():  # each simulation refills once every BLOCK_ROWS events
+            gen = gens[i]
+            gen.standard_normal(out=nb[i])
+            gen.random(out=ub[i])
+        self._cursor[sims] = 0
 
-    def next_rows(self, sims: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """One row for each simulation in ``sims`` (all when None): ``(normals, uniforms)``, (k, n)."""
-        idx = np.arange(self.batch_size) if sims is None else np.asarray(sims, dtype=np.int64)
-        cur = self._cursor[idx]
-        exhausted = idx[cur >= BLOCK_ROWS]
-        for i in exhausted:  # each simulation refills once every BLOCK_ROWS events
-            self._refill(int(i))
-        cur = self._cursor[idx]
-        normals = self._normals[idx, cur]
-        uniforms = self._uniforms[idx, cur]
-        self._cursor[idx] = cur + 1
-        return normals, uniforms
+    def next_rows(
+        self, sims: np.ndarray | None = None, *, normals: bool = True, uniforms: bool = True
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """One row for each simulation in ``sims`` (all when None): ``(normals, uniforms)``, (k, n).
+
+        The row is consumed whether or not its parts are returned; ``normals=False`` or
+        ``uniforms=False`` only skips copying that part out (None is returned in its place).
+        """
+        if sims is None:
+            cur = self._cursor
+            exhausted = np.flatnonzero(cur >= BLOCK_ROWS)
+            if exhausted.size:
+                self._refill(exhausted)
+            rows = self._row_base + cur
+            cur += 1
+        else:
+            idx = np.asarray(sims, dtype=np.int64)
+            cur = self._cursor[idx]
+            exhausted = idx[cur >= BLOCK_ROWS]
+            if exhausted.size:
+                self._refill(exhausted)
+                cur = self._cursor[idx]
+            rows = self._row_base[idx] + cur
+            self._cursor[idx] = cur + 1
+        return (self._normals[rows] if normals else None,
+                self._uniforms[rows] if uniforms else None)

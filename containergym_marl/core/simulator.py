@@ -83,7 +83,7 @@ class PlantSimulator:
             self._set_generators(idx, generators)
         if self._streams is None:
             raise RuntimeError("the first reset needs one np.random.Generator per simulation")
-        _, uniforms = self._streams.next_rows(idx)
+        _, uniforms = self._streams.next_rows(idx, normals=False)
         fresh = dynamics.reset_state(self.params, uniforms)
         if idx.size == self.batch_size and np.array_equal(idx, np.arange(self.batch_size)):
             self.state = fresh
@@ -103,7 +103,7 @@ class PlantSimulator:
                 f"simulation(s) {bad} finished their episode (overflow or time limit); "
                 f"call reset() before stepping again"
             )
-        normals, uniforms = self._streams.next_rows()
+        normals, uniforms = self._streams.next_rows(uniforms=self.arbitration == "random")
         self.state, outcome = dynamics.step(
             self.state, requests, self.params, normals, uniforms, self.arbitration
         )

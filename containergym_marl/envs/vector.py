@@ -18,6 +18,12 @@ Autoreset: when simulation b ends, the returned observation is the first of its 
 last observation of the finished episode is in ``infos[k]["terminal_observation"]`` (SB3) or
 ``infos["final_obs"]`` (Gymnasium, ``SAME_STEP`` mode), and SB3's ``infos[k]["TimeLimit.truncated"]``
 tells a time-limit cut (bootstrap) from an overflow (terminal).
+
+Cost: one step is one core call for all B simulations plus work proportional to the number of
+episode ends; there is no Python loop over simulations or slots. In the SB3 envs, the info of a
+slot with nothing to report is one shared, read-only empty dict (:data:`NO_INFO`; writing to it
+raises, ``.copy()`` gives a plain dict): SB3 and its wrappers only write to the infos of finished
+slots, which are always fresh dicts.
 """
 
 from __future__ import annotations
@@ -46,6 +52,25 @@ except ImportError:  # pragma: no cover - exercised only without the training ex
     VecEnv = object  # type: ignore[misc,assignment]
 
 
+class _ReadOnlyEmptyInfo(dict):
+    """An empty info dict that refuses writes, shared by every slot with nothing to report."""
+
+    __slots__ = ()
+
+    def _refuse(self, *args, **kwargs):
+        raise TypeError("this slot's info is the shared read-only NO_INFO; copy it (info.copy()) "
+                        "before adding keys")
+
+    __setitem__ = __delitem__ = __ior__ = setdefault = update = pop = popitem = clear = _refuse
+
+    def __reduce__(self):  # pickles (e.g. to a subprocess) as a plain empty dict
+        return (dict, ())
+
+
+#: The info of every SB3 slot whose episode did not end this step.
+NO_INFO: dict = _ReadOnlyEmptyInfo()
+
+
 class _AutoresetBatch:
     """B simulations with per-simulation seeds and automatic reset (shared by all vector envs)."""
 
@@ -57,42 +82,48 @@ class _AutoresetBatch:
     def reset_all(self, seeds: Sequence[int | None]) -> None:
         self.sim.reset(generators=[seeding.np_random(s)[0] for s in seeds])
 
-    def step(self, requests: np.ndarray) -> tuple[StepOutcome, np.ndarray, Any]:
-        """Step all simulations; reset the finished ones. Returns the outcome, the indices of the
-        finished simulations and their final state (before the reset)."""
+    def step(self, requests: np.ndarray) -> tuple[StepOutcome, np.ndarray, np.ndarray, Any]:
+        """Step all simulations; reset the finished ones. Returns the outcome, the (B,) done mask,
+        the indices of the finished simulations and their final state and previous requests
+        (before the reset; None if none finished)."""
         out = self.sim.step(requests)
-        done = np.flatnonzero(out.terminated | out.truncated)
-        final_state = self.sim.state.select(done) if done.size else None
-        final_previous = self.sim.previous_requests[done].copy() if done.size else None
-        if done.size:
-            self.sim.reset(sims=done)
-        return out, done, (final_state, final_previous)
+        done_mask = out.terminated | out.truncated
+        if not done_mask.any():
+            return out, done_mask, _NO_SIMS, (None, None)
+        done = np.flatnonzero(done_mask)
+        final_state = self.sim.state.select(done)
+        final_previous = self.sim.previous_requests[done]
+        self.sim.reset(sims=done)
+        return out, done_mask, done, (final_state, final_previous)
+
+
+_NO_SIMS = np.zeros(0, dtype=np.int64)
+
+
+def _integer_actions(actions, expected: int, what: str) -> np.ndarray:
+    a = np.asarray(actions)
+    if a.shape != (expected,) and a.size == expected:
+        a = a.reshape(-1)
+    if a.shape != (expected,) or not np.issubdtype(a.dtype, np.integer):
+        raise ValueError(f"actions: expected {expected} integer actions ({what}), got {np.asarray(actions)!r}")
+    return a
 
 
 def _centralised_requests(actions: np.ndarray, num_sims: int, n: int) -> np.ndarray:
-    a = np.asarray(actions)
-    if a.shape != (num_sims,):
-        a = a.reshape(-1) if a.size == num_sims else a
-    if a.shape != (num_sims,) or not np.issubdtype(a.dtype, np.integer):
-        raise ValueError(f"actions: expected {num_sims} integer actions, got {np.asarray(actions)!r}")
-    bad = np.flatnonzero((a < 0) | (a > n))
-    if bad.size:
-        raise ValueError(f"actions: env {int(bad[0])} has action {int(a[bad[0]])} outside [0, {n}]")
-    requests = np.zeros((num_sims, n), dtype=bool)
-    rows = np.flatnonzero(a > 0)
-    requests[rows, a[rows] - 1] = True
-    return requests
+    a = _integer_actions(actions, num_sims, f"0 wait, 1..{n} empty that container")
+    if a.min() < 0 or a.max() > n:
+        bad = int(np.flatnonzero((a < 0) | (a > n))[0])
+        raise ValueError(f"actions: env {bad} has action {int(a[bad])} outside [0, {n}]")
+    return a[:, None] == np.arange(1, n + 1)
 
 
 def _agent_requests(actions: np.ndarray, num_sims: int, n: int) -> np.ndarray:
-    a = np.asarray(actions).reshape(-1) if np.asarray(actions).size == num_sims * n else np.asarray(actions)
-    if a.shape != (num_sims * n,) or not np.issubdtype(a.dtype, np.integer):
-        raise ValueError(f"actions: expected {num_sims * n} integer actions (0 wait, 1 request)")
-    bad = np.flatnonzero((a != 0) & (a != 1))
-    if bad.size:
-        raise ValueError(f"actions: slot {int(bad[0])} (simulation {int(bad[0]) // n}, agent "
-                         f"{int(bad[0]) % n}) has action {int(a[bad[0]])}, expected 0 or 1")
-    return a.reshape(num_sims, n).astype(bool)
+    a = _integer_actions(actions, num_sims * n, "0 wait, 1 request")
+    if a.min() < 0 or a.max() > 1:
+        bad = int(np.flatnonzero((a != 0) & (a != 1))[0])
+        raise ValueError(f"actions: slot {bad} (simulation {bad // n}, agent "
+                         f"{bad % n}) has action {int(a[bad])}, expected 0 or 1")
+    return (a == 1).reshape(num_sims, n)
 
 
 class _SB3Base(VecEnv):
@@ -173,15 +204,14 @@ class ContainerGymVecEnv(_SB3Base):
     def step_wait(self):
         n = self._batch.params.n_containers
         requests = _centralised_requests(self._actions, self.num_sims, n)
-        out, done, (final_state, final_prev) = self._batch.step(requests)
+        out, dones, done, (final_state, final_prev) = self._batch.step(requests)
         obs = self._observe(self._batch.sim.state, None)
-        dones = out.terminated | out.truncated
-        infos: list[dict] = [{} for _ in range(self.num_envs)]
+        infos: list[dict] = [NO_INFO] * self.num_envs
         if done.size:
             final_obs = self._observe(final_state, final_prev)
-            for k, b in enumerate(done):
-                infos[b]["terminal_observation"] = final_obs[k]
-                infos[b]["TimeLimit.truncated"] = bool(out.truncated[b])
+            truncated = out.truncated[done].tolist()
+            for k, b in enumerate(done.tolist()):
+                infos[b] = {"terminal_observation": final_obs[k], "TimeLimit.truncated": truncated[k]}
         return obs, out.plant_reward.astype(np.float32), dones, infos
 
     def action_masks(self) -> np.ndarray:
@@ -219,22 +249,22 @@ class ContainerAgentsVecEnv(_SB3Base):
     def step_wait(self):
         n = self.n_agents
         requests = _agent_requests(self._actions, self.num_sims, n)
-        out, done, (final_state, final_prev) = self._batch.step(requests)
+        out, done_mask, done, (final_state, final_prev) = self._batch.step(requests)
         obs = self._observe(self._batch.sim.state, self._batch.sim.previous_requests)
         if self.reward_mode == "team":
-            rewards = np.repeat(out.plant_reward, n)
+            rewards = np.repeat(out.plant_reward.astype(np.float32), n)
         else:
-            rewards = out.individual_reward.reshape(-1)
-        dones = np.repeat(out.terminated | out.truncated, n)
-        infos: list[dict] = [{} for _ in range(self.num_envs)]
+            rewards = out.individual_reward.astype(np.float32).reshape(-1)
+        dones = np.repeat(done_mask, n)
+        infos: list[dict] = [NO_INFO] * self.num_envs
         if done.size:
             final_obs = self._observe(final_state, final_prev).reshape(done.size, n, -1)
-            for k, b in enumerate(done):
-                truncated = bool(out.truncated[b])
+            truncated = out.truncated[done].tolist()
+            for k, b in enumerate(done.tolist()):
                 for i in range(n):
-                    infos[b * n + i]["terminal_observation"] = final_obs[k, i]
-                    infos[b * n + i]["TimeLimit.truncated"] = truncated
-        return obs, rewards.astype(np.float32), dones, infos
+                    infos[b * n + i] = {"terminal_observation": final_obs[k, i],
+                                        "TimeLimit.truncated": truncated[k]}
+        return obs, rewards, dones, infos
 
     def action_masks(self) -> np.ndarray:
         free = np.repeat(self._batch.sim.free_pu_count() > 0, self.n_agents)
@@ -288,13 +318,16 @@ class ContainerGymVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() before step()")
         n = self._batch.params.n_containers
-        out, done, (final_state, _) = self._batch.step(_centralised_requests(actions, self.num_envs, n))
+        requests = _centralised_requests(actions, self.num_envs, n)
+        out, done_mask, done, (final_state, _) = self._batch.step(requests)
         obs = global_state(self._batch.sim.state, self._batch.params)
         infos: dict[str, Any] = {}
         if done.size:
             final = np.zeros_like(obs)
             final[done] = global_state(final_state, self._batch.params)
-            mask = np.zeros(self.num_envs, dtype=bool)
-            mask[done] = True
-            infos = {"final_obs": final, "_final_obs": mask}
-        return obs, out.plant_reward.astype(np.float64), out.terminated.copy(), out.truncated.copy(), infos
+            final_info = np.full(self.num_envs, None, dtype=object)
+            for b in done.tolist():
+                final_info[b] = {}
+            infos = {"final_obs": final, "_final_obs": done_mask.copy(),
+                     "final_info": final_info, "_final_info": done_mask.copy()}
+        return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), infos
