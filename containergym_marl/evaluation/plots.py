@@ -149,8 +149,9 @@ def plot_reward_function(config: str | PlantConfig, container: str | int, path: 
     ``container`` is a name or an index into ``config.containers``. The curve is the core's
     reward ``r_pen + Σ_k (h_k − r_pen)·exp(−(v − v*_k)² / (2 w_k²))`` (``r_pen`` at v = 0), on
     ``num_points`` evenly spaced volumes plus 101 points around every peak (narrow peaks stay
-    resolved). Dotted lines mark the optima, a grey line r_pen. One axis; the curve has gid
-    ``reward``.
+    resolved). A dashed black line marks the global optimum (gid ``optimum-<k>``), dotted grey
+    lines the local optima (``local-optimum-<k>``), each labelled with v* and h; a red line r_pen.
+    One axis; the curve has gid ``reward``.
     """
     cfg = config if isinstance(config, PlantConfig) else load_config(config)
     if isinstance(container, str):
@@ -182,7 +183,8 @@ def plot_reward_function(config: str | PlantConfig, container: str | int, path: 
                    label=("global optimum" if is_global else ("local optima" if rank == 1 else None)),
                    gid=_gid("optimum" if is_global else "local-optimum", k))
         ax.annotate(f"v* = {peak:g}, h = {h:g}", (peak, h), xytext=(0, 4), textcoords="offset points",
-                    fontsize=7, va="bottom", ha="center")
+                    fontsize=7, va="bottom", ha="center",
+                    bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
     ax.axhline(cfg.penalty_reward, color="tab:red", lw=0.8, alpha=0.7,
                label=f"r_pen = {cfg.penalty_reward:g}", gid="r_pen")
     ax.set_xlim(0, vmax)
