@@ -24,6 +24,8 @@ One step, for each simulation (all quantities at time t unless marked):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -75,7 +77,7 @@ _SEQUENTIAL_SUM_MAX_TERMS = 7
 def sum_last_axis(x: np.ndarray) -> np.ndarray:
     """``np.sum(x, axis=-1)`` with identical results, faster for a short last axis."""
     k = x.shape[-1]
-    if k == 0 or k > _SEQUENTIAL_SUM_MAX_TERMS:
+    if k == 0 or k > _SEQUENTIAL_SUM_MAX_TERMS or x.size <= 64 * k:  # small: one call is cheaper
         return np.sum(x, axis=-1)
     out = x[..., 0].copy()
     for j in range(1, k):
@@ -83,10 +85,39 @@ def sum_last_axis(x: np.ndarray) -> np.ndarray:
     return out
 
 
+#: From this batch size on, per-container constants are used as (B, n) tiles and row reductions
+#: are done column by column: numpy's inner loop over a broadcast (n,) operand or a short row is
+#: only n long, which costs several times a flat pass over B·n entries.
+_LARGE_BATCH = 64
+
+
+@lru_cache(maxsize=16)  # params are immutable and hashed by identity
+def per_entry(params: PlantParams, bsz: int) -> SimpleNamespace:
+    """Per-container constants shaped for a batch of ``bsz``: (B, n) read-only tiles for large
+    batches, the (n,) arrays otherwise. Elementwise results are the same either way."""
+    names = ("fill_mean_per_step", "fill_std_per_step", "max_volume", "target_volume")
+    arrays = {k: getattr(params, k) for k in names}
+    if bsz >= _LARGE_BATCH:
+        arrays = {k: np.tile(a, (bsz, 1)) for k, a in arrays.items()}
+        for a in arrays.values():
+            a.setflags(write=False)
+    return SimpleNamespace(**arrays)
+
+
+def row_any(mask: np.ndarray) -> np.ndarray:
+    """``mask.any(axis=1)`` of a 2-D boolean array (column by column for large batches)."""
+    if mask.shape[0] < _LARGE_BATCH or mask.shape[1] > 64:
+        return mask.any(axis=1)
+    out = mask[:, 0].copy()
+    for j in range(1, mask.shape[1]):
+        out |= mask[:, j]
+    return out
+
+
 def row_count(mask: np.ndarray) -> np.ndarray:
     """``mask.sum(axis=1)`` (int64) of a 2-D boolean array; integer sums are exact in any order,
     so large batches add columns (numpy's row-wise reduction over a short axis is slow)."""
-    if mask.shape[0] < 64 or mask.shape[1] > 64:
+    if mask.shape[0] < _LARGE_BATCH or mask.shape[1] > 64:
         return mask.sum(axis=1)
     out = mask[:, 0].astype(np.int64)
     for j in range(1, mask.shape[1]):
@@ -102,12 +133,12 @@ def emptying_reward(volumes: np.ndarray, params: PlantParams, containers=None) -
     ``containers[j]``; the values are exactly those of the full form at those entries.
     """
     v = np.asarray(volumes, dtype=np.float64)
-    if containers is None:
+    if containers is None:  # (..., n) volumes
         peaks, two_w_sq, coef = params.reward_peaks, params.reward_two_width_sq, params.reward_coef
     else:
-        peaks = params.reward_peaks[containers]
-        two_w_sq = params.reward_two_width_sq[containers]
-        coef = params.reward_coef[containers]
+        peaks = np.take(params.reward_peaks, containers, axis=0)
+        two_w_sq = np.take(params.reward_two_width_sq, containers, axis=0)
+        coef = np.take(params.reward_coef, containers, axis=0)
     # r_pen + sum(coef * exp(-(diff * diff) / 2w²)), computed in place (same operations, same bits)
     diff = np.subtract(v[..., None], peaks)
     np.multiply(diff, diff, out=diff)
@@ -128,8 +159,13 @@ def pu_busy_time_s(volumes: np.ndarray, params: PlantParams, containers=slice(No
 
     ``volumes`` is (…, n), or matches ``containers`` (indices of the containers it belongs to).
     """
-    return (params.pu_offset_s[containers]
-            + params.pu_time_per_product_s[containers] * np.floor(volumes / params.product_size[containers]))
+    if isinstance(containers, slice):
+        beta, lam, size = (params.pu_offset_s[containers], params.pu_time_per_product_s[containers],
+                           params.product_size[containers])
+    else:
+        beta, lam, size = (np.take(params.pu_offset_s, containers), np.take(params.pu_time_per_product_s, containers),
+                           np.take(params.product_size, containers))
+    return beta + lam * np.floor(volumes / size)
 
 
 def reset_state(params: PlantParams, uniforms: np.ndarray) -> PlantState:
@@ -160,22 +196,27 @@ def priority_keys(
     raise ValueError(f"arbitration: unknown rule {rule!r}; choose one of {ARBITRATION_RULES}")
 
 
-def arbitrate(requests: np.ndarray, free_count: np.ndarray, keys: np.ndarray) -> np.ndarray:
+def arbitrate(requests: np.ndarray, free_count: np.ndarray, keys: np.ndarray,
+              request_count: np.ndarray | None = None) -> np.ndarray:
     """Grant the ``free_count[b]`` highest-priority requests of each simulation, (B, n) bool.
 
     Requests are taken in decreasing key order, ties to the lower index (the order of a stable
     sort of ``-keys``); keys must be finite. Done as ``max(free_count)`` rounds of a row-wise
-    argmax (at most m rounds), which is much cheaper than sorting every row.
+    argmax (at most m rounds), which is much cheaper than sorting every row. ``request_count``
+    (requests per row) may be passed if already known.
     """
     requests = np.asarray(requests, dtype=bool)
     b, n = requests.shape
     granted = np.zeros((b, n), dtype=bool)
-    free_count = np.minimum(np.asarray(free_count), row_count(requests))
+    if request_count is None:
+        request_count = row_count(requests)
+    free_count = np.minimum(np.asarray(free_count), request_count)
     rounds = int(free_count.max()) if b else 0
     if rounds <= 0:
         return granted
     rows = np.arange(b)
-    masked = np.where(requests, keys, -np.inf)
+    masked = np.array(keys, dtype=np.float64)  # a writable copy
+    np.copyto(masked, -np.inf, where=~requests)
     for k in range(rounds):
         best = masked.argmax(axis=1)
         take = free_count > k  # such a row still has an ungranted request (free_count <= requests)
@@ -224,18 +265,20 @@ def step(
     if arbitration not in ARBITRATION_RULES:
         raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
 
+    const = per_entry(params, bsz)
     free = p == 0.0
     free_count = row_count(free)
     # v(t+1) before emptying: max(0, (v + μδ) + σ√δ·ε), in place on fresh arrays
-    v_next = np.add(v, params.fill_mean_per_step)
-    v_next += np.multiply(params.fill_std_per_step, normals)
+    v_next = np.add(v, const.fill_mean_per_step)
+    v_next += np.multiply(const.fill_std_per_step, normals)
     np.maximum(0.0, v_next, out=v_next)
     p_next = np.subtract(p, params.timestep_s)
     np.maximum(0.0, p_next, out=p_next)
 
     container_reward = np.zeros((bsz, n))
     emptied_volume = np.zeros((bsz, n))
-    pu_index = np.full((bsz, n), -1, dtype=np.int64)
+    pu_index = np.empty((bsz, n), dtype=np.int64)
+    pu_index.fill(-1)
     flat_req = np.flatnonzero(requests)
     if flat_req.size:
         req_sim = flat_req // n
@@ -244,9 +287,15 @@ def step(
         contested = req_count > free_count
         if contested.any():
             c = np.flatnonzero(contested)
-            keys = priority_keys(arbitration, v[c], None if uniforms is None else uniforms[c], params)
+            vc = np.take(v, c, axis=0)
+            if arbitration == "fullest" and const.max_volume.ndim == 2:
+                keys = vc / const.max_volume[:c.size]  # the same values as priority_keys
+            else:
+                keys = priority_keys(arbitration, vc, None if uniforms is None else np.take(uniforms, c, axis=0),
+                                     params)
             granted = requests.copy()
-            granted[c] = arbitrate(requests[c], free_count[c], keys)
+            granted[c] = arbitrate(np.take(requests, c, axis=0), np.take(free_count, c), keys,
+                                   np.take(req_count, c))
             req_granted = granted.reshape(-1)[flat_req]
             flat_g = flat_req[req_granted]
             flat_denied = flat_req[~req_granted]
@@ -256,18 +305,21 @@ def step(
         if flat_g.size:
             sim_g = flat_g // n
             cont_g = flat_g - sim_g * n
-            vol_g = v[sim_g, cont_g]
+            vol_g = np.take(v.reshape(-1), flat_g) if v.flags.c_contiguous else v[sim_g, cont_g]
             # Rewards of this step's decisions, from the volumes before this step's inflow.
             container_reward.reshape(-1)[flat_g] = emptying_reward(vol_g, params, cont_g)
             emptied_volume.reshape(-1)[flat_g] = vol_g
             v_next[sim_g, cont_g] = 0.0
             # The k-th granted container (index order) takes the k-th free PU (index order).
             # flat_g is sorted, so a simulation's grants are consecutive: k = j - (first j of it).
-            first = np.ones(flat_g.size, dtype=bool)
-            first[1:] = sim_g[1:] != sim_g[:-1]
-            j = np.arange(flat_g.size)
-            position = j - np.maximum.accumulate(np.where(first, j, 0))
-            pus = _k_th_free_pu(free, sim_g, position)
+            if flat_g.size == 1 or free.shape[1] == 1:  # one grant: the first free PU
+                pus = np.argmax(np.take(free, sim_g, axis=0), axis=1)
+            else:
+                first = np.ones(flat_g.size, dtype=bool)
+                first[1:] = sim_g[1:] != sim_g[:-1]
+                j = np.arange(flat_g.size)
+                position = j - np.maximum.accumulate(np.where(first, j, 0))
+                pus = _k_th_free_pu(free, sim_g, position)
             pu_index.reshape(-1)[flat_g] = pus
             p_next[sim_g, pus] = pu_busy_time_s(vol_g, params, cont_g)
         if flat_denied.size:
@@ -277,7 +329,7 @@ def step(
         plant_reward = np.zeros(bsz)
         single = req_count[req_sim] == 1
         plant_reward[req_sim[single]] = container_reward.reshape(-1)[flat_req[single]]
-        multi = np.flatnonzero(req_count > 1)
+        multi = np.flatnonzero(req_count > 1) if flat_req.size > 1 else flat_req[:0]
         if multi.size:
             plant_reward[multi] = container_reward[multi].sum(axis=1)
     else:
@@ -285,10 +337,10 @@ def step(
         plant_reward = np.zeros(bsz)
 
     step_count = state.step_count + 1
-    overflowed = v_next >= params.max_volume
+    overflowed = v_next >= const.max_volume
     individual_reward = container_reward.copy()
     if overflowed.any():
-        terminated = overflowed.any(axis=1)
+        terminated = row_any(overflowed)
         individual_reward[overflowed] = params.overflow_reward
         plant_reward[terminated] = params.overflow_reward
     else:

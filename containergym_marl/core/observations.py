@@ -37,7 +37,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from containergym_marl.core.dynamics import PlantState, emptying_reward, row_count
+from containergym_marl.core.dynamics import PlantState, emptying_reward, per_entry, row_count
 from containergym_marl.core.params import PlantParams
 
 #: The rule-based controller's margin (paper, section 6.2), also used by ``others_ready_frac``.
@@ -143,24 +143,30 @@ def agent_observations(
     v, p = state.volumes, state.pu_timers_s
     bsz, n = v.shape
     m = params.n_pus
-    vmax = params.max_volume
+    const = per_entry(params, bsz)  # (B, n) tiles of the per-container constants if B is large
+    vmax = const.max_volume
     others = max(n - 1, 1)  # with one container the "others" shares are 0
     ns = len(SCALAR_FEATURES)
 
+    def per_sim(x: np.ndarray) -> np.ndarray:  # (B,) -> (B, n), flat for cheap assignment
+        return np.repeat(x, n).reshape(bsz, n)
+
     out = np.empty((bsz, n, ns + m + n), dtype=np.float32)
-    out[...] = _agent_observation_template(params)
+    out.reshape(bsz, -1)[...] = _agent_observation_template(params).reshape(-1)
     vol_frac = v / vmax
     out[..., 0] = vol_frac
-    out[..., 2] = (params.target_volume - v) / vmax
+    out[..., 2] = (const.target_volume - v) / vmax
     out[..., 7] = emptying_reward(v, params)
-    out[..., 8] = (row_count(p == 0.0) / m)[:, None]
+    out[..., 8] = per_sim(row_count(p == 0.0) / m)
     prev = np.asarray(previous_requests, dtype=bool)
-    out[..., 9] = (row_count(prev)[:, None] - prev) / others
-    ready = v >= params.target_volume - READY_MARGIN
-    out[..., 10] = (row_count(ready)[:, None] - ready) / others
+    out[..., 9] = (per_sim(row_count(prev)) - prev) / others
+    ready = v >= const.target_volume - READY_MARGIN
+    out[..., 10] = (per_sim(row_count(ready)) - ready) / others
     # Containers fuller than each one: they win the default "fullest" arbitration.
     out[..., 11] = _count_greater(vol_frac) / others
-    out[..., ns:ns + m] = (p / params.max_pu_time_s)[:, None, :]
+    timers = p / params.max_pu_time_s
+    for j in range(m):
+        out[..., ns + j] = per_sim(timers[:, j])
     low, high = agent_observation_bounds(params)
     dyn = slice(0, 3), slice(7, ns + m)  # entries 1 and the one-hot come clipped from the template
     for cols in dyn:

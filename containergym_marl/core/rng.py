@@ -86,5 +86,5 @@ class NoiseStreams:
                 cur = self._cursor[idx]
             rows = self._row_base[idx] + cur
             self._cursor[idx] = cur + 1
-        return (self._normals[rows] if normals else None,
-                self._uniforms[rows] if uniforms else None)
+        return (np.take(self._normals, rows, axis=0) if normals else None,
+                np.take(self._uniforms, rows, axis=0) if uniforms else None)

@@ -114,7 +114,10 @@ def _centralised_requests(actions: np.ndarray, num_sims: int, n: int) -> np.ndar
     if a.min() < 0 or a.max() > n:
         bad = int(np.flatnonzero((a < 0) | (a > n))[0])
         raise ValueError(f"actions: env {bad} has action {int(a[bad])} outside [0, {n}]")
-    return a[:, None] == np.arange(1, n + 1)
+    requests = np.zeros((num_sims, n), dtype=bool)
+    rows = np.flatnonzero(a)
+    requests.reshape(-1)[rows * n + (a[rows] - 1)] = True
+    return requests
 
 
 def _agent_requests(actions: np.ndarray, num_sims: int, n: int) -> np.ndarray:
