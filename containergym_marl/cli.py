@@ -4,6 +4,7 @@
     containergym-marl train --algo shared_ppo --config n5_m2_dt120 --seed 1 --out runs/x --resume
     containergym-marl evaluate runs/ppo_n5_m2_dt120_s1            # the run's best model, paper protocol
     containergym-marl evaluate rule_based --config n11_m2_dt120 --episodes 15
+    containergym-marl compare                                   # the benchmark's main job
 """
 
 from __future__ import annotations
@@ -91,6 +92,16 @@ def _cmd_evaluate(ns: argparse.Namespace) -> int:
     return _print_evaluation(_evaluate_target(ns.target, ns.config, ns.episodes, ns.model, ns.arbitration), ns.json)
 
 
+def _cmd_compare(ns: argparse.Namespace) -> int:
+    from containergym_marl.compare import CompareArgs, compare
+
+    compare(CompareArgs(configs=ns.configs, methods=ns.methods, seeds=ns.seeds, timesteps=ns.timesteps,
+                        episodes=ns.episodes, out=ns.out, runs=ns.runs, n_envs=ns.n_envs,
+                        bootstrap_reps=ns.bootstrap_reps, figures=not ns.no_figures,
+                        progress_bar=ns.progress))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from containergym_marl.training.runs import ALGORITHMS
 
@@ -130,6 +141,26 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--arbitration", default=None, choices=("fullest", "random", "index", "best_reward"))
     e.add_argument("--json", default=None, help="write the evaluation as JSON here")
     e.set_defaults(func=_cmd_evaluate)
+
+    from containergym_marl.compare import CompareArgs
+
+    d = CompareArgs()
+    c = sub.add_parser("compare", help="train/reuse, evaluate and compare methods; tables and figures",
+                       description="The benchmark's main job. With no arguments: a small but real comparison "
+                                   "on n5_m2_dt120 (rule-based vs briefly trained PPO and shared PPO).")
+    c.add_argument("--configs", nargs="+", default=d.configs)
+    c.add_argument("--methods", nargs="+", default=d.methods,
+                   help="rule_based, rule_based_agents, ppo, trpo, dqn, maskable_ppo, shared_ppo")
+    c.add_argument("--seeds", nargs="+", type=int, default=d.seeds)
+    c.add_argument("--timesteps", type=int, default=d.timesteps, help="training budget per run (samples)")
+    c.add_argument("--episodes", type=int, default=d.episodes)
+    c.add_argument("--out", default=d.out)
+    c.add_argument("--runs", default=None, help="run directories (default <out>/runs)")
+    c.add_argument("--n-envs", type=int, default=d.n_envs)
+    c.add_argument("--bootstrap-reps", type=int, default=d.bootstrap_reps)
+    c.add_argument("--no-figures", action="store_true")
+    c.add_argument("--progress", action="store_true", help="show training progress bars")
+    c.set_defaults(func=_cmd_compare)
     return parser
 
 

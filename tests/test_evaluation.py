@@ -29,14 +29,16 @@ def test_metrics_match_a_manual_replay_including_the_final_reward():
     for metrics, record in zip(result.episodes, result.records):
         env = ContainerGymEnv(cfg, timestep_s=120, episode_length_steps=300)
         obs, _ = env.reset(seed=metrics.seed)
-        total, emptied, denied, good, negative, rewards = 0.0, 0, 0, 0, 0, []
+        total, emptied, actions, denied, good, negative, rewards = 0.0, 0, 0, 0, 0, 0, []
         while True:
-            obs, r, term, trunc, info = env.step(policy.act(obs))
+            action = policy.act(obs)
+            obs, r, term, trunc, info = env.step(action)
             total += r
-            if info["emptied_container"] is not None:
-                emptied += 1
+            if action > 0:  # an emptying action, carried out or denied (reward r_pen)
+                actions += 1
                 good += info["emptying_reward"] >= 0.75
                 negative += info["emptying_reward"] < 0
+            emptied += info["emptied_container"] is not None
             denied += info["no_free_pu"]
             rewards.append(r)
             if term or trunc:
@@ -44,8 +46,9 @@ def test_metrics_match_a_manual_replay_including_the_final_reward():
         assert metrics.cumulative_reward == pytest.approx(total, abs=1e-9)
         assert metrics.steps == info["step"] and metrics.overflow == term
         assert metrics.emptyings == emptied and metrics.denied_requests == denied
-        assert metrics.good_emptying_share == pytest.approx(good / emptied)
-        assert metrics.negative_emptying_share == pytest.approx(negative / emptied)
+        assert metrics.emptying_actions == actions == emptied + denied
+        assert metrics.good_emptying_share == pytest.approx(good / actions)
+        assert metrics.negative_emptying_share == pytest.approx(negative / actions)
         np.testing.assert_allclose(record.plant_reward, rewards)
 
 

@@ -62,15 +62,16 @@ class EpisodeMetrics:
     cumulative_reward: float
     steps: int
     overflow: bool
-    emptyings: int
-    good_emptying_share: float  # share of emptying rewards >= 0.75
-    negative_emptying_share: float  # share of emptying rewards < 0
+    emptyings: int  # containers actually emptied
+    emptying_actions: int  # requests to empty, granted or denied (no free PU)
+    good_emptying_share: float  # share of emptying actions with reward >= 0.75
+    negative_emptying_share: float  # share of emptying actions with reward < 0
     denied_requests: int
     pu_utilisation: float  # share of (step, PU) pairs with the PU busy after the step
 
     @classmethod
     def from_record(cls, rec: EpisodeRecord) -> "EpisodeMetrics":
-        r = rec.emptying_rewards()
+        r = rec.emptying_action_rewards()
         busy = rec.pu_timers_s[1:] > 0
         return cls(
             seed=int(rec.seed) if rec.seed is not None else -1,
@@ -78,6 +79,7 @@ class EpisodeMetrics:
             steps=rec.steps,
             overflow=rec.terminated,
             emptyings=int(rec.granted.sum()),
+            emptying_actions=int(rec.requested.sum()),
             good_emptying_share=float((r >= GOOD_REWARD).mean()) if r.size else float("nan"),
             negative_emptying_share=float((r < 0).mean()) if r.size else float("nan"),
             denied_requests=int(rec.denied.sum()),
@@ -114,6 +116,7 @@ class EvaluationResult:
             "overflow_rate": mean("overflow"),
             "steps_mean": mean("steps"),
             "emptyings_mean": mean("emptyings"),
+            "emptying_actions_mean": mean("emptying_actions"),
             "good_emptying_share": mean("good_emptying_share"),
             "negative_emptying_share": mean("negative_emptying_share"),
             "denied_requests_mean": mean("denied_requests"),

@@ -64,8 +64,13 @@ class EpisodeRecord:
         return v[g]
 
     def emptying_rewards(self) -> np.ndarray:
-        """Reward of every emptying action that was carried out (granted requests)."""
+        """Reward of every emptying that was carried out (granted requests)."""
         return self.container_reward[self.granted]
+
+    def emptying_action_rewards(self) -> np.ndarray:
+        """Reward of every emptying *action*: granted ones and those denied for lack of a free PU
+        (r_pen), as in the paper's Figure 4 and its "share of negative rewards"."""
+        return self.container_reward[self.requested]
 
     def save_npz(self, path: str | Path) -> None:
         meta = {k: v for k, v in asdict(self).items() if k not in _ARRAYS}
