@@ -12,8 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from containergym_marl.evaluation import EvalProtocol
-from containergym_marl.training.runs import TrainArgs, evaluate_run, train
+from containergym_marl.training.runs import train_and_evaluate
 from containergym_marl.training.script_args import parse_args
 
 
@@ -32,15 +31,7 @@ class Args:
 
 
 def main(args: Args) -> dict:
-    run = train(TrainArgs(algo="trpo", config=args.config, seed=args.seed, timesteps=args.timesteps,
-                          n_envs=args.n_envs, out=args.out or None, resume=args.resume,
-                          progress_bar=args.progress_bar))
-    protocol = EvalProtocol(episodes=args.episodes)
-    results = {which: evaluate_run(run, which=which, protocol=protocol) for which in ("best", "final")}
-    for which, result in results.items():
-        s = result.summary()
-        print(f"{which} policy: {s['return_mean']:.2f} ± {s['return_std']:.2f} (overflow rate {s['overflow_rate']:.2f})")
-    return results
+    return train_and_evaluate("trpo", args)
 
 
 if __name__ == "__main__":

@@ -378,3 +378,21 @@ def evaluate_run(run: str | Path, config: str | None = None, which: str = "best"
     if write:
         (Path(run) / f"evaluation_{which}.json").write_text(result.to_json())
     return result
+
+
+def train_and_evaluate(algo: str, script_args: Any) -> dict[str, Any]:
+    """What every learning baseline script does: train (or resume) a run from the script's ``Args``
+    dataclass, then evaluate its best and final policies with the paper's protocol."""
+    from containergym_marl.evaluation import EvalProtocol
+
+    fields = dataclasses.asdict(script_args)
+    episodes = fields.pop("episodes", 15)
+    fields["out"] = fields.get("out") or None
+    run = train(TrainArgs(algo=algo, **fields))
+    protocol = EvalProtocol(episodes=episodes)
+    results = {which: evaluate_run(run, which=which, protocol=protocol) for which in ("best", "final")}
+    for which, result in results.items():
+        s = result.summary()
+        print(f"{which} policy: {s['return_mean']:.2f} ± {s['return_std']:.2f} over {s['episodes']} episodes "
+              f"(overflow rate {s['overflow_rate']:.2f}, denied requests/episode {s['denied_requests_mean']:.1f})")
+    return results
