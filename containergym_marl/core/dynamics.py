@@ -91,17 +91,33 @@ def sum_last_axis(x: np.ndarray) -> np.ndarray:
 _LARGE_BATCH = 64
 
 
-@lru_cache(maxsize=16)  # params are immutable and hashed by identity
-def per_entry(params: PlantParams, bsz: int) -> SimpleNamespace:
-    """Per-container constants shaped for a batch of ``bsz``: (B, n) read-only tiles for large
-    batches, the (n,) arrays otherwise. Elementwise results are the same either way."""
+@lru_cache(maxsize=32)  # params are immutable and hashed by identity
+def _constants(params: PlantParams, rows: int) -> SimpleNamespace:
     names = ("fill_mean_per_step", "fill_std_per_step", "max_volume", "target_volume")
     arrays = {k: getattr(params, k) for k in names}
-    if bsz >= _LARGE_BATCH:
-        arrays = {k: np.tile(a, (bsz, 1)) for k, a in arrays.items()}
-        for a in arrays.values():
-            a.setflags(write=False)
+    # reward peak k of every container: peak, 2w², h − r_pen, as (n,) columns
+    for k in range(params.reward_peaks.shape[1]):
+        arrays[f"peak{k}"] = np.ascontiguousarray(params.reward_peaks[:, k])
+        arrays[f"two_w_sq{k}"] = np.ascontiguousarray(params.reward_two_width_sq[:, k])
+        arrays[f"coef{k}"] = np.ascontiguousarray(params.reward_coef[:, k])
+    if rows:
+        arrays = {k: np.tile(a, (rows, 1)) for k, a in arrays.items()}
+    for a in arrays.values():
+        a.setflags(write=False)
     return SimpleNamespace(**arrays)
+
+
+def per_entry(params: PlantParams, bsz: int) -> SimpleNamespace:
+    """Per-container constants shaped for a batch of ``bsz``: (B, n) read-only tiles for large
+    batches (cut from a cached tile of the next power of two), the (n,) arrays otherwise.
+    Elementwise results are the same either way."""
+    if bsz < _LARGE_BATCH:
+        return _constants(params, 0)
+    cap = 1 << (bsz - 1).bit_length()
+    tiles = _constants(params, cap)
+    if cap == bsz:
+        return tiles
+    return SimpleNamespace(**{k: a[:bsz] for k, a in vars(tiles).items()})
 
 
 def row_any(mask: np.ndarray) -> np.ndarray:
@@ -133,20 +149,43 @@ def emptying_reward(volumes: np.ndarray, params: PlantParams, containers=None) -
     ``containers[j]``; the values are exactly those of the full form at those entries.
     """
     v = np.asarray(volumes, dtype=np.float64)
-    if containers is None:  # (..., n) volumes
-        peaks, two_w_sq, coef = params.reward_peaks, params.reward_two_width_sq, params.reward_coef
+    n_peaks = params.reward_peaks.shape[1]
+    if n_peaks <= _SEQUENTIAL_SUM_MAX_TERMS and (containers is not None or v.ndim == 2):
+        # Peak by peak on (B, n) or (k,) arrays: the same operations and the same (sequential)
+        # order of the sum over peaks as the (..., n, K) form below, without its inner loop of K.
+        if containers is None:
+            cols = per_entry(params, v.shape[0])
+            column = lambda name, k: getattr(cols, f"{name}{k}")  # noqa: E731
+        else:
+            cols = per_entry(params, 1)
+            column = lambda name, k: np.take(getattr(cols, f"{name}{k}"), containers)  # noqa: E731
+        reward = None
+        for k in range(n_peaks):
+            term = np.subtract(v, column("peak", k))
+            np.multiply(term, term, out=term)
+            np.negative(term, out=term)
+            np.divide(term, column("two_w_sq", k), out=term)
+            np.exp(term, out=term)
+            np.multiply(column("coef", k), term, out=term)
+            if reward is None:
+                reward = term
+            else:
+                reward += term
     else:
-        peaks = np.take(params.reward_peaks, containers, axis=0)
-        two_w_sq = np.take(params.reward_two_width_sq, containers, axis=0)
-        coef = np.take(params.reward_coef, containers, axis=0)
-    # r_pen + sum(coef * exp(-(diff * diff) / 2w²)), computed in place (same operations, same bits)
-    diff = np.subtract(v[..., None], peaks)
-    np.multiply(diff, diff, out=diff)
-    np.negative(diff, out=diff)
-    np.divide(diff, two_w_sq, out=diff)
-    np.exp(diff, out=diff)
-    np.multiply(coef, diff, out=diff)
-    reward = sum_last_axis(diff)
+        if containers is None:  # (..., n) volumes
+            peaks, two_w_sq, coef = params.reward_peaks, params.reward_two_width_sq, params.reward_coef
+        else:
+            peaks = np.take(params.reward_peaks, containers, axis=0)
+            two_w_sq = np.take(params.reward_two_width_sq, containers, axis=0)
+            coef = np.take(params.reward_coef, containers, axis=0)
+        # r_pen + sum(coef * exp(-(diff * diff) / 2w²)), computed in place (same operations, same bits)
+        diff = np.subtract(v[..., None], peaks)
+        np.multiply(diff, diff, out=diff)
+        np.negative(diff, out=diff)
+        np.divide(diff, two_w_sq, out=diff)
+        np.exp(diff, out=diff)
+        np.multiply(coef, diff, out=diff)
+        reward = sum_last_axis(diff)
     reward = np.add(params.penalty_reward, reward, out=reward)
     empty = v == 0.0
     if empty.any():
@@ -215,8 +254,7 @@ def arbitrate(requests: np.ndarray, free_count: np.ndarray, keys: np.ndarray,
     if rounds <= 0:
         return granted
     rows = np.arange(b)
-    masked = np.array(keys, dtype=np.float64)  # a writable copy
-    np.copyto(masked, -np.inf, where=~requests)
+    masked = np.where(requests, keys, -np.inf)
     for k in range(rounds):
         best = masked.argmax(axis=1)
         take = free_count > k  # such a row still has an ungranted request (free_count <= requests)
@@ -330,7 +368,9 @@ def step(
         single = req_count[req_sim] == 1
         plant_reward[req_sim[single]] = container_reward.reshape(-1)[flat_req[single]]
         multi = np.flatnonzero(req_count > 1) if flat_req.size > 1 else flat_req[:0]
-        if multi.size:
+        if multi.size * 4 > bsz:  # most rows: sum them all (a lone entry sums to itself)
+            plant_reward = container_reward.sum(axis=1)
+        elif multi.size:
             plant_reward[multi] = container_reward[multi].sum(axis=1)
     else:
         granted = denied = requests

@@ -126,10 +126,11 @@ def _count_greater(x: np.ndarray) -> np.ndarray:
     b, n = x.shape
     if b < 64:
         return (x[:, None, :] > x[:, :, None]).sum(axis=2)
-    out = np.zeros((b, n), dtype=np.int64)
+    xt = np.ascontiguousarray(x.T)  # (n, B): each comparison below runs over B contiguous entries
+    out = np.zeros((n, b), dtype=np.int64)
     for j in range(n):  # a loop over containers, not simulations
-        out += x[:, j:j + 1] > x
-    return out
+        out += xt[j] > xt
+    return out.T
 
 
 def agent_observations(
@@ -151,24 +152,28 @@ def agent_observations(
     def per_sim(x: np.ndarray) -> np.ndarray:  # (B,) -> (B, n), flat for cheap assignment
         return np.repeat(x, n).reshape(bsz, n)
 
+    low, high = agent_observation_bounds(params)
+
+    def clipped(x: np.ndarray, col: int) -> np.ndarray:
+        # Clipping the float64 values into the float32-representable bounds, then casting, gives
+        # exactly the float32 cast clipped in float32 (rounding is monotonic); and it is cheap here,
+        # on contiguous arrays, instead of on the output's strided columns.
+        return np.clip(x, float(low[col]), float(high[col]), out=x)
+
     out = np.empty((bsz, n, ns + m + n), dtype=np.float32)
-    out.reshape(bsz, -1)[...] = _agent_observation_template(params).reshape(-1)
+    out.reshape(bsz, -1)[...] = _agent_observation_template(params).reshape(-1)  # entries 1, 3–6, one-hot
     vol_frac = v / vmax
-    out[..., 0] = vol_frac
-    out[..., 2] = (const.target_volume - v) / vmax
-    out[..., 7] = emptying_reward(v, params)
-    out[..., 8] = per_sim(row_count(p == 0.0) / m)
+    out[..., 0] = clipped(vol_frac.copy(), 0)
+    out[..., 2] = clipped((const.target_volume - v) / vmax, 2)
+    out[..., 7] = clipped(emptying_reward(v, params), 7)
+    out[..., 8] = per_sim(clipped(row_count(p == 0.0) / m, 8))
     prev = np.asarray(previous_requests, dtype=bool)
-    out[..., 9] = (per_sim(row_count(prev)) - prev) / others
+    out[..., 9] = clipped((per_sim(row_count(prev)) - prev) / others, 9)
     ready = v >= const.target_volume - READY_MARGIN
-    out[..., 10] = (per_sim(row_count(ready)) - ready) / others
+    out[..., 10] = clipped((per_sim(row_count(ready)) - ready) / others, 10)
     # Containers fuller than each one: they win the default "fullest" arbitration.
-    out[..., 11] = _count_greater(vol_frac) / others
+    out[..., 11] = clipped(_count_greater(vol_frac) / others, 11)
     timers = p / params.max_pu_time_s
     for j in range(m):
-        out[..., ns + j] = per_sim(timers[:, j])
-    low, high = agent_observation_bounds(params)
-    dyn = slice(0, 3), slice(7, ns + m)  # entries 1 and the one-hot come clipped from the template
-    for cols in dyn:
-        np.clip(out[..., cols], low[cols], high[cols], out=out[..., cols])
+        out[..., ns + j] = per_sim(clipped(timers[:, j].copy(), ns + j))
     return out
