@@ -331,3 +331,8 @@ def test_refill_in_place_draws_the_documented_stream():
     np.testing.assert_array_equal(np.stack([got[0][1][0]] + [g[1][1] for g in got[1:]]), uniforms[:2 * BLOCK_ROWS + 1])
     nrm, uni = streams.next_rows(normals=False)
     assert nrm is None and uni.shape == (3, n)
+
+
+def test_exp_in_place_equals_np_exp_including_underflow():
+    x = np.concatenate([np.linspace(-9000.0, 5.0, 20001), [-746.0, -745.2, -745.0, -708.5, -0.0, 0.0]])
+    np.testing.assert_array_equal(dynamics._exp_in_place(x.copy()), np.exp(x))
