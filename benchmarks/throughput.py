@@ -2,10 +2,10 @@
 
 Run from the repository root (the package installed, with its training extra)::
 
-    python benchmarks/throughput.py                 # full benchmark, about 4-6 minutes on 2 cores
+    python benchmarks/throughput.py                 # full benchmark, about 2 minutes on 2 cores
     python benchmarks/throughput.py --json out.json # also write every number as JSON
     python benchmarks/throughput.py --smoke         # tiny sizes, a few seconds (what the tests run)
-    python benchmarks/throughput.py --skip-ppo      # environment tables only (about 1-2 minutes)
+    python benchmarks/throughput.py --skip-ppo      # environment tables only (about 1.5 minutes)
 
 It prints Markdown to stdout:
 
