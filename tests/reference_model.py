@@ -9,7 +9,8 @@ from __future__ import annotations
 import math
 
 
-def reward_of_emptying(volume: float, spec, r_pen: float) -> float:
+def paper_reward(spec, volume: float, r_pen: float) -> float:
+    """Paper eq. 5: r_pen + Σ (h − r_pen)·exp(−(v − v*)²/(2w²)); r_pen for an empty container."""
     if volume == 0.0:
         return r_pen
     total = r_pen
@@ -18,7 +19,8 @@ def reward_of_emptying(volume: float, spec, r_pen: float) -> float:
     return total
 
 
-def busy_time(volume: float, spec) -> float:
+def busy_time(spec, volume: float) -> float:
+    """Paper eq. 2: β + λ·⌊v / b⌋."""
     return spec.pu_offset_s + spec.pu_time_per_product_s * math.floor(volume / spec.product_size)
 
 
@@ -38,7 +40,7 @@ def step_one(cfg, volumes, timers, step_count, requests, normals, uniforms, rule
         if rule == "index":
             return -i
         if rule == "best_reward":
-            return reward_of_emptying(volumes[i], spec, r_pen)
+            return paper_reward(spec, volumes[i], r_pen)
         raise ValueError(rule)
 
     candidates = [i for i in range(n) if requests[i]]
@@ -50,7 +52,7 @@ def step_one(cfg, volumes, timers, step_count, requests, normals, uniforms, rule
 
     rewards = [0.0] * n
     for i in candidates:
-        rewards[i] = reward_of_emptying(volumes[i], cfg.containers[i], r_pen) if i in pus else r_pen
+        rewards[i] = paper_reward(cfg.containers[i], volumes[i], r_pen) if i in pus else r_pen
 
     new_volumes = []
     for i, spec in enumerate(cfg.containers):
@@ -61,7 +63,7 @@ def step_one(cfg, volumes, timers, step_count, requests, normals, uniforms, rule
             new_volumes.append(max(0.0, volumes[i] + inc))
     new_timers = [max(0.0, t - dt) for t in timers]
     for i, j in pus.items():
-        new_timers[j] = busy_time(volumes[i], cfg.containers[i])
+        new_timers[j] = busy_time(cfg.containers[i], volumes[i])
 
     step_count += 1
     overflow = [v >= spec.max_volume for v, spec in zip(new_volumes, cfg.containers)]

@@ -19,27 +19,13 @@ from gymnasium import spaces
 import containergym_marl
 from containergym_marl.core import EpisodeFinishedError
 from containergym_marl.envs.centralised import ContainerGymEnv
+from tests.reference_model import busy_time, paper_reward
 
 CFG = "n5_m2_dt120"
 ENV_ID = "containergym_marl/ContainerGym-v0"
 
 
 # ---- independent helpers ------------------------------------------------------------------------
-def paper_reward(spec, v: float, r_pen: float) -> float:
-    """Paper eq. 5: r_pen + Σ (h − r_pen)·exp(−(v − v*)²/(2w²)); r_pen for an empty container."""
-    if v == 0.0:
-        return r_pen
-    return r_pen + sum(
-        (h - r_pen) * math.exp(-((v - p) ** 2) / (2.0 * w**2))
-        for p, h, w in zip(spec.reward_peaks, spec.reward_heights, spec.reward_widths)
-    )
-
-
-def busy_time(spec, v: float) -> float:
-    """Paper eq. 2: β + λ·⌊v / b⌋."""
-    return spec.pu_offset_s + spec.pu_time_per_product_s * math.floor(v / spec.product_size)
-
-
 def toml_config(name: str) -> dict:
     text = (resources.files("containergym_marl.configs") / f"{name}.toml").read_text(encoding="utf-8")
     return tomllib.loads(text)

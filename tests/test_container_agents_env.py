@@ -23,6 +23,7 @@ from containergym_marl.envs import container_agents_v0
 from containergym_marl.envs.centralised import ContainerGymEnv
 from containergym_marl.envs.container_agents_v0 import env as aec_env
 from containergym_marl.envs.container_agents_v0 import parallel_env, raw_env
+from tests.reference_model import busy_time, paper_reward
 
 CFG = "n5_m2_dt120"
 AGENT_NAME_WARNING = 'We recommend agents to be named in the format <descriptor>_<number>, like "player_0"'
@@ -31,19 +32,6 @@ N_SCALARS = 12
 
 
 # ---- independent helpers ------------------------------------------------------------------------
-def paper_reward(spec, v: float, r_pen: float) -> float:
-    if v == 0.0:
-        return r_pen
-    return r_pen + sum(
-        (h - r_pen) * math.exp(-((v - p) ** 2) / (2.0 * w**2))
-        for p, h, w in zip(spec.reward_peaks, spec.reward_heights, spec.reward_widths)
-    )
-
-
-def busy_time(spec, v: float) -> float:
-    return spec.pu_offset_s + spec.pu_time_per_product_s * math.floor(v / spec.product_size)
-
-
 def target_volume(spec) -> float:
     best = 0
     for k, h in enumerate(spec.reward_heights):
