@@ -10,6 +10,8 @@ evaluates every policy with the paper's test protocol and writes, to ``--out``:
   over seeds, mean ± std over the test episodes) plus, across seeds, the interquartile mean (IQM)
   with a stratified-bootstrap 95 % confidence interval, and the probability that the decentralised
   method (shared PPO) improves on its centralised counterpart (PPO), with its interval;
+* ``evaluations/<config>/`` — every evaluation as a small JSON file (per-episode metrics);
+  ``python -m containergym_marl.evaluation.table`` regenerates the best/median table from them;
 * ``figures/`` — the paper's figures for the best seed of each method: episode rollouts, ECDFs of
   emptying volumes per container and of rewards per emptying action, PU occupancy timelines, and
   the reward functions of the containers (PNG and SVG).
@@ -107,19 +109,24 @@ def _train_or_reuse(args: CompareArgs, method: str, config: str, seed: int, runs
                            progress_bar=args.progress_bar, hyperparams=dict(args.hyperparams)))
 
 
-def _evaluate_method(args: CompareArgs, method: str, config: str, runs: Path, protocol: EvalProtocol) -> MethodResult:
+def _evaluate_method(args: CompareArgs, method: str, config: str, runs: Path, protocol: EvalProtocol,
+                     evaluations: Path) -> MethodResult:
+    """Evaluate one method on one config; every evaluation is also written as a small JSON file
+    (``<method>.json`` or ``<method>_s<seed>.json``) from which the table can be regenerated."""
     from containergym_marl.policies import RuleBasedAgents, RuleBasedController
     from containergym_marl.training.runs import policy_from_run
 
+    evaluations.mkdir(parents=True, exist_ok=True)
     if method in RULE_BASED:
         cls = RuleBasedController if method == "rule_based" else RuleBasedAgents
         result = evaluate(cls(load_config(config).params()), config, protocol)
+        (evaluations / f"{method}.json").write_text(result.to_json())
         return MethodResult(config, method, VIEWS[method], [], [result])
     per_seed = []
     for seed in args.seeds:
         run = _train_or_reuse(args, method, config, seed, runs)
         per_seed.append(evaluate(policy_from_run(run, "best"), config, protocol))
-        (run / "evaluation_best.json").write_text(per_seed[-1].to_json())
+        (evaluations / f"{method}_s{seed}.json").write_text(per_seed[-1].to_json())
     return MethodResult(config, method, VIEWS.get(method, "centralised"), list(args.seeds), per_seed)
 
 
@@ -245,7 +252,8 @@ def compare(args: CompareArgs) -> dict:
     for config in args.configs:
         print(f"{config}:", flush=True)
         for method in args.methods:
-            results.append(_evaluate_method(args, method, config, runs, protocol))
+            results.append(_evaluate_method(args, method, config, runs, protocol,
+                                            out / "evaluations" / Path(config).stem))
     rng = np.random.default_rng(0)  # bootstrap resampling only; fixed for reproducible tables
     rows = _rows(results, args.bootstrap_reps, rng)
     improvements = _improvements(results, args.bootstrap_reps, rng)

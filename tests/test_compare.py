@@ -35,6 +35,9 @@ def test_compare_end_to_end_then_reuse(tmp_path, capsys):
     with (out / "table.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert [r["method"] for r in rows] == TINY["methods"]
+    evaluations = sorted(p.name for p in (out / "evaluations" / "n5_m2_dt120").iterdir())
+    assert evaluations == ["ppo_s1.json", "ppo_s2.json", "rule_based.json", "rule_based_agents.json",
+                           "shared_ppo_s1.json", "shared_ppo_s2.json"]
     saved = json.loads((out / "table.json").read_text())
     assert len(saved["seed_means"]["n5_m2_dt120/ppo"]) == 2
     figures = sorted(p.name for p in (out / "figures").iterdir())

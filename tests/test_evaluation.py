@@ -92,15 +92,17 @@ def test_decentralised_evaluation_counts_denials_and_records_round_trip(tmp_path
 def test_results_table_best_and_median_over_seeds(tmp_path):
     """Synthetic evaluation files: best = highest mean, median = middle seed by mean."""
     results = tmp_path / "n5_m2_dt120"
+    results.mkdir()
     means = {1: 10.0, 2: 30.0, 3: 20.0}
     for seed, mean in means.items():
-        run = results / f"ppo_n5_m2_dt120_s{seed}"
-        run.mkdir(parents=True)
-        (run / "args.json").write_text(json.dumps({"algo": "ppo", "seed": seed}))
         episodes = [{"cumulative_reward": mean - 1}, {"cumulative_reward": mean + 1}]
-        (run / "evaluation_best.json").write_text(json.dumps({"episodes": episodes, "summary": {"overflow_rate": 0.0}}))
-    (row,) = method_rows(results)
-    assert row.best == (30.0, 1.0, 2) and row.median == (20.0, 1.0, 3)
+        (results / f"ppo_s{seed}.json").write_text(json.dumps({"episodes": episodes, "summary": {"overflow_rate": 0.0}}))
+    (results / "rule_based.json").write_text(json.dumps(
+        {"episodes": [{"cumulative_reward": 50.0}], "summary": {"overflow_rate": 0.0}}))
+    rows = {r.method: r for r in method_rows(results)}
+    assert rows["ppo"].best == (30.0, 1.0, 2) and rows["ppo"].median == (20.0, 1.0, 3)
+    assert rows["rule_based"].seeds == [-1]
     table = markdown_table(results)
     assert "| ppo | centralised | 3 | 30.00 ± 1.00 | 20.00 ± 1.00 |" in table
+    assert "| rule_based | centralised | – | 50.00 ± 0.00 |" in table
     assert "paper PPO (15 seeds)" in table and "51.43 ± 3.00" in table

@@ -1,16 +1,17 @@
-"""The paper-style results table (Table 1) from evaluation files.
+"""The paper-style results table (Table 1) regenerated from small evaluation files.
 
-    python -m containergym_marl.evaluation.table results/n5_m2_dt120
+    python -m containergym_marl.evaluation.table results/n5_m2_dt120/evaluations/n5_m2_dt120
 
-reads ``<dir>/<algo>_<config>_s<seed>/evaluation_best.json`` (one per training seed) and
-``<dir>/rule_based*.json`` and prints, per method, the best and the median policy over seeds
-(ranked by mean test return), each as mean ± std over the test episodes, next to the paper's
-Table 1 row for the same configuration.
+reads the evaluation files that ``containergym-marl compare`` writes (``<method>_s<seed>.json`` for
+each training seed of a learned method, ``<method>.json`` for the rule-based controllers) and prints,
+per method, the best and the median policy over seeds (ranked by mean test return), each as
+mean ± std over the test episodes, next to the paper's Table 1 row for the same configuration.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,14 +40,15 @@ class MethodRow:
     overflow_rate_best: float
 
 
-def _load_evaluations(results: Path) -> dict[str, list[tuple[int, dict]]]:
+_NAME = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")
+
+
+def _load_evaluations(directory: Path) -> dict[str, list[tuple[int, dict]]]:
     by_method: dict[str, list[tuple[int, dict]]] = {}
-    for path in sorted(results.glob("*/evaluation_best.json")):
-        args = json.loads((path.parent / "args.json").read_text())
-        by_method.setdefault(args["algo"], []).append((int(args["seed"]), json.loads(path.read_text())))
-    for path in sorted(results.glob("rule_based*.json")):
-        data = json.loads(path.read_text())
-        by_method.setdefault(data["policy"], []).append((-1, data))
+    for path in sorted(directory.glob("*.json")):
+        m = _NAME.match(path.stem)
+        seed = int(m["seed"]) if m["seed"] is not None else -1
+        by_method.setdefault(m["method"], []).append((seed, json.loads(path.read_text())))
     return by_method
 
 
@@ -66,7 +68,7 @@ def method_rows(results: str | Path) -> list[MethodRow]:
 
 def markdown_table(results: str | Path, config: str | None = None) -> str:
     results = Path(results)
-    config = config or results.name
+    config = config or results.name  # compare writes evaluations/<config>/
     lines = [
         f"Test cumulative reward on `{config}` (paper protocol: δ = 120 s, T = 600, 15 episodes; "
         "mean ± std over episodes of the best and the median policy over training seeds)",
@@ -91,7 +93,7 @@ def markdown_table(results: str | Path, config: str | None = None) -> str:
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) != 1:
-        raise SystemExit("usage: python -m containergym_marl.evaluation.table RESULTS_DIR")
+        raise SystemExit("usage: python -m containergym_marl.evaluation.table EVALUATIONS_DIR")
     print(markdown_table(argv[0]))
 
 
