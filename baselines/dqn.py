@@ -21,7 +21,7 @@ class Args:
 
     config: str = "n5_m2_dt120"  # plant configuration (built-in name or path)
     seed: int = 1  # training seed
-    timesteps: int = 2_000_000  # budget in samples (paper: 2M for n=5, 5M for n=11)
+    timesteps: int = 0  # budget in samples; 0 = the paper's (2M for n=5, 5M for n=11)
     n_envs: int = 1  # simulations stepped together (SB3's DQN default is one environment)
     out: str = ""  # run directory (default runs/dqn_<config>_s<seed>)
     resume: bool = False  # continue an interrupted run from its last checkpoint

@@ -28,7 +28,7 @@ class Args:
 
     config: str = "n5_m2_dt120"  # plant configuration (built-in name or path)
     seed: int = 1  # training seed
-    timesteps: int = 2_000_000  # budget in samples, i.e. agent steps
+    timesteps: int = 0  # budget in samples (agent steps); 0 = the paper's (2M for n=5, 5M for n=11)
     n_envs: int = 8  # simulations (each contributes n agent slots)
     vec: str = "native"  # "native" or "supersuit"
     num_cpus: int = 0  # SuperSuit worker processes (vec=supersuit)

@@ -113,8 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--algo", required=True, choices=ALGORITHMS)
     t.add_argument("--config", default="n5_m2_dt120", help=f"built-in ({', '.join(list_configs())}) or a path")
     t.add_argument("--seed", type=int, default=1)
-    t.add_argument("--timesteps", type=int, default=2_000_000,
-                   help="budget in samples (agent steps for shared_ppo); paper: 2M (n=5), 5M (n=11)")
+    t.add_argument("--timesteps", type=int, default=None,
+                   help="budget in samples (agent steps for shared_ppo); default: the paper's, "
+                        "2M for n=5 and 5M for n=11")
     t.add_argument("--out", default=None, help="run directory (default runs/<algo>_<config>_s<seed>)")
     t.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     t.add_argument("--n-envs", type=int, default=None, help="parallel simulations (default 8, DQN 1)")

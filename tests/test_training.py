@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from containergym_marl import ConfigError
+from containergym_marl import ConfigError, load_config
 from containergym_marl.cli import main as cli_main
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
@@ -125,3 +125,11 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
         cli_main(["evaluate", "no_such_policy"])
     with pytest.raises(SystemExit):
         cli_main(["train", "--algo", "a2c"])
+
+
+def test_default_budget_is_the_papers():
+    from containergym_marl.training.runs import paper_budget
+
+    assert paper_budget(load_config("n5_m2_dt120").n_containers) == 2_000_000
+    assert paper_budget(load_config("n11_m2_dt120").n_containers) == 5_000_000
+    assert TrainArgs(algo="ppo").timesteps is None  # resolved from the plant in train()

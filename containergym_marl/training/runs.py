@@ -47,7 +47,8 @@ class TrainArgs:
             container agents, trained on the decentralised view).
         config: built-in config name or path; training uses its δ and T (1500 for the paper's).
         seed: training seed (simulation b of the vectorised env is seeded seed + b).
-        timesteps: budget in SB3 timesteps (samples); the paper: 2M for n = 5, 5M for n = 11.
+        timesteps: budget in SB3 timesteps (samples); None = the paper's budget for the plant's size
+            (2M for n <= 5 containers, 5M for more).
         out: run directory (default ``runs/<algo>_<config>_s<seed>``).
         resume: continue an interrupted run from its last checkpoint.
         n_envs: parallel simulations (default 8; DQN 1, as the paper's SB3 defaults).
@@ -66,7 +67,7 @@ class TrainArgs:
     algo: str
     config: str = "n5_m2_dt120"
     seed: int = 1
-    timesteps: int = 2_000_000
+    timesteps: int | None = None
     out: str | None = None
     resume: bool = False
     n_envs: int | None = None
@@ -90,6 +91,11 @@ class TrainArgs:
 
 class RunError(RuntimeError):
     """A run directory cannot be used as asked (would overwrite results, nothing to resume…)."""
+
+
+def paper_budget(n_containers: int) -> int:
+    """The paper's training budget: 2M samples for n = 5, 5M for n = 11 (section 6.1)."""
+    return 2_000_000 if n_containers <= 5 else 5_000_000
 
 
 # ---- algorithms and environments ----------------------------------------------------------------
@@ -284,6 +290,8 @@ def train(args: TrainArgs) -> Path:
 
     algo_cls = algorithm_class(args.algo)
     plant = load_config(args.config, **args.overrides)  # raises ConfigError for unknown configs
+    if args.timesteps is None:
+        args = dataclasses.replace(args, timesteps=paper_budget(plant.n_containers))
     if args.resume and (args.run_dir() / "args.json").is_file():
         saved_n_envs = json.loads((args.run_dir() / "args.json").read_text()).get("n_envs")
         args = dataclasses.replace(args, n_envs=saved_n_envs)  # the model's rollout shape
@@ -388,6 +396,7 @@ def train_and_evaluate(algo: str, script_args: Any) -> dict[str, Any]:
     fields = dataclasses.asdict(script_args)
     episodes = fields.pop("episodes", 15)
     fields["out"] = fields.get("out") or None
+    fields["timesteps"] = fields.get("timesteps") or None  # 0: the paper's budget
     run = train(TrainArgs(algo=algo, **fields))
     protocol = EvalProtocol(episodes=episodes)
     results = {which: evaluate_run(run, which=which, protocol=protocol) for which in ("best", "final")}
