@@ -118,16 +118,19 @@ class ContainerGymEnv(gym.Env):
         if a > 0:
             requests[0, a - 1] = True
         out = self._sim.step(requests)
-        names = self._names
-        emptied = np.flatnonzero(out.granted[0])
+        # At most one request (container a - 1): read its entries directly, cheaper than searching.
+        i = a - 1
+        emptied = a > 0 and bool(out.granted[0, i])
+        terminated = bool(out.terminated[0])
         info = {
             "step": int(self._sim.state.step_count[0]),
-            "emptied_container": names[emptied[0]] if emptied.size else None,
-            "emptied_volume": float(out.emptied_volume[0, emptied[0]]) if emptied.size else None,
-            "emptying_reward": float(out.container_reward[0].sum()),
-            "pu_index": int(out.pu_index[0, emptied[0]]) if emptied.size else None,
-            "no_free_pu": bool(out.denied[0].any()),
-            "overflowed_containers": tuple(names[i] for i in np.flatnonzero(out.overflowed[0])),
+            "emptied_container": self._names[i] if emptied else None,
+            "emptied_volume": float(out.emptied_volume[0, i]) if emptied else None,
+            "emptying_reward": float(out.container_reward[0, i]) if a > 0 else 0.0,
+            "pu_index": int(out.pu_index[0, i]) if emptied else None,
+            "no_free_pu": a > 0 and not emptied,
+            "overflowed_containers": (tuple(self._names[j] for j in np.flatnonzero(out.overflowed[0]))
+                                      if terminated else ()),
             "free_pus": int(out.free_pus_before[0]),
         }
         if self.render_mode == "human":
@@ -135,7 +138,7 @@ class ContainerGymEnv(gym.Env):
         return (
             self._observation(),
             float(out.plant_reward[0]),
-            bool(out.terminated[0]),
+            terminated,
             bool(out.truncated[0]),
             info,
         )
