@@ -357,8 +357,10 @@ def plot_emptying_volume_ecdfs(records_by_method: Mapping[str, Sequence[EpisodeR
     if has_local and "local optima" not in labels:
         handles.append(Line2D([], [], color="0.5", ls=":", lw=1.0, label="local optima"))
     fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 6), fontsize=8)
-    fig.suptitle(f"ECDFs of emptying volumes ({cfg.name}; "
-                 + ", ".join(f"{m}: {len(r)} episode{'s' * (len(r) != 1)}" for m, r in methods.items()) + ")")
+    episodes = {len(r) for r in methods.values()}
+    per_method = (f"{episodes.pop()} episodes per method" if len(episodes) == 1 else
+                  ", ".join(f"{m}: {len(r)} episodes" for m, r in methods.items()))
+    fig.suptitle(f"ECDFs of emptying volumes on {cfg.name} ({per_method})")
     return _save(fig, path, formats)
 
 
