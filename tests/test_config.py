@@ -35,19 +35,11 @@ from containergym_marl.config import (
     load_config,
 )
 
+from tests.conftest import PAPER_CONFIGS
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
-BUILTINS = [
-    "n5_m2_dt60",
-    "n5_m2_dt120",
-    "n5_m5_dt60",
-    "n5_m5_dt120",
-    "n11_m2_dt60",
-    "n11_m2_dt120",
-    "n11_m11_dt60",
-    "n11_m11_dt120",
-    "n16_m2_dt120",
-]
+BUILTINS = [*PAPER_CONFIGS, "n16_m2_dt120"]
 
 #: The paper's eight Table 1 rows and the reference file each one takes its figures from.
 PAPER_FILES = {
