@@ -155,7 +155,7 @@ def algorithm_kwargs(args: TrainArgs, num_slots: int) -> dict[str, Any]:
 
 
 # ---- callbacks ------------------------------------------------------------------------------------
-def _make_callbacks(run: Path, args: TrainArgs, n_envs: int, best_so_far: float):
+def _make_callbacks(run: Path, args: TrainArgs, n_envs: int, num_slots: int, best_so_far: float):
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
     class PlantReturnCallback(BaseCallback):
@@ -208,16 +208,10 @@ def _make_callbacks(run: Path, args: TrainArgs, n_envs: int, best_so_far: float)
                 "wall_time_s": round(time.perf_counter() - self._t0, 2),
             })
 
-    save_freq = max(args.checkpoint_every // max(_num_slots(n_envs, args), 1), 1)
+    save_freq = max(args.checkpoint_every // max(num_slots, 1), 1)  # callback calls = vec steps
     checkpoint = CheckpointCallback(save_freq=save_freq, save_path=str(run / "checkpoints"), name_prefix="ckpt",
                                     save_replay_buffer=args.algo == "dqn")
     return PlantReturnCallback(), checkpoint
-
-
-def _num_slots(n_envs: int, args: TrainArgs) -> int:
-    if args.algo == "shared_ppo":
-        return n_envs * load_config(args.config, **args.overrides).n_containers
-    return n_envs
 
 
 METRIC_FIELDS = ("timesteps", "episodes", "train_return_mean100", "train_episode_length_mean100",
@@ -329,7 +323,7 @@ def train(args: TrainArgs) -> Path:
             model.save(run / "final_model.zip")
         env.close()
         return run
-    callbacks = _make_callbacks(run, args, n_envs, best_so_far)
+    callbacks = _make_callbacks(run, args, n_envs, env.num_envs, best_so_far)
     model.learn(total_timesteps=remaining, callback=list(callbacks), reset_num_timesteps=reset,
                 progress_bar=args.progress_bar, tb_log_name="run")
     model.save(run / "final_model.zip")
