@@ -86,11 +86,10 @@ def global_state_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarray]:
 def global_state(state: PlantState, params: PlantParams) -> np.ndarray:
     """(B, n + m) float32 ``[v, p]``, clipped into :func:`global_state_bounds`."""
     low, high = global_state_bounds(params)
-    n = params.n_containers
-    out = np.empty((state.volumes.shape[0], n + params.n_pus), dtype=np.float32)
-    out[:, :n] = state.volumes  # cast to float32, then clipped in float32 (as astype + clip)
-    out[:, n:] = state.pu_timers_s
-    return np.clip(out, low, high, out=out)
+    # cast to float32, then clipped in float32 (as astype + clip); the array method skips
+    # np.clip's Python-level dispatch, a third of this function's time for one simulation
+    out = np.concatenate((state.volumes, state.pu_timers_s), axis=1, dtype=np.float32)
+    return out.clip(low, high, out=out)
 
 
 @lru_cache(maxsize=64)

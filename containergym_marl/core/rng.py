@@ -40,6 +40,9 @@ class NoiseStreams:
         self._row_base = np.arange(b, dtype=np.int64) * BLOCK_ROWS
         # A cursor at BLOCK_ROWS means "buffer exhausted": refill before the next draw.
         self._cursor = np.full(b, BLOCK_ROWS, dtype=np.int64)
+        # The largest cursor, as a Python int, so that a step that needs no refill (31 in 32)
+        # costs no search for exhausted simulations.
+        self._max_cursor = BLOCK_ROWS
 
     @property
     def batch_size(self) -> int:
@@ -52,6 +55,7 @@ class NoiseStreams:
         """Replace simulation ``index``'s generator (a reseed); its buffered rows are discarded."""
         self._generators[index] = generator
         self._cursor[index] = BLOCK_ROWS
+        self._max_cursor = BLOCK_ROWS
 
     def _refill(self, sims: np.ndarray) -> None:
         """Draw a new block for each simulation in ``sims``, in that order."""
@@ -72,11 +76,17 @@ class NoiseStreams:
         """
         if sims is None:
             cur = self._cursor
-            exhausted = np.flatnonzero(cur >= BLOCK_ROWS)
-            if exhausted.size:
-                self._refill(exhausted)
+            if self._max_cursor >= BLOCK_ROWS:
+                self._refill(np.flatnonzero(cur >= BLOCK_ROWS))
+                self._max_cursor = int(cur.max())
+            if cur.size == 1:  # one simulation: its row is a slice, no index arithmetic
+                r = self._max_cursor
+                cur[0] = self._max_cursor = r + 1
+                return (self._normals[r:r + 1].copy() if normals else None,
+                        self._uniforms[r:r + 1].copy() if uniforms else None)
             rows = self._row_base + cur
             cur += 1
+            self._max_cursor += 1
         else:
             idx = np.asarray(sims, dtype=np.int64)
             cur = self._cursor[idx]
@@ -86,5 +96,6 @@ class NoiseStreams:
                 cur = self._cursor[idx]
             rows = self._row_base[idx] + cur
             self._cursor[idx] = cur + 1
-        return (np.take(self._normals, rows, axis=0) if normals else None,
-                np.take(self._uniforms, rows, axis=0) if uniforms else None)
+            self._max_cursor = int(self._cursor.max())
+        return (self._normals.take(rows, axis=0) if normals else None,
+                self._uniforms.take(rows, axis=0) if uniforms else None)

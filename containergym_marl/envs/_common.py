@@ -17,6 +17,8 @@ def discrete_action(action, n_actions: int, who: str) -> int:
     ``predict`` returns for one observation, or ``(1,)``). Floats and bools are rejected rather
     than silently truncated or cast.
     """
+    if type(action) is int and 0 <= action < n_actions:  # the common case, checked cheaply
+        return action
     value = action
     if isinstance(value, np.ndarray):
         if value.shape not in ((), (1,)):

@@ -9,7 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from containergym_marl.config import PlantConfig, load_config
-from containergym_marl.core.observations import global_state, global_state_bounds
+from containergym_marl.core.observations import global_state_bounds
 from containergym_marl.core.simulator import PlantSimulator
 from containergym_marl.envs._common import discrete_action
 from containergym_marl.render import RENDER_FPS, RENDER_MODES, EnvRenderer
@@ -60,7 +60,8 @@ class ContainerGymEnv(gym.Env):
     ``render_mode``: ``None``, ``"human"`` (a live diagram, drawn at every reset and step; shown in
     a window only when a display is available, otherwise drawn off-screen without blocking),
     ``"rgb_array"`` (that diagram as an ``(H, W, 3)`` uint8 frame) or ``"ansi"`` (text); see
-    :mod:`containergym_marl.render`.
+    :mod:`containergym_marl.render`; ``backend``: how the core steps, ``"auto"`` (numba when
+    installed), ``"numpy"`` or ``"numba"`` (see :class:`~containergym_marl.core.simulator.PlantSimulator`).
 
     ## Info
     ``emptied_container`` (name or None), ``emptied_volume``, ``emptying_reward`` (reward of this
@@ -83,6 +84,7 @@ class ContainerGymEnv(gym.Env):
         *,
         render_mode: str | None = None,
         protocol: str | None = None,
+        backend: str = "auto",
         **overrides: Any,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -91,7 +93,7 @@ class ContainerGymEnv(gym.Env):
             )
         self.config = load_config(config, protocol=protocol, **overrides)
         self.render_mode = render_mode
-        self._sim = PlantSimulator(self.config, batch_size=1)
+        self._sim = PlantSimulator(self.config, batch_size=1, backend=backend)
         self._renderer = EnvRenderer(self._sim, render_mode, view="centralised")
         params = self._sim.params
         self.n_containers, self.n_pus = params.n_containers, params.n_pus
@@ -124,15 +126,24 @@ class ContainerGymEnv(gym.Env):
         terminated = bool(out.terminated[0])
         info = {
             "step": int(self._sim.state.step_count[0]),
-            "emptied_container": self._names[i] if emptied else None,
-            "emptied_volume": float(out.emptied_volume[0, i]) if emptied else None,
-            "emptying_reward": float(out.container_reward[0, i]) if a > 0 else 0.0,
-            "pu_index": int(out.pu_index[0, i]) if emptied else None,
-            "no_free_pu": a > 0 and not emptied,
-            "overflowed_containers": (tuple(self._names[j] for j in np.flatnonzero(out.overflowed[0]))
-                                      if terminated else ()),
+            "emptied_container": None,
+            "emptied_volume": None,
+            "emptying_reward": 0.0,
+            "pu_index": None,
+            "no_free_pu": False,
+            "overflowed_containers": (),
             "free_pus": int(out.free_pus_before[0]),
         }
+        if a > 0:
+            info["emptying_reward"] = float(out.container_reward[0, i])
+            if emptied:
+                info["emptied_container"] = self._names[i]
+                info["emptied_volume"] = float(out.emptied_volume[0, i])
+                info["pu_index"] = int(out.pu_index[0, i])
+            else:
+                info["no_free_pu"] = True
+        if terminated:
+            info["overflowed_containers"] = tuple(self._names[j] for j in np.flatnonzero(out.overflowed[0]))
         if self.render_mode == "human":
             self.render()
         return (
@@ -157,4 +168,4 @@ class ContainerGymEnv(gym.Env):
         self._renderer.close()
 
     def _observation(self) -> np.ndarray:
-        return global_state(self._sim.state, self._sim.params)[0]
+        return self._sim.global_state()[0]

@@ -20,7 +20,6 @@ from containergym_marl.core.observations import (
     agent_feature_names,
     agent_observation_bounds,
     agent_observations,
-    global_state,
     global_state_bounds,
 )
 from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
@@ -84,7 +83,9 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ``"human"`` (a live diagram drawn at every reset and step, in a window only when a display is
     available, otherwise off-screen without blocking), ``"rgb_array"`` (that diagram as an
     ``(H, W, 3)`` uint8 frame, with the last step's granted and denied requests marked per
-    container) or ``"ansi"`` (text); see :mod:`containergym_marl.render`.
+    container) or ``"ansi"`` (text); see :mod:`containergym_marl.render`; ``backend``: how the
+    core steps, ``"auto"``, ``"numpy"`` or ``"numba"`` (see
+    :class:`~containergym_marl.core.simulator.PlantSimulator`).
 
     ## Version history
     * v0: first release.
@@ -106,6 +107,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         action_masking: bool = False,
         render_mode: str | None = None,
         protocol: str | None = None,
+        backend: str = "auto",
         **overrides: Any,
     ):
         if arbitration not in ARBITRATION_RULES:
@@ -121,7 +123,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self.reward_mode = reward_mode
         self.action_masking = bool(action_masking)
         self.render_mode = render_mode
-        self._sim = PlantSimulator(self.config, batch_size=1, arbitration=arbitration)
+        self._sim = PlantSimulator(self.config, batch_size=1, arbitration=arbitration, backend=backend)
         self._renderer = EnvRenderer(self._sim, render_mode, view="decentralised")
         params = self._sim.params
 
@@ -232,7 +234,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         return observations, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
-        return global_state(self._sim.state, self._sim.params)[0]
+        return self._sim.global_state()[0]
 
     def render(self):
         """The current state in ``render_mode``: text ("ansi"), a frame ("rgb_array") or None."""
