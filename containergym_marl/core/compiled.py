@@ -23,6 +23,7 @@ operations in the same order, no fast-math), so:
 
 from __future__ import annotations
 
+import ctypes
 import math
 import os
 from functools import lru_cache
@@ -337,3 +338,77 @@ def global_state(state: PlantState, params: PlantParams) -> np.ndarray:
     out = np.empty((v.shape[0], v.shape[1] + params.n_pus), np.float32)
     _global_state_into(v, state.pu_timers_s, low, high, out)
     return out
+
+
+# ---- refilling the random streams without the GIL ------------------------------------------------
+# NoiseStreams (rng.py) refills a simulation's block with ``gen.standard_normal(out=...)`` and
+# ``gen.random(out=...)``. Those methods run numpy's C functions random_standard_normal_fill and
+# random_standard_uniform_fill (numpy's documented random C API, exported by
+# numpy.random._generator) on the generator's bitgen_t. Calling the same two functions on the same
+# bitgen_t from compiled code gives the same numbers, without a Python call per simulation and in
+# parallel threads (each generator is touched by one thread only). As numpy's C-API examples for
+# numba do, pointers are passed as integers (same calling convention on 64-bit platforms).
+
+def _numpy_fill_functions():
+    try:
+        import numpy.random._generator as generator_module
+
+        lib = ctypes.CDLL(generator_module.__file__)
+        fills = (lib.random_standard_normal_fill, lib.random_standard_uniform_fill)
+    except (OSError, AttributeError):  # pragma: no cover - a numpy without these exports
+        return None
+    for f in fills:
+        f.restype = None
+        f.argtypes = [ctypes.c_size_t, ctypes.c_ssize_t, ctypes.c_size_t]
+    return fills
+
+
+_FILLS = _numpy_fill_functions() if numba is not None else None
+
+
+def bitgen_address(generator: np.random.Generator) -> int:
+    """Address of the generator's C ``bitgen_t`` (numpy's ctypes interface)."""
+    return generator.bit_generator.ctypes.bit_generator.value
+
+
+if _FILLS is not None:
+    _normal_fill, _uniform_fill = _FILLS
+    # not cached on disk: the C functions' addresses are compiled in and differ between processes
+    _jit_fill = numba.njit(cache=False)
+    _jit_fill_parallel = numba.njit(cache=False, parallel=True)
+
+    @_jit_fill
+    def _refill_range(lo, hi, addresses, sims, normals, uniforms, rows):
+        count = rows * normals.shape[1]
+        # all address arithmetic in uint64 (mixing signed and unsigned would give float64)
+        block_bytes = np.uint64(count * 8)
+        normals_base = np.uint64(normals.ctypes.data)
+        uniforms_base = np.uint64(uniforms.ctypes.data)
+        for k in range(lo, hi):
+            i = np.uint64(sims[k])
+            _normal_fill(addresses[i], count, normals_base + i * block_bytes)
+            _uniform_fill(addresses[i], count, uniforms_base + i * block_bytes)
+
+    @_jit_fill_parallel
+    def _refill_parallel(chunks, addresses, sims, normals, uniforms, rows):
+        total = sims.shape[0]
+        size = (total + chunks - 1) // chunks
+        for c in _prange(chunks):
+            _refill_range(min(c * size, total), min((c + 1) * size, total), addresses, sims, normals,
+                          uniforms, rows)
+
+
+def refill_available() -> bool:
+    return _FILLS is not None
+
+
+def refill_blocks(addresses: np.ndarray, sims: np.ndarray, normals: np.ndarray, uniforms: np.ndarray,
+                  rows: int) -> None:
+    """For each simulation i in ``sims``: ``rows`` rows of normals, then of uniforms, from the
+    generator whose bitgen_t is at ``addresses[i]``, into rows ``i·rows …`` of the two
+    contiguous (B·rows, n) float64 buffers; exactly what ``gen.standard_normal(out=block)`` then
+    ``gen.random(out=block)`` write."""
+    if sims.size >= PARALLEL_MIN_BATCH // 8:
+        _refill_parallel(4 * numba.get_num_threads(), addresses, sims, normals, uniforms, rows)
+    else:
+        _refill_range(0, sims.size, addresses, sims, normals, uniforms, rows)

@@ -28,10 +28,22 @@ class NoiseStreams:
     drawing a new ``(BLOCK_ROWS, n)`` array.
     """
 
-    def __init__(self, generators: Sequence[np.random.Generator], n_containers: int):
+    def __init__(self, generators: Sequence[np.random.Generator], n_containers: int, *,
+                 compiled_refill: bool = False):
         self.n_containers = int(n_containers)
         self._generators = list(generators)
         b = len(self._generators)
+        # With compiled_refill, blocks are drawn by numpy's own C fill functions called from
+        # compiled code (containergym_marl.core.compiled.refill_blocks): the same numbers, no
+        # Python call per simulation, several threads.
+        self._bitgen_addresses = None
+        if compiled_refill:
+            from containergym_marl.core import compiled
+
+            if compiled.refill_available():
+                self._refill_blocks = compiled.refill_blocks
+                self._bitgen_addresses = np.array([compiled.bitgen_address(g) for g in self._generators],
+                                                  dtype=np.uint64)
         self._normals = np.empty((b * BLOCK_ROWS, self.n_containers))
         self._uniforms = np.empty((b * BLOCK_ROWS, self.n_containers))
         # per-simulation blocks as views, so a refill creates no view objects
@@ -54,11 +66,19 @@ class NoiseStreams:
     def set_generator(self, index: int, generator: np.random.Generator) -> None:
         """Replace simulation ``index``'s generator (a reseed); its buffered rows are discarded."""
         self._generators[index] = generator
+        if self._bitgen_addresses is not None:
+            from containergym_marl.core.compiled import bitgen_address
+
+            self._bitgen_addresses[index] = bitgen_address(generator)
         self._cursor[index] = BLOCK_ROWS
         self._max_cursor = BLOCK_ROWS
 
     def _refill(self, sims: np.ndarray) -> None:
-        """Draw a new block for each simulation in ``sims``, in that order."""
+        """Draw a new block for each simulation in ``sims`` (each from its own generator)."""
+        if self._bitgen_addresses is not None:
+            self._refill_blocks(self._bitgen_addresses, sims, self._normals, self._uniforms, BLOCK_ROWS)
+            self._cursor[sims] = 0
+            return
         gens, nb, ub = self._generators, self._normal_blocks, self._uniform_blocks
         for i in sims.tolist():  # each simulation refills once every BLOCK_ROWS events
             gen = gens[i]

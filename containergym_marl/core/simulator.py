@@ -71,7 +71,8 @@ class PlantSimulator:
             if len(sims) != self.batch_size:
                 raise ValueError("the first reset must provide a generator for every simulation")
             order = np.argsort(sims)
-            self._streams = NoiseStreams([generators[i] for i in order], self.params.n_containers)
+            self._streams = NoiseStreams([generators[i] for i in order], self.params.n_containers,
+                                         compiled_refill=self.backend == "numba")
             return
         for sim, gen in zip(sims, generators):
             if gen is not self._streams.generator(int(sim)):
