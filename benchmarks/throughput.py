@@ -14,15 +14,18 @@ It prints Markdown to stdout:
    and with the global ``np.random`` the earlier code used), the centralised Gymnasium env and the
    PettingZoo parallel env (B = 1), the SuperSuit stack (``pettingzoo_env_to_vec_env_v1`` +
    ``concat_vec_envs_v1``, in-process copies), and the native vectorised envs at B ∈ {1, 64, 1024,
-   4096}. An *env step* is one step of one simulated plant (a vector env stepping B simulations
+   4096}, each with both backends of the core (``numpy``, and ``numba`` when installed; see
+   ``containergym_marl.core.compiled``). An *env step* is one step of one simulated plant (a vector env stepping B simulations
    makes B env steps per call); for the decentralised paths the agent steps (× n) are shown too.
    Ratios are against the cost model measured in the same run.
-2. **Where the time goes** in a few configurations (random streams, physics, observations,
-   resets, the rest: the view / vector-env plumbing), from timers around the core's functions.
+2. **Where the time goes** in a few configurations, per backend (random streams, physics,
+   observations, resets, the rest: the view / vector-env plumbing), from timers around the core's
+   functions.
 3. **SB3 PPO training throughput** (samples/s = environment slots stepped per second of
    ``model.learn``) and the share of that wall time spent in the environment (``step_wait``),
    for the parameter-shared PPO on the SuperSuit stack and on the native agents vec env, and for
-   the centralised PPO on the native vec env; with the time a 2M-step run would take at that rate.
+   the centralised PPO on the native vec env (default backend); with the time a 2M-step run would
+   take at that rate.
 
 Actions are drawn in advance (uniformly random valid actions: the centralised controller picks one
 of the n + 1 actions, each container agent requests with probability 1/2), so policy time is not
@@ -53,6 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reference_cost_model import ReferenceCostModelEnv  # noqa: E402
 
 from containergym_marl import ContainerGymEnv, container_agents_v0, load_config  # noqa: E402
+from containergym_marl.core import compiled  # noqa: E402
 from containergym_marl.envs.vector import (  # noqa: E402
     ContainerAgentsVecEnv,
     ContainerGymVecEnv,
@@ -74,7 +78,9 @@ PATHS = (
     ("vec_gymnasium", "native Gymnasium ContainerGymVectorEnv", False),
     ("vec_agents", "native SB3 ContainerAgentsVecEnv (B·n agent slots)", True),
 )
-ENV_COLUMNS = ("path", "B", "n=5 env steps/s", "n=5 agent steps/s", "n=5 × ref (global)",
+#: The core's backends measured: numpy always, numba when installed (the "fast" extra).
+BACKENDS = ("numpy", "numba") if compiled.numba_available() else ("numpy",)
+ENV_COLUMNS = ("path", "backend", "B", "n=5 env steps/s", "n=5 agent steps/s", "n=5 × ref (global)",
                "n=5 × ref (Generator)", "n=11 env steps/s", "n=11 agent steps/s",
                "n=11 × ref (global)", "n=11 × ref (Generator)")
 PROFILE_COLUMNS = ("configuration", "µs per call", "random streams", "physics", "observations",
@@ -135,8 +141,9 @@ def _agent_actions(n: int, batch: int, count: int = 64) -> list[np.ndarray]:
 
 
 # ---- the environment paths ---------------------------------------------------------------------
-def _runner(key: str, n: int, batch: int, sizes: Sizes) -> tuple[Callable[[int], None], int]:
-    """A function running k calls of path ``key`` and the env steps one call makes."""
+def _runner(key: str, n: int, batch: int, sizes: Sizes, backend: str = "auto"):
+    """A function running k calls of path ``key``, the env steps one call makes, and the path's
+    PlantSimulator (None for the cost model and SuperSuit)."""
     name = CONFIGS[n]
     cfg = load_config(name)
     if key in ("ref_global", "ref_generator"):
@@ -152,9 +159,9 @@ def _runner(key: str, n: int, batch: int, sizes: Sizes) -> tuple[Callable[[int],
                 if done:
                     env.reset()
             state["t"] = t + k
-        return run, 1
+        return run, 1, None
     if key == "gym":
-        env = ContainerGymEnv(name)
+        env = ContainerGymEnv(name, backend=backend)
         env.reset(seed=0)
         acts = [int(a) for a in _central_actions(n, 4096, 1)[0]]
         state = {"t": 0}
@@ -166,9 +173,9 @@ def _runner(key: str, n: int, batch: int, sizes: Sizes) -> tuple[Callable[[int],
                 if term or trunc:
                     env.reset()
             state["t"] = t + k
-        return run, 1
+        return run, 1, env.simulator
     if key == "pettingzoo":
-        env = container_agents_v0.parallel_env(config=name)
+        env = container_agents_v0.parallel_env(config=name, backend=backend)
         env.reset(seed=0)
         agents = env.possible_agents
         acts = [dict(zip(agents, a.tolist())) for a in _agent_actions(n, 1)]
@@ -181,27 +188,27 @@ def _runner(key: str, n: int, batch: int, sizes: Sizes) -> tuple[Callable[[int],
                 if not env.agents:
                     env.reset()
             state["t"] = t + k
-        return run, 1
+        return run, 1, env.simulator
     if key == "supersuit":
         import supersuit
 
-        par = container_agents_v0.parallel_env(config=name)
+        par = container_agents_v0.parallel_env(config=name, backend=backend)
         venv = supersuit.concat_vec_envs_v1(supersuit.pettingzoo_env_to_vec_env_v1(par), batch,
                                             num_cpus=0, base_class="stable_baselines3")
         venv.reset()
-        return _vec_runner(venv, _agent_actions(n, batch)), batch
+        return _vec_runner(venv, _agent_actions(n, batch)), batch, None
     if key == "vec_central":
-        venv = ContainerGymVecEnv(name, num_envs=batch)
+        venv = ContainerGymVecEnv(name, num_envs=batch, backend=backend)
         venv.seed(0)
         venv.reset()
-        return _vec_runner(venv, _central_actions(n, batch)), batch
+        return _vec_runner(venv, _central_actions(n, batch)), batch, venv.simulator
     if key == "vec_agents":
-        venv = ContainerAgentsVecEnv(name, num_sims=batch)
+        venv = ContainerAgentsVecEnv(name, num_sims=batch, backend=backend)
         venv.seed(0)
         venv.reset()
-        return _vec_runner(venv, _agent_actions(n, batch)), batch
+        return _vec_runner(venv, _agent_actions(n, batch)), batch, venv.simulator
     if key == "vec_gymnasium":
-        venv = ContainerGymVectorEnv(num_envs=batch, config=name)
+        venv = ContainerGymVectorEnv(num_envs=batch, config=name, backend=backend)
         venv.reset(seed=0)
         acts = _central_actions(n, batch)
         state = {"t": 0}
@@ -211,7 +218,7 @@ def _runner(key: str, n: int, batch: int, sizes: Sizes) -> tuple[Callable[[int],
             for i in range(k):
                 venv.step(acts[(t + i) % len(acts)])
             state["t"] = t + k
-        return run, batch
+        return run, batch, venv.simulator
     raise KeyError(key)
 
 
@@ -235,19 +242,25 @@ def _batches_of(key: str, sizes: Sizes) -> tuple[int, ...]:
     return (1,)
 
 
+def _backends_of(key: str) -> tuple[str, ...]:
+    return ("–",) if key.startswith("ref_") else BACKENDS
+
+
 def measure_envs(sizes: Sizes, log=print) -> list[dict]:
     rows = []
     for key, label, decentralised in PATHS:
         for batch in _batches_of(key, sizes):
-            row = {"key": key, "path": label, "B": batch, "decentralised": decentralised}
-            for n in CONFIGS:
-                run, per_call = _runner(key, n, batch, sizes)
-                rate = _rate(run, per_call, sizes)
-                row[f"n{n}_env_steps_per_s"] = rate
-                row[f"n{n}_agent_steps_per_s"] = rate * n if decentralised else None
-                del run
-            log(f"  measured {label} B={batch}")
-            rows.append(row)
+            for backend in _backends_of(key):
+                row = {"key": key, "path": label, "backend": backend, "B": batch,
+                       "decentralised": decentralised}
+                for n in CONFIGS:
+                    run, per_call, _ = _runner(key, n, batch, sizes, "auto" if backend == "–" else backend)
+                    rate = _rate(run, per_call, sizes)
+                    row[f"n{n}_env_steps_per_s"] = rate
+                    row[f"n{n}_agent_steps_per_s"] = rate * n if decentralised else None
+                    del run
+                log(f"  measured {label} [{backend}] B={batch}")
+                rows.append(row)
     for n in CONFIGS:
         ref = {k: next(r for r in rows if r["key"] == k)[f"n{n}_env_steps_per_s"]
                for k in ("ref_global", "ref_generator")}
@@ -281,8 +294,7 @@ def reference_sampling_share(n: int, steps: int) -> float:
 class _ComponentTimers:
     """Timers wrapped around the core's functions (module attributes the callers look up)."""
 
-    def __init__(self):
-        import containergym_marl.core.dynamics as dyn
+    def __init__(self, simulator):
         import containergym_marl.core.rng as rng
         import containergym_marl.core.simulator as sim
         import containergym_marl.envs.centralised as cen
@@ -293,7 +305,9 @@ class _ComponentTimers:
         self._patches: list = []
         self._depth = [0]
         self._patch(rng.NoiseStreams, "next_rows", "random streams")
-        self._patch(dyn, "step", "physics")
+        # the simulator holds its backend's step and global-state functions
+        self._patch(simulator, "_step_fn", "physics")
+        self._patch(simulator, "_global_state", "observations")
         self._patch(sim.PlantSimulator, "reset", "resets")
         for mod in (vec, cen, ag):
             for fn in ("global_state", "agent_observations"):
@@ -323,18 +337,21 @@ class _ComponentTimers:
 
 
 def profile_paths(sizes: Sizes) -> list[dict]:
-    cases = [
-        ("centralised Gymnasium env, n=5, B=1", "gym", 5, 1),
-        ("native SB3 ContainerGymVecEnv, n=5, B=1", "vec_central", 5, 1),
-        (f"native SB3 ContainerGymVecEnv, n=11, B={sizes.profile_batch}", "vec_central", 11, sizes.profile_batch),
-        (f"native SB3 ContainerAgentsVecEnv, n=11, B={sizes.profile_batch}", "vec_agents", 11, sizes.profile_batch),
-    ]
+    cases = []
+    for backend in BACKENDS:
+        cases += [
+            (f"centralised Gymnasium env, n=5, B=1 [{backend}]", "gym", 5, 1, backend),
+            (f"native SB3 ContainerGymVecEnv, n=11, B={sizes.profile_batch} [{backend}]", "vec_central", 11,
+             sizes.profile_batch, backend),
+            (f"native SB3 ContainerAgentsVecEnv, n=11, B={sizes.profile_batch} [{backend}]", "vec_agents", 11,
+             sizes.profile_batch, backend),
+        ]
     rows = []
-    for label, key, n, batch in cases:
-        run, _ = _runner(key, n, batch, sizes)
+    for label, key, n, batch, backend in cases:
+        run, _, simulator = _runner(key, n, batch, sizes, backend)
         run(3)
         calls = sizes.profile_calls if batch > 1 else sizes.profile_calls * 20
-        timers = _ComponentTimers()
+        timers = _ComponentTimers(simulator)
         try:
             t = time.perf_counter()
             run(calls)
@@ -426,11 +443,11 @@ def markdown(result: dict) -> str:
     meta = result["meta"]
     lines = [f"# Throughput ({'smoke' if meta['smoke'] else 'full'} run)", "",
              f"{meta['date']} · {meta['machine']} · {meta['cpus']} CPUs · load average before the run "
-             f"{meta['load_before']} · python {meta['python']} · numpy {meta['numpy']}", "",
+             f"{meta['load_before']} · python {meta['python']} · numpy {meta['numpy']} · numba {meta.get('numba', '?')}", "",
              "## Environment steps per second", "",
              "| " + " | ".join(ENV_COLUMNS) + " |", "|" + "---|" * len(ENV_COLUMNS)]
     for r in result["env"]:
-        cells = [r["path"], str(r["B"])]
+        cells = [r["path"], r["backend"], str(r["B"])]
         for n in CONFIGS:
             cells += [_fmt_rate(r[f"n{n}_env_steps_per_s"]), _fmt_rate(r[f"n{n}_agent_steps_per_s"]),
                       _fmt_ratio(r[f"n{n}_x_ref_global"]), _fmt_ratio(r[f"n{n}_x_ref_generator"])]
@@ -482,6 +499,7 @@ def main(argv=None) -> dict:
         "load_before": " ".join(f"{x:.2f}" for x in os.getloadavg()),
         "python": platform.python_version(),
         "numpy": numpy.__version__,
+        "numba": compiled.numba.__version__ if compiled.numba_available() else "not installed",
         "smoke": args.smoke,
     }
     started = time.perf_counter()
