@@ -1,4 +1,8 @@
-"""The shared physics core: numpy only, batched over simulations, no environment API."""
+"""The shared physics core: batched over simulations, no environment API.
+
+:mod:`.dynamics` defines the physics as pure numpy functions; :mod:`.compiled` runs the same step
+compiled with numba when it is installed (``backend="auto"``), with identical states.
+"""
 
 from containergym_marl.core.dynamics import (
     ARBITRATION_RULES,

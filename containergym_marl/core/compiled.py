@@ -8,15 +8,18 @@ Why a second formulation at all: a step of one simulation is ~60 small numpy cal
 ~1 µs of dispatch for a handful of numbers, so a single environment spends almost all its time in
 overhead; and at large B numpy makes ~25 passes over B·n entries where one fused loop reads each
 entry once. The loop here follows :func:`.dynamics.step` operation by operation (same IEEE
-operations in the same order, no fast-math), so:
+operations in the same order, no fast-math, numpy's pairwise order for row sums), so:
 
 * states (volumes, timers, step counts), grants, denials, PU choices and episode ends are
   bit-identical to the numpy backend;
-* rewards agree to within one unit in the last place: numpy evaluates ``exp`` with its own SIMD
-  routine, numba with the C library's, and the two round differently for a few per cent of
-  arguments (a relative difference ≤ 2.3e-16). Only the ``"best_reward"`` arbitration reads
-  rewards to make a decision; it could order two requests differently only if their rewards are
-  within one ulp of each other and not equal.
+* rewards agree to within 1e-15 (absolute; rewards are of order 1): numpy evaluates ``exp`` with
+  its own SIMD routine, numba with the C library's, and the two differ in the last bit for a few
+  per cent of arguments. Only the ``"best_reward"`` arbitration reads rewards to make a decision;
+  it could order two requests differently only if their rewards were within ~1e-16 of each other
+  without being equal.
+
+The random streams are unchanged too: :func:`refill_blocks` calls numpy's own C fill functions.
+The global-state observation (:func:`global_state`) is the same float32 cast and clip.
 
 ``tests/test_compiled_backend.py`` checks these claims on every built-in config and rule.
 """
@@ -161,7 +164,7 @@ def _row_sum(row):
 
 @_jit
 def _step_sims(lo, hi, v, p, steps, requests, normals, uniforms, rule, cols, peaks, scalars,
-               v_next, p_next, steps_next, flags, pu_index, values, plant_reward, free_before, ends):
+               values, p_next, counts, flags, pu_index, plant_reward, ends):
     """Step simulations lo..hi-1 into the outputs (see :func:`_allocate_outputs`); the numbered
     comments follow dynamics.step's docstring. (The loop over simulations is in here rather than
     in the callers: a call passing ~20 arrays costs more than one simulation's arithmetic.)"""
@@ -173,16 +176,16 @@ def _step_sims(lo, hi, v, p, steps, requests, normals, uniforms, rule, cols, pea
         for j in range(m):
             if p[b, j] == 0.0:
                 free += 1
-        free_before[b] = free
+        counts[1, b] = free
         # 3. inflow for every container (emptied ones are overwritten below)
         n_req = 0
         for i in range(n):
             x = v[b, i] + cols[i, 0]
             x = x + cols[i, 1] * normals[b, i]
-            v_next[b, i] = x if x > 0.0 else 0.0
+            values[0, b, i] = x if x > 0.0 else 0.0
             pu_index[b, i] = -1
-            values[0, b, i] = 0.0
             values[1, b, i] = 0.0
+            values[2, b, i] = 0.0
             flags[1, b, i] = False
             flags[0, b, i] = requests[b, i]
             if requests[b, i]:
@@ -222,56 +225,54 @@ def _step_sims(lo, hi, v, p, steps, requests, normals, uniforms, rule, cols, pea
                 while p[b, pu] != 0.0:
                     pu += 1
                 vol = v[b, i]
-                values[1, b, i] = _reward(vol, i, peaks, r_pen)
-                values[0, b, i] = vol
-                v_next[b, i] = 0.0
+                values[2, b, i] = _reward(vol, i, peaks, r_pen)
+                values[1, b, i] = vol
+                values[0, b, i] = 0.0
                 pu_index[b, i] = pu
                 p_next[b, pu] = cols[i, 3] + cols[i, 4] * np.floor(vol / cols[i, 5])
                 pu += 1
             elif flags[1, b, i]:
-                values[1, b, i] = r_pen
+                values[2, b, i] = r_pen
         # the plant reward is the row sum (a lone request's entry is its own sum)
         total = 0.0
         if n_req == 1:
             for i in range(n):
                 if requests[b, i]:
-                    total = values[1, b, i]
+                    total = values[2, b, i]
         elif n_req > 1:
-            total = _row_sum(values[1, b])
+            total = _row_sum(values[2, b])
         # 5. overflow and time limit
         over = False
         for i in range(n):
-            o = v_next[b, i] >= cols[i, 2]
+            o = values[0, b, i] >= cols[i, 2]
             flags[2, b, i] = o
-            values[2, b, i] = r_min if o else values[1, b, i]
+            values[3, b, i] = r_min if o else values[2, b, i]
             over = over or o
-        steps_next[b] = steps[b] + 1
+        counts[0, b] = steps[b] + 1
         plant_reward[b] = r_min if over else total
         ends[0, b] = over
-        ends[1, b] = (not over) and steps_next[b] >= horizon
+        ends[1, b] = (not over) and counts[0, b] >= horizon
 
 
 @_jit_parallel
 def _step_parallel(chunks, v, p, steps, requests, normals, uniforms, rule, cols, peaks, scalars,
-                   v_next, p_next, steps_next, flags, pu_index, values, plant_reward, free_before, ends):
+                   values, p_next, counts, flags, pu_index, plant_reward, ends):
     """:func:`_step_sims` over all simulations, in ``chunks`` shared among numba's threads."""
     bsz = v.shape[0]
     size = (bsz + chunks - 1) // chunks
     for c in _prange(chunks):  # simulations are independent
         _step_sims(min(c * size, bsz), min((c + 1) * size, bsz), v, p, steps, requests, normals, uniforms,
-                   rule, cols, peaks, scalars, v_next, p_next, steps_next, flags, pu_index, values,
-                   plant_reward, free_before, ends)
+                   rule, cols, peaks, scalars, values, p_next, counts, flags, pu_index, plant_reward, ends)
 
 
 def _allocate_outputs(bsz: int, n: int, m: int) -> tuple[np.ndarray, ...]:
-    """Fresh outputs of one step (allocated here: numba returns arrays more slowly than it
-    takes them): v(t+1), p(t+1), step counts, (granted, denied, overflowed), PU index,
-    (emptied volume, container reward, individual reward), plant reward, free PUs before,
-    (terminated, truncated)."""
-    return (np.empty((bsz, n)), np.empty((bsz, m)), np.empty(bsz, dtype=np.int64),
-            np.empty((3, bsz, n), dtype=bool), np.empty((bsz, n), dtype=np.int64),
-            np.empty((3, bsz, n)), np.empty(bsz), np.empty(bsz, dtype=np.int64),
-            np.empty((2, bsz), dtype=bool))
+    """Fresh outputs of one step, allocated here (numba takes arrays faster than it returns
+    them) and stacked by type (fewer allocations): (v(t+1), emptied volume, container reward,
+    individual reward), p(t+1), (step count, free PUs before), (granted, denied, overflowed),
+    PU index, plant reward, (terminated, truncated)."""
+    return (np.empty((4, bsz, n)), np.empty((bsz, m)), np.empty((2, bsz), np.int64),
+            np.empty((3, bsz, n), bool), np.empty((bsz, n), np.int64), np.empty(bsz),
+            np.empty((2, bsz), bool))
 
 
 def step(
@@ -303,22 +304,12 @@ def step(
         _step_parallel(4 * numba.get_num_threads(), *inputs, *out)
     else:
         _step_sims(0, bsz, *inputs, *out)
-    v_next, p_next, steps_next, flags, pu_index, values, plant_reward, free_before, ends = out
-    outcome = StepOutcome(
-        requested=requests,
-        granted=flags[0],
-        denied=flags[1],
-        pu_index=pu_index,
-        emptied_volume=values[0],
-        container_reward=values[1],
-        overflowed=flags[2],
-        individual_reward=values[2],
-        plant_reward=plant_reward,
-        free_pus_before=free_before,
-        terminated=ends[0],
-        truncated=ends[1],
-    )
-    return PlantState(v_next, p_next, steps_next), outcome
+    values, p_next, counts, flags, pu_index, plant_reward, ends = out
+    # tuple.__new__: the named tuples' fields in order, without the keyword-argument overhead
+    outcome = tuple.__new__(StepOutcome, (
+        requests, flags[0], flags[1], pu_index, values[1], values[2], flags[2], values[3], plant_reward,
+        counts[1], ends[0], ends[1]))
+    return tuple.__new__(PlantState, (values[0], p_next, counts[0])), outcome
 
 
 @_jit
