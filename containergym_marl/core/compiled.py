@@ -12,11 +12,13 @@ operations in the same order, no fast-math, numpy's pairwise order for row sums)
 
 * states (volumes, timers, step counts), grants, denials, PU choices and episode ends are
   bit-identical to the numpy backend;
-* rewards agree to within 1e-15 (absolute; rewards are of order 1): numpy evaluates ``exp`` with
-  its own SIMD routine, numba with the C library's, and the two differ in the last bit for a few
-  per cent of arguments. Only the ``"best_reward"`` arbitration reads rewards to make a decision;
-  it could order two requests differently only if their rewards were within ~1e-16 of each other
-  without being equal.
+* container rewards agree to within 1e-15 (absolute; they are of order 1): numpy evaluates
+  ``exp`` with its own SIMD routine, numba with the C library's, and the two differ in the last
+  bit for a few per cent of arguments. A plant reward sums up to n of them, so it agrees to within
+  1e-15 per unit of the summed |container rewards| (a last-bit difference in one term can move a
+  sum of 4 or more by one of the sum's own last bits). Only the ``"best_reward"`` arbitration
+  reads rewards to make a decision; it could order two requests differently only if their
+  rewards were within ~1e-16 of each other without being equal.
 
 The random streams are unchanged too: :func:`refill_blocks` calls numpy's own C fill functions.
 The global-state observation (:func:`global_state`) is the same float32 cast and clip.
@@ -292,11 +294,16 @@ def step(
     rule = _RULE_CODES.get(arbitration)
     if rule is None:
         raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
+    # The kernel does not check bounds: the random rows' shapes are checked here.
+    if np.shape(normals) != (bsz, n):
+        raise ValueError(f"normals: expected shape {(bsz, n)}, got {np.shape(normals)}")
     cols, peaks, scalars, no_uniforms = _packed(params)
     if uniforms is None:
         if arbitration == "random":
             raise ValueError("the 'random' arbitration needs the step's uniforms")
         uniforms = no_uniforms
+    elif np.shape(uniforms) != (bsz, n):
+        raise ValueError(f"uniforms: expected shape {(bsz, n)}, got {np.shape(uniforms)}")
     out = _allocate_outputs(bsz, n, p.shape[1])
     inputs = (v, p, state.step_count, requests, np.ascontiguousarray(normals), uniforms, rule, cols, peaks,
               scalars)

@@ -319,6 +319,10 @@ def step(
         raise ValueError(f"requests: expected shape {(bsz, n)}, got {requests.shape}")
     if arbitration not in ARBITRATION_RULES:
         raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
+    if arbitration == "random" and uniforms is None:  # needed whenever requests compete
+        raise ValueError("the 'random' arbitration needs the step's uniforms")
+    if np.shape(normals) != (bsz, n):  # one row per simulation, never broadcast
+        raise ValueError(f"normals: expected shape {(bsz, n)}, got {np.shape(normals)}")
 
     const = per_entry(params, bsz)
     free = p == 0.0

@@ -36,25 +36,50 @@ class NoiseStreams:
         # With compiled_refill, blocks are drawn by numpy's own C fill functions called from
         # compiled code (containergym_marl.core.compiled.refill_blocks): the same numbers, no
         # Python call per simulation, several threads.
+        self._compiled_refill = bool(compiled_refill)
         self._bitgen_addresses = None
-        if compiled_refill:
-            from containergym_marl.core import compiled
-
-            if compiled.refill_available():
-                self._refill_blocks = compiled.refill_blocks
-                self._bitgen_addresses = np.array([compiled.bitgen_address(g) for g in self._generators],
-                                                  dtype=np.uint64)
+        self._init_compiled_refill()
         self._normals = np.empty((b * BLOCK_ROWS, self.n_containers))
         self._uniforms = np.empty((b * BLOCK_ROWS, self.n_containers))
-        # per-simulation blocks as views, so a refill creates no view objects
-        self._normal_blocks = [self._normals[i * BLOCK_ROWS:(i + 1) * BLOCK_ROWS] for i in range(b)]
-        self._uniform_blocks = [self._uniforms[i * BLOCK_ROWS:(i + 1) * BLOCK_ROWS] for i in range(b)]
+        self._make_block_views()
         self._row_base = np.arange(b, dtype=np.int64) * BLOCK_ROWS
         # A cursor at BLOCK_ROWS means "buffer exhausted": refill before the next draw.
         self._cursor = np.full(b, BLOCK_ROWS, dtype=np.int64)
         # The largest cursor, as a Python int, so that a step that needs no refill (31 in 32)
         # costs no search for exhausted simulations.
         self._max_cursor = BLOCK_ROWS
+
+    def _make_block_views(self) -> None:
+        # per-simulation blocks as views, so a refill creates no view objects
+        b = len(self._generators)
+        self._normal_blocks = [self._normals[i * BLOCK_ROWS:(i + 1) * BLOCK_ROWS] for i in range(b)]
+        self._uniform_blocks = [self._uniforms[i * BLOCK_ROWS:(i + 1) * BLOCK_ROWS] for i in range(b)]
+
+    def _init_compiled_refill(self) -> None:
+        """The C addresses of the generators' states, for the compiled refill (if asked and
+        available). Refilled in parallel only while every simulation has its own generator."""
+        self._bitgen_addresses = None
+        if self._compiled_refill:
+            from containergym_marl.core import compiled
+
+            if compiled.refill_available():
+                self._refill_blocks = compiled.refill_blocks
+                self._bitgen_addresses = np.array([compiled.bitgen_address(g) for g in self._generators],
+                                                  dtype=np.uint64)
+                self._addresses_checked = False
+
+    # Copies (deepcopy, pickle: SuperSuit and subprocess vec envs copy environments) must own
+    # their buffers' block views and their own generators' C addresses, never the original's.
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        for key in ("_normal_blocks", "_uniform_blocks", "_bitgen_addresses", "_refill_blocks"):
+            state.pop(key, None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._make_block_views()
+        self._init_compiled_refill()
 
     @property
     def batch_size(self) -> int:
@@ -70,15 +95,23 @@ class NoiseStreams:
             from containergym_marl.core.compiled import bitgen_address
 
             self._bitgen_addresses[index] = bitgen_address(generator)
+            self._addresses_checked = False
         self._cursor[index] = BLOCK_ROWS
         self._max_cursor = BLOCK_ROWS
 
     def _refill(self, sims: np.ndarray) -> None:
         """Draw a new block for each simulation in ``sims`` (each from its own generator)."""
         if self._bitgen_addresses is not None:
-            self._refill_blocks(self._bitgen_addresses, sims, self._normals, self._uniforms, BLOCK_ROWS)
-            self._cursor[sims] = 0
-            return
+            if not self._addresses_checked:  # after (re)seeding: is every generator distinct?
+                addresses = self._bitgen_addresses
+                self._addresses_distinct = np.unique(addresses).size == addresses.size
+                self._addresses_checked = True
+            # A generator shared by several simulations must serve them one after another, in
+            # order: the Python loop below does that.
+            if self._addresses_distinct:
+                self._refill_blocks(self._bitgen_addresses, sims, self._normals, self._uniforms, BLOCK_ROWS)
+                self._cursor[sims] = 0
+                return
         gens, nb, ub = self._generators, self._normal_blocks, self._uniform_blocks
         for i in sims.tolist():  # each simulation refills once every BLOCK_ROWS events
             gen = gens[i]
