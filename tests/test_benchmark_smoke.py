@@ -61,7 +61,8 @@ def test_smoke_run_prints_every_table(tmp_path):
 
     header, rows = _table(lines, "## SB3 PPO training throughput (n5_m2_dt120, MlpPolicy, torch threads = 1)")
     assert header == ["training", "env slots", "samples/s", "env share of wall time", "projected 2M-step run (min)"]
-    assert [r[0].split(",")[0] for r in rows] == ["shared PPO", "shared PPO", "centralised PPO"]
+    assert [r[0].split(",")[0] for r in rows] == ["shared PPO", "shared PPO", "centralised PPO", "centralised PPO"]
+    assert "default Adam" in rows[3][0]
     assert "SuperSuit" in rows[0][0] and "native" in rows[1][0]
     assert all(r[3].endswith("%") for r in rows)
 
