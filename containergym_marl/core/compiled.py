@@ -277,6 +277,17 @@ def _allocate_outputs(bsz: int, n: int, m: int) -> tuple[np.ndarray, ...]:
             np.empty((2, bsz), bool))
 
 
+_BOOL, _FLOAT = np.dtype(bool), np.dtype(np.float64)
+
+
+def _c_array(a, dtype: np.dtype) -> np.ndarray:
+    """``a`` as a C-contiguous array of ``dtype``; itself when it already is one (the usual case,
+    checked more cheaply than np.ascontiguousarray does)."""
+    if type(a) is np.ndarray and a.dtype == dtype and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=dtype)
+
+
 def step(
     state: PlantState,
     requests: np.ndarray,
@@ -288,15 +299,16 @@ def step(
     """:func:`.dynamics.step`, compiled; same arguments, same results (see the module docstring)."""
     v, p = state.volumes, state.pu_timers_s
     bsz, n = v.shape
-    requests = np.ascontiguousarray(requests, dtype=bool)
+    requests = _c_array(requests, _BOOL)
     if requests.shape != (bsz, n):
         raise ValueError(f"requests: expected shape {(bsz, n)}, got {requests.shape}")
     rule = _RULE_CODES.get(arbitration)
     if rule is None:
         raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
     # The kernel does not check bounds: the random rows' shapes are checked here.
-    if np.shape(normals) != (bsz, n):
-        raise ValueError(f"normals: expected shape {(bsz, n)}, got {np.shape(normals)}")
+    normals = _c_array(normals, _FLOAT)
+    if normals.shape != (bsz, n):
+        raise ValueError(f"normals: expected shape {(bsz, n)}, got {normals.shape}")
     cols, peaks, scalars, no_uniforms = _packed(params)
     if uniforms is None:
         if arbitration == "random":
@@ -305,8 +317,7 @@ def step(
     elif np.shape(uniforms) != (bsz, n):
         raise ValueError(f"uniforms: expected shape {(bsz, n)}, got {np.shape(uniforms)}")
     out = _allocate_outputs(bsz, n, p.shape[1])
-    inputs = (v, p, state.step_count, requests, np.ascontiguousarray(normals), uniforms, rule, cols, peaks,
-              scalars)
+    inputs = (v, p, state.step_count, requests, normals, uniforms, rule, cols, peaks, scalars)
     if bsz >= PARALLEL_MIN_BATCH:
         _step_parallel(4 * numba.get_num_threads(), *inputs, *out)
     else:

@@ -47,6 +47,7 @@ class PlantSimulator:
         self._step_fn = compiled.step if self.backend == "numba" else dynamics.step
         self._global_state = compiled.global_state if self.backend == "numba" else global_state
         self.arbitration = arbitration
+        self._needs_uniforms = arbitration == "random"
         self.batch_size = int(batch_size)
         n, m = self.params.n_containers, self.params.n_pus
         self._streams: NoiseStreams | None = None
@@ -116,14 +117,14 @@ class PlantSimulator:
                 f"simulation(s) {bad} finished their episode (overflow or time limit); "
                 f"call reset() before stepping again"
             )
-        normals, uniforms = self._streams.next_rows(uniforms=self.arbitration == "random")
+        normals, uniforms = self._streams.next_rows(uniforms=self._needs_uniforms)
         self.state, outcome = self._step_fn(
             self.state, requests, self.params, normals, uniforms, self.arbitration
         )
         self.previous_requests = outcome.requested.copy()
         finished = self.finished = outcome.terminated | outcome.truncated
         # a Python bool for the check above (ndarray.any() costs ~1 µs, a tenth of a small step)
-        self._any_finished = bool(finished[0] if finished.size == 1 else np.logical_or.reduce(finished))
+        self._any_finished = finished.item(0) if finished.size == 1 else bool(np.logical_or.reduce(finished))
         self.last_outcome = outcome
         return outcome
 

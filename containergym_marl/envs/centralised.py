@@ -121,38 +121,33 @@ class ContainerGymEnv(gym.Env):
             requests[0, a - 1] = True
         out = self._sim.step(requests)
         # At most one request (container a - 1): read its entries directly, cheaper than searching.
+        # ``.item(k)`` reads entry k of the (one-simulation) arrays straight into a Python number.
         i = a - 1
-        emptied = a > 0 and bool(out.granted[0, i])
-        terminated = bool(out.terminated[0])
+        emptied = a > 0 and out.granted.item(i)
+        terminated = out.terminated.item(0)
         info = {
-            "step": int(self._sim.state.step_count[0]),
+            "step": self._sim.state.step_count.item(0),
             "emptied_container": None,
             "emptied_volume": None,
             "emptying_reward": 0.0,
             "pu_index": None,
             "no_free_pu": False,
             "overflowed_containers": (),
-            "free_pus": int(out.free_pus_before[0]),
+            "free_pus": out.free_pus_before.item(0),
         }
         if a > 0:
-            info["emptying_reward"] = float(out.container_reward[0, i])
+            info["emptying_reward"] = out.container_reward.item(i)
             if emptied:
                 info["emptied_container"] = self._names[i]
-                info["emptied_volume"] = float(out.emptied_volume[0, i])
-                info["pu_index"] = int(out.pu_index[0, i])
+                info["emptied_volume"] = out.emptied_volume.item(i)
+                info["pu_index"] = out.pu_index.item(i)
             else:
                 info["no_free_pu"] = True
         if terminated:
             info["overflowed_containers"] = tuple(self._names[j] for j in np.flatnonzero(out.overflowed[0]))
         if self.render_mode == "human":
             self.render()
-        return (
-            self._observation(),
-            float(out.plant_reward[0]),
-            terminated,
-            bool(out.truncated[0]),
-            info,
-        )
+        return self._observation(), out.plant_reward.item(0), terminated, out.truncated.item(0), info
 
     def action_masks(self) -> np.ndarray:
         """Valid actions for MaskablePPO: 'do nothing' always; emptying only while a PU is free."""
