@@ -133,3 +133,23 @@ def test_default_budget_is_the_papers():
     assert paper_budget(load_config("n5_m2_dt120").n_containers) == 2_000_000
     assert paper_budget(load_config("n11_m2_dt120").n_containers) == 5_000_000
     assert TrainArgs(algo="ppo").timesteps is None  # resolved from the plant in train()
+
+
+def test_training_uses_fused_adam_unless_the_caller_overrides_it(tmp_path):
+    """The run's model really has Adam's fused kernel; --hp policy_kwargs replaces it key by key;
+    torch.distributions' checks are off only during learn."""
+    import torch
+
+    from containergym_marl.training.runs import algorithm_kwargs
+
+    before = torch.distributions.Distribution._validate_args
+    run = train(TrainArgs(algo="ppo", out=str(tmp_path / "ppo"), **TINY))
+    model = load_model(run / "final_model.zip", algo="ppo")
+    assert model.policy.optimizer.defaults["fused"] is True
+    assert torch.distributions.Distribution._validate_args == before  # restored after learn
+
+    args = TrainArgs(algo="ppo", hyperparams={"policy_kwargs": {"optimizer_kwargs": {}, "net_arch": [32]}})
+    kwargs = algorithm_kwargs(args, num_slots=8)
+    assert kwargs["policy_kwargs"] == {"optimizer_kwargs": {}, "net_arch": [32]}
+    assert kwargs["n_steps"] == 768 and kwargs["batch_size"] == 64
+    assert algorithm_kwargs(TrainArgs(algo="dqn"), 1)["policy_kwargs"] == {"optimizer_kwargs": {"fused": True}}
