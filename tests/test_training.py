@@ -136,20 +136,29 @@ def test_default_budget_is_the_papers():
 
 
 def test_training_uses_fused_adam_unless_the_caller_overrides_it(tmp_path):
-    """The run's model really has Adam's fused kernel; --hp policy_kwargs replaces it key by key;
-    torch.distributions' checks are off only during learn."""
+    """The run's model really has Adam's fused kernel with every other setting of SB3's default
+    optimizer (its actor-critic policies use eps = 1e-5); --hp policy_kwargs replaces it key by
+    key; torch.distributions' checks are off only during learn."""
     import torch
+    from stable_baselines3 import DQN, PPO
 
+    from containergym_marl.envs.vector import ContainerGymVecEnv
     from containergym_marl.training.runs import algorithm_kwargs
 
     before = torch.distributions.Distribution._validate_args
     run = train(TrainArgs(algo="ppo", out=str(tmp_path / "ppo"), **TINY))
     model = load_model(run / "final_model.zip", algo="ppo")
-    assert model.policy.optimizer.defaults["fused"] is True
+    venv = ContainerGymVecEnv("n5_m2_dt120", 2)
+    for algo, cls in (("ppo", PPO), ("dqn", DQN)):
+        ours = model if algo == "ppo" else cls("MlpPolicy", venv, device="cpu", **algorithm_kwargs(
+            TrainArgs(algo="dqn"), 2))
+        sb3 = cls("MlpPolicy", venv, device="cpu")  # SB3's own optimizer settings
+        mine, theirs = dict(ours.policy.optimizer.defaults), dict(sb3.policy.optimizer.defaults)
+        assert mine.pop("fused") is True and not theirs.pop("fused")
+        assert mine == theirs, algo  # same lr, betas, eps, weight decay, ...
     assert torch.distributions.Distribution._validate_args == before  # restored after learn
 
     args = TrainArgs(algo="ppo", hyperparams={"policy_kwargs": {"optimizer_kwargs": {}, "net_arch": [32]}})
     kwargs = algorithm_kwargs(args, num_slots=8)
     assert kwargs["policy_kwargs"] == {"optimizer_kwargs": {}, "net_arch": [32]}
     assert kwargs["n_steps"] == 768 and kwargs["batch_size"] == 64
-    assert algorithm_kwargs(TrainArgs(algo="dqn"), 1)["policy_kwargs"] == {"optimizer_kwargs": {"fused": True}}

@@ -154,7 +154,13 @@ def algorithm_kwargs(args: TrainArgs, num_slots: int) -> dict[str, Any]:
     # Adam's fused CPU kernel: the same update rule as SB3's default Adam, one kernel per step
     # instead of a dozen small ops per parameter tensor; with these small MLPs that makes a
     # PPO run ~25 % faster. (Rounding differs in the last bits, as between any two Adam kernels.)
-    kwargs["policy_kwargs"] = {"optimizer_kwargs": {"fused": True}}
+    # Passing optimizer_kwargs replaces SB3's own: its actor-critic policies (PPO, TRPO,
+    # MaskablePPO) use eps = 1e-5 only when given none, so that value is restated here; DQN's
+    # policy keeps torch's default eps.
+    optimizer_kwargs: dict[str, Any] = {"fused": True}
+    if args.algo != "dqn":
+        optimizer_kwargs["eps"] = 1e-5
+    kwargs["policy_kwargs"] = {"optimizer_kwargs": optimizer_kwargs}
     for key, value in args.hyperparams.items():
         if key == "policy_kwargs":  # the caller's policy settings win, key by key
             kwargs["policy_kwargs"] = {**kwargs["policy_kwargs"], **value}
