@@ -355,21 +355,23 @@ def global_state(state: PlantState, params: PlantParams) -> np.ndarray:
 # random_standard_uniform_fill (numpy's documented random C API, exported by
 # numpy.random._generator) on the generator's bitgen_t. Calling the same two functions on the same
 # bitgen_t from compiled code gives the same numbers, without a Python call per simulation and in
-# parallel threads (each generator is touched by one thread only). As numpy's C-API examples for
-# numba do, pointers are passed as integers (same calling convention on 64-bit platforms).
+# parallel threads (each generator is touched by one thread only). The functions are linked by
+# symbol name (so the compiled kernels can be cached on disk); pointers are passed as integers,
+# the same calling convention on 64-bit platforms.
 
 def _numpy_fill_functions():
     try:
+        import llvmlite.binding as llvm
         import numpy.random._generator as generator_module
 
-        lib = ctypes.CDLL(generator_module.__file__)
-        fills = (lib.random_standard_normal_fill, lib.random_standard_uniform_fill)
-    except (OSError, AttributeError):  # pragma: no cover - a numpy without these exports
+        llvm.load_library_permanently(generator_module.__file__)
+        for name in ("random_standard_normal_fill", "random_standard_uniform_fill"):
+            ctypes.CDLL(generator_module.__file__)[name]  # raises AttributeError if not exported
+    except (ImportError, OSError, AttributeError, RuntimeError):  # pragma: no cover
         return None
-    for f in fills:
-        f.restype = None
-        f.argtypes = [ctypes.c_size_t, ctypes.c_ssize_t, ctypes.c_size_t]
-    return fills
+    signature = numba.types.void(numba.types.uintp, numba.types.intp, numba.types.uintp)
+    return (numba.types.ExternalFunction("random_standard_normal_fill", signature),
+            numba.types.ExternalFunction("random_standard_uniform_fill", signature))
 
 
 _FILLS = _numpy_fill_functions() if numba is not None else None
@@ -382,11 +384,8 @@ def bitgen_address(generator: np.random.Generator) -> int:
 
 if _FILLS is not None:
     _normal_fill, _uniform_fill = _FILLS
-    # not cached on disk: the C functions' addresses are compiled in and differ between processes
-    _jit_fill = numba.njit(cache=False)
-    _jit_fill_parallel = numba.njit(cache=False, parallel=True)
 
-    @_jit_fill
+    @_jit
     def _refill_range(lo, hi, addresses, sims, normals, uniforms, rows):
         count = rows * normals.shape[1]
         # all address arithmetic in uint64 (mixing signed and unsigned would give float64)
@@ -398,7 +397,7 @@ if _FILLS is not None:
             _normal_fill(addresses[i], count, normals_base + i * block_bytes)
             _uniform_fill(addresses[i], count, uniforms_base + i * block_bytes)
 
-    @_jit_fill_parallel
+    @_jit_parallel
     def _refill_parallel(chunks, addresses, sims, normals, uniforms, rows):
         total = sims.shape[0]
         size = (total + chunks - 1) // chunks
