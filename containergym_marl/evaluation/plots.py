@@ -216,7 +216,6 @@ def plot_episode(record: EpisodeRecord, path: str | Path, *, config: str | Plant
     _check_names(cfg, record)
     n, T = cfg.n_containers, record.steps
     colors = container_colors(n)
-    names = cfg.container_names
     steps = np.arange(T + 1)
 
     fig = Figure(figsize=(11, 6.8), layout="constrained")
