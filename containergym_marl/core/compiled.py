@@ -41,6 +41,7 @@ from containergym_marl.core.dynamics import (
     ARBITRATION_RULES,
     PlantState,
     StepOutcome,
+    check_step_inputs,
 )
 from containergym_marl.core.observations import global_state_bounds
 from containergym_marl.core.params import PlantParams
@@ -300,24 +301,14 @@ def step(
     v, p = state.volumes, state.pu_timers_s
     bsz, n = v.shape
     requests = _c_array(requests, _BOOL)
-    if requests.shape != (bsz, n):
-        raise ValueError(f"requests: expected shape {(bsz, n)}, got {requests.shape}")
-    rule = _RULE_CODES.get(arbitration)
-    if rule is None:
-        raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
-    # The kernel does not check bounds: the random rows' shapes are checked here.
     normals = _c_array(normals, _FLOAT)
-    if normals.shape != (bsz, n):
-        raise ValueError(f"normals: expected shape {(bsz, n)}, got {normals.shape}")
+    # the kernel does not check bounds: every shape is checked here
+    check_step_inputs(bsz, n, requests, normals, uniforms, arbitration)
     cols, peaks, scalars, no_uniforms = _packed(params)
     if uniforms is None:
-        if arbitration == "random":
-            raise ValueError("the 'random' arbitration needs the step's uniforms")
         uniforms = no_uniforms
-    elif np.shape(uniforms) != (bsz, n):
-        raise ValueError(f"uniforms: expected shape {(bsz, n)}, got {np.shape(uniforms)}")
     out = _allocate_outputs(bsz, n, p.shape[1])
-    inputs = (v, p, state.step_count, requests, normals, uniforms, rule, cols, peaks, scalars)
+    inputs = (v, p, state.step_count, requests, normals, uniforms, _RULE_CODES[arbitration], cols, peaks, scalars)
     if bsz >= PARALLEL_MIN_BATCH:
         _step_parallel(4 * numba.get_num_threads(), *inputs, *out)
     else:

@@ -291,6 +291,22 @@ def _k_th_free_pu(free: np.ndarray, sims: np.ndarray, position: np.ndarray) -> n
     return pu - 1
 
 
+def check_step_inputs(bsz: int, n: int, requests: np.ndarray, normals, uniforms, arbitration: str) -> None:
+    """The input checks of :func:`step` (and of the compiled backend's): a clear error naming the
+    offending input. Random rows are one per simulation, never broadcast."""
+    if requests.shape != (bsz, n):
+        raise ValueError(f"requests: expected shape {(bsz, n)}, got {requests.shape}")
+    if arbitration not in ARBITRATION_RULES:
+        raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
+    if uniforms is None:
+        if arbitration == "random":  # needed whenever requests compete
+            raise ValueError("the 'random' arbitration needs the step's uniforms")
+    elif np.shape(uniforms) != (bsz, n):
+        raise ValueError(f"uniforms: expected shape {(bsz, n)}, got {np.shape(uniforms)}")
+    if np.shape(normals) != (bsz, n):
+        raise ValueError(f"normals: expected shape {(bsz, n)}, got {np.shape(normals)}")
+
+
 def step(
     state: PlantState,
     requests: np.ndarray,
@@ -315,14 +331,7 @@ def step(
     v, p = state.volumes, state.pu_timers_s
     bsz, n = v.shape
     requests = np.asarray(requests, dtype=bool)
-    if requests.shape != (bsz, n):
-        raise ValueError(f"requests: expected shape {(bsz, n)}, got {requests.shape}")
-    if arbitration not in ARBITRATION_RULES:
-        raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
-    if arbitration == "random" and uniforms is None:  # needed whenever requests compete
-        raise ValueError("the 'random' arbitration needs the step's uniforms")
-    if np.shape(normals) != (bsz, n):  # one row per simulation, never broadcast
-        raise ValueError(f"normals: expected shape {(bsz, n)}, got {np.shape(normals)}")
+    check_step_inputs(bsz, n, requests, normals, uniforms, arbitration)
 
     const = per_entry(params, bsz)
     free = p == 0.0

@@ -14,6 +14,8 @@ from typing import Sequence
 
 import numpy as np
 
+from containergym_marl.core import compiled
+
 #: Rows drawn per refill. Part of the definition of the random stream: changing it changes every
 #: trajectory for a given seed (and would bump the environments' versions).
 BLOCK_ROWS = 32
@@ -60,8 +62,6 @@ class NoiseStreams:
         available). Refilled in parallel only while every simulation has its own generator."""
         self._bitgen_addresses = None
         if self._compiled_refill:
-            from containergym_marl.core import compiled
-
             if compiled.refill_available():
                 self._refill_blocks = compiled.refill_blocks
                 self._bitgen_addresses = np.array([compiled.bitgen_address(g) for g in self._generators],
@@ -92,9 +92,7 @@ class NoiseStreams:
         """Replace simulation ``index``'s generator (a reseed); its buffered rows are discarded."""
         self._generators[index] = generator
         if self._bitgen_addresses is not None:
-            from containergym_marl.core.compiled import bitgen_address
-
-            self._bitgen_addresses[index] = bitgen_address(generator)
+            self._bitgen_addresses[index] = compiled.bitgen_address(generator)
             self._addresses_checked = False
         self._cursor[index] = BLOCK_ROWS
         self._max_cursor = BLOCK_ROWS
