@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from containergym_marl import load_config
+from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.policies import RuleBasedAgents, RuleBasedController
 from containergym_marl.training.script_args import parse_args
@@ -28,7 +29,7 @@ class Args:
 
 
 def main(args: Args) -> dict:
-    params = load_config(args.config).params()
+    params = PlantParams.from_config(load_config(args.config))
     protocol = EvalProtocol(episodes=args.episodes)
     results = {}
     for policy in (RuleBasedController(params, args.margin), RuleBasedAgents(params, args.margin)):

@@ -15,6 +15,8 @@ import sys
 from typing import Any
 
 from containergym_marl.config import ConfigError, list_configs, load_config
+from containergym_marl.core.dynamics import ARBITRATION_RULES
+from containergym_marl.core.params import PlantParams
 
 BUILTIN_POLICIES = ("rule_based", "rule_based_agents")
 
@@ -60,7 +62,7 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
     if target in BUILTIN_POLICIES:
         plant = load_config(config or "n5_m2_dt120")
         cls = RuleBasedController if target == "rule_based" else RuleBasedAgents
-        return evaluate(cls(plant.params()), plant, protocol, arbitration=arbitration or "fullest")
+        return evaluate(cls(PlantParams.from_config(plant)), plant, protocol, arbitration=arbitration or "fullest")
     if Path(target).is_dir():
         return evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration)
     raise SystemExit(
@@ -123,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="shared_ppo's vectorisation: our batched env or the SuperSuit stack")
     t.add_argument("--num-cpus", type=int, default=0, help="SuperSuit worker processes")
     t.add_argument("--reward-mode", choices=("individual", "team"), default="individual")
-    t.add_argument("--arbitration", default="fullest", choices=("fullest", "random", "index", "best_reward"))
+    t.add_argument("--arbitration", default="fullest", choices=tuple(ARBITRATION_RULES))
     t.add_argument("--checkpoint-every", type=int, default=200_000, help="samples between checkpoints")
     t.add_argument("--gamma", type=float, default=0.99)
     t.add_argument("--hp", nargs="*", default=[], metavar="KEY=VALUE", help="extra SB3 hyperparameters")
@@ -139,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--config", default=None, help="plant (default: the run's own, or n5_m2_dt120)")
     e.add_argument("--episodes", type=int, default=15)
     e.add_argument("--model", choices=("best", "final"), default="best")
-    e.add_argument("--arbitration", default=None, choices=("fullest", "random", "index", "best_reward"))
+    e.add_argument("--arbitration", default=None, choices=tuple(ARBITRATION_RULES))
     e.add_argument("--json", default=None, help="write the evaluation as JSON here")
     e.set_defaults(func=_cmd_evaluate)
 

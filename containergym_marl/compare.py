@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from containergym_marl.config import load_config
+from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import EvalProtocol, EvaluationResult, evaluate
 from containergym_marl.evaluation import stats as st
 from containergym_marl.evaluation.table import PAPER_TABLE_1
@@ -119,7 +120,7 @@ def _evaluate_method(args: CompareArgs, method: str, config: str, runs: Path, pr
     evaluations.mkdir(parents=True, exist_ok=True)
     if method in RULE_BASED:
         cls = RuleBasedController if method == "rule_based" else RuleBasedAgents
-        result = evaluate(cls(load_config(config).params()), config, protocol)
+        result = evaluate(cls(PlantParams.from_config(load_config(config))), config, protocol)
         (evaluations / f"{method}.json").write_text(result.to_json())
         return MethodResult(config, method, VIEWS[method], [], [result])
     per_seed = []

@@ -2,8 +2,8 @@
 
 A :class:`PlantConfig` is the immutable description of one plant (the paper's "instance"):
 its containers, its processing units (PUs) and the episode settings. The physics core never reads
-a config directly; it reads :class:`~containergym_marl.core.params.PlantParams`, the array form
-built by :meth:`PlantConfig.params`.
+a config directly: it reads :class:`~containergym_marl.core.params.PlantParams`, the array form
+derived from it by ``PlantParams.from_config`` (the config knows nothing of the core).
 
 Units: volumes in the plant's volume units, times in seconds, rates per second.
 """
@@ -77,7 +77,7 @@ class ContainerSpec:
 class PlantConfig:
     """A whole plant: containers, PUs and episode settings. Immutable and validated on creation.
 
-    Derived quantities (``n_containers``, ``container_names``, ``params``) are computed, never
+    Derived quantities (``n_containers``, ``container_names``) are computed, never
     stored, so an override can never leave them stale.
     """
 
@@ -91,7 +91,6 @@ class PlantConfig:
     overflow_reward: float
     penalty_reward: float
     description: str = ""
-    _params_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -104,14 +103,6 @@ class PlantConfig:
     @property
     def container_names(self) -> tuple[str, ...]:
         return tuple(c.name for c in self.containers)
-
-    def params(self):
-        """The array form read by the physics core (cached; the config is immutable)."""
-        if "params" not in self._params_cache:
-            from containergym_marl.core.params import PlantParams
-
-            self._params_cache["params"] = PlantParams.from_config(self)
-        return self._params_cache["params"]
 
     def replace(self, **overrides: Any) -> "PlantConfig":
         """A new, re-validated config with plant-level fields overridden.

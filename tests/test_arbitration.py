@@ -8,9 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from containergym_marl import load_config
-from containergym_marl.core import ARBITRATION_RULES, dynamics, emptying_reward
+from containergym_marl.core import ARBITRATION_RULES, dynamics, emptying_rewards
 from containergym_marl.core.simulator import PlantSimulator
 from containergym_marl.envs.container_agents_v0 import parallel_env
+from containergym_marl.core.params import PlantParams
 from tests.conftest import make_state
 
 CFG = load_config("n11_m2_dt120")
@@ -23,7 +24,7 @@ def contested_step(draw):
     timers = draw(st.lists(st.sampled_from([0.0, 0.0, 50.0, 300.0]), min_size=M, max_size=M))
     requests = draw(st.lists(st.booleans(), min_size=N, max_size=N))
     uniforms = draw(st.lists(st.floats(0.0, 0.999), min_size=N, max_size=N))
-    rule = draw(st.sampled_from(ARBITRATION_RULES))
+    rule = draw(st.sampled_from(tuple(ARBITRATION_RULES)))
     return volumes, timers, requests, uniforms, rule
 
 
@@ -35,7 +36,7 @@ def test_arbitration_invariants(case):
     volumes, timers, requests, uniforms, rule = case
     state = make_state(volumes, timers)
     req = np.array([requests])
-    new, out = dynamics.step(state, req, CFG.params(), np.zeros((1, N)), np.array([uniforms]), rule)
+    new, out = dynamics.step(state, req, PlantParams.from_config(CFG), np.zeros((1, N)), np.array([uniforms]), rule)
     free = [j for j, t in enumerate(timers) if t == 0.0]
     granted = np.flatnonzero(out.granted[0])
     assert len(granted) == min(sum(requests), len(free))
@@ -53,7 +54,7 @@ def test_arbitration_invariants(case):
 def _contest(rule, volumes, requests, free_pus, uniforms=None):
     timers = [0.0] * free_pus + [100.0] * (M - free_pus)
     u = np.zeros((1, N)) if uniforms is None else np.array([uniforms])
-    _, out = dynamics.step(make_state(volumes, timers), np.array([requests]), CFG.params(),
+    _, out = dynamics.step(make_state(volumes, timers), np.array([requests]), PlantParams.from_config(CFG),
                            np.zeros((1, N)), u, rule)
     return set(np.flatnonzero(out.granted[0]).tolist())
 
@@ -76,11 +77,11 @@ def test_fullest_uses_fraction_of_v_max():
     cfg = CFG.replace(containers=tuple(c), initial_volume_max=15.0)
     vols = [15.0, 30.0] + [0.0] * (N - 2)  # 15/20 = 0.75 beats 30/40 = 0.75? tie → lower index
     _, out = dynamics.step(make_state(vols, [0.0, 100.0]), np.array([[True, True] + [False] * (N - 2)]),
-                           cfg.params(), np.zeros((1, N)), np.zeros((1, N)), "fullest")
+                           PlantParams.from_config(cfg), np.zeros((1, N)), np.zeros((1, N)), "fullest")
     assert out.granted[0].tolist()[:2] == [True, False]
     vols = [14.0, 30.0] + [0.0] * (N - 2)  # 0.70 < 0.75
     _, out = dynamics.step(make_state(vols, [0.0, 100.0]), np.array([[True, True] + [False] * (N - 2)]),
-                           cfg.params(), np.zeros((1, N)), np.zeros((1, N)), "fullest")
+                           PlantParams.from_config(cfg), np.zeros((1, N)), np.zeros((1, N)), "fullest")
     assert out.granted[0].tolist()[:2] == [False, True]
 
 
@@ -91,7 +92,7 @@ def test_index_grants_lowest_indices():
 
 
 def test_best_reward_grants_highest_immediate_reward():
-    rewards = emptying_reward(np.array(VOLS), CFG.params())
+    rewards = emptying_rewards(np.array([VOLS], dtype=float), PlantParams.from_config(CFG))[0]
     expected = set(np.argsort(-rewards, kind="stable")[:2].tolist())
     assert _contest("best_reward", VOLS, ALL, 2) == expected
     # independent check: at 27 C1-20 (index 0) earns ≈1, more than anyone at these volumes

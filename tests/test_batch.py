@@ -10,10 +10,11 @@ from hypothesis import strategies as st
 from containergym_marl import ContainerSpec, PlantConfig, load_config
 from containergym_marl.core import ARBITRATION_RULES, BLOCK_ROWS, dynamics
 from containergym_marl.core.simulator import PlantSimulator
+from containergym_marl.core.params import PlantParams
 from tests import reference_model
 
 
-@pytest.mark.parametrize("rule", ARBITRATION_RULES)
+@pytest.mark.parametrize("rule", tuple(ARBITRATION_RULES))
 def test_batch_of_B_equals_B_single_runs(rule):
     """B simulations stepped together, with per-simulation resets at different times, give exactly
     the trajectories of B simulators run one by one with the same seeds and requests."""
@@ -114,12 +115,12 @@ def plants(draw):
 
 
 @settings(max_examples=150, deadline=None)
-@given(plants(), st.integers(0, 2**32 - 1), st.sampled_from(ARBITRATION_RULES))
+@given(plants(), st.integers(0, 2**32 - 1), st.sampled_from(tuple(ARBITRATION_RULES)))
 def test_core_matches_oracle_on_generated_plants(cfg, seed, rule):
     """Any valid plant: step by step, the vectorised core equals the scalar oracle written from the
     paper (volumes, timers, rewards, grants, termination, truncation)."""
     rng = np.random.default_rng(seed)
-    params = cfg.params()
+    params = PlantParams.from_config(cfg)
     n, m = cfg.n_containers, cfg.num_processing_units
     volumes = list(rng.uniform(0, cfg.initial_volume_max, n))
     timers = [0.0] * m

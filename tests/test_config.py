@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from containergym_marl.core.params import PlantParams
 from containergym_marl.config import (
     PAPER_TEST_PROTOCOL,
     ConfigError,
@@ -432,14 +433,13 @@ def test_replace_revalidates():
     with pytest.raises(ConfigError, match=f"{cfg.containers[1].name}.*reward_heights"):
         cfg.replace(containers=(cfg.containers[0], bad, *cfg.containers[2:]))
     two = cfg.replace(containers=cfg.containers[:2])
-    assert two.n_containers == 2 and two.params().n_containers == 2
+    assert two.n_containers == 2 and PlantParams.from_config(two).n_containers == 2
 
 
 def test_params_arrays_are_read_only():
-    """The physics core's arrays cannot be written through params()."""
-    p = load_config("n5_m2_dt120").params()
-    arrays = {f.name: getattr(p, f.name) for f in dataclasses.fields(p)
-              if isinstance(getattr(p, f.name), np.ndarray)}
+    """The physics core's arrays cannot be written through PlantParams."""
+    p = PlantParams.from_config(load_config("n5_m2_dt120"))
+    arrays = {name: value for name, value in p._asdict().items() if isinstance(value, np.ndarray)}
     assert {"fill_mean_per_step", "max_volume", "reward_peaks"} <= set(arrays)
     for name, a in arrays.items():
         assert not a.flags.writeable, name
@@ -448,20 +448,20 @@ def test_params_arrays_are_read_only():
 
 
 def test_derived_params_follow_overrides():
-    """params() is recomputed for an overridden config: μ·δ and σ·√δ use the new δ, and the
+    """PlantParams follow an overridden config: μ·δ and σ·√δ use the new δ, and the
     original config's params are unchanged."""
     base = load_config("n5_m2_dt120")
-    base_mean = base.params().fill_mean_per_step.copy()
+    base_mean = PlantParams.from_config(base).fill_mean_per_step.copy()
     cfg = load_config("n5_m2_dt120", timestep_s=60)
     mu = np.array([c.fill_rate_per_s for c in cfg.containers])
     sigma = np.array([c.fill_noise_per_sqrt_s for c in cfg.containers])
-    p = cfg.params()
+    p = PlantParams.from_config(cfg)
     assert p.timestep_s == 60
     np.testing.assert_allclose(p.fill_mean_per_step, mu * 60, rtol=1e-12)
     np.testing.assert_allclose(p.fill_std_per_step, sigma * math.sqrt(60), rtol=1e-12)
-    np.testing.assert_allclose(base.params().fill_mean_per_step, mu * 120, rtol=1e-12)
-    np.testing.assert_array_equal(base.params().fill_mean_per_step, base_mean)
-    paper = load_config("n5_m2_dt60", protocol="paper_test").params()
+    np.testing.assert_allclose(PlantParams.from_config(base).fill_mean_per_step, mu * 120, rtol=1e-12)
+    np.testing.assert_array_equal(PlantParams.from_config(base).fill_mean_per_step, base_mean)
+    paper = PlantParams.from_config(load_config("n5_m2_dt60", protocol="paper_test"))
     assert (paper.timestep_s, paper.episode_length_steps) == (120, 600)
 
 

@@ -11,6 +11,7 @@ from containergym_marl import ContainerGymEnv, load_config
 from containergym_marl.evaluation import PAPER, EvalProtocol, EpisodeRecord, evaluate
 from containergym_marl.evaluation.table import markdown_table, method_rows
 from containergym_marl.policies import RuleBasedAgents, RuleBasedController
+from containergym_marl.core.params import PlantParams
 
 
 def test_paper_protocol_defaults():
@@ -24,7 +25,7 @@ def test_metrics_match_a_manual_replay_including_the_final_reward():
     """Replay each evaluation episode by hand with the same seed and actions: cumulative reward
     (final step included), steps, overflow, emptyings and denied requests agree."""
     cfg = load_config("n11_m2_dt120")
-    policy = RuleBasedController(cfg.params())
+    policy = RuleBasedController(PlantParams.from_config(cfg))
     result = evaluate(policy, cfg, EvalProtocol(episodes=4, episode_length_steps=300))
     for metrics, record in zip(result.episodes, result.records):
         env = ContainerGymEnv(cfg, timestep_s=120, episode_length_steps=300)
@@ -70,7 +71,7 @@ def test_final_overflow_reward_is_counted():
 
 
 def test_pu_utilisation_counts_busy_pu_steps():
-    result = evaluate(RuleBasedController(load_config("n5_m2_dt120").params()), "n5_m2_dt120", EvalProtocol(episodes=1))
+    result = evaluate(RuleBasedController(PlantParams.from_config(load_config("n5_m2_dt120"))), "n5_m2_dt120", EvalProtocol(episodes=1))
     rec = result.records[0]
     busy = sum(int((timers > 0).sum()) for timers in rec.pu_timers_s[1:])
     assert result.episodes[0].pu_utilisation == pytest.approx(busy / (rec.steps * 2))
@@ -78,7 +79,7 @@ def test_pu_utilisation_counts_busy_pu_steps():
 
 def test_decentralised_evaluation_counts_denials_and_records_round_trip(tmp_path):
     cfg = load_config("n11_m2_dt120")
-    result = evaluate(RuleBasedAgents(cfg.params()), cfg, EvalProtocol(episodes=2, episode_length_steps=200),
+    result = evaluate(RuleBasedAgents(PlantParams.from_config(cfg)), cfg, EvalProtocol(episodes=2, episode_length_steps=200),
                       arbitration="index")
     rec = result.records[0]
     assert result.episodes[0].denied_requests == int(rec.denied.sum())

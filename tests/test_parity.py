@@ -66,7 +66,7 @@ def test_views_agree_step_for_step_on_every_paper_config(config):
     assert endings == {True, False}  # both an overflow and a time-limit end were compared
 
 
-@pytest.mark.parametrize("rule", ARBITRATION_RULES)
+@pytest.mark.parametrize("rule", tuple(ARBITRATION_RULES))
 def test_single_requests_are_never_contested_so_every_rule_agrees(rule):
     steps, _ = _run_both("n11_m2_dt120", 4, _random_choice(11, 0.3), arbitration=rule,
                          episode_length_steps=200)

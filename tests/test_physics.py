@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from containergym_marl import load_config
-from containergym_marl.core import dynamics, emptying_reward, pu_busy_time_s
+from containergym_marl.core import dynamics, emptying_reward, emptying_rewards, pu_busy_time_s
 from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
+from containergym_marl.core.params import PlantParams
 from tests.conftest import make_state
 
 R_PEN = -0.1
@@ -43,33 +44,36 @@ def test_emptying_reward_matches_hand_computation(cfg5, container, volume, expec
     i = cfg5.container_names.index(container)
     v = np.zeros(cfg5.n_containers)
     v[i] = volume
-    assert emptying_reward(v, cfg5.params())[i] == pytest.approx(expected, rel=1e-12, abs=1e-15)
+    params = PlantParams.from_config(cfg5)
+    assert emptying_reward(i, volume, params) == pytest.approx(expected, rel=1e-12, abs=1e-15)
+    assert emptying_rewards(v[None], params)[0, i] == emptying_reward(i, volume, params)
 
 
 def test_reward_range_and_peaks(cfg5):
     """The reward lies in [r_pen, 1] (]r_pen, 1] up to float underflow far from any peak) and is
     ≈ 1 at each global optimum."""
-    params = cfg5.params()
+    params = PlantParams.from_config(cfg5)
     v = np.linspace(1e-3, 39.999, 4001)[:, None].repeat(cfg5.n_containers, axis=1)
-    r = emptying_reward(v, params)
+    r = emptying_rewards(v, params)
     assert r.max() <= 1.0 + 1e-12 and r.min() >= R_PEN
     for i, c in enumerate(cfg5.containers):
-        assert emptying_reward(np.full(cfg5.n_containers, c.target_volume), params)[i] == pytest.approx(1.0, abs=2e-3)
+        assert emptying_reward(i, c.target_volume, params) == pytest.approx(1.0, abs=2e-3)
 
 
 # ---- PU timers (paper eq. 2 and the state update) -------------------------------------------
 def test_pu_busy_time_is_beta_plus_lambda_floor(cfg5):
-    params = cfg5.params()
+    params = PlantParams.from_config(cfg5)
     v = np.array([[27.3, 12.4, 17.0, 31.5, 0.0]])
     expected = [106.798502 + 264.9 * 1, 95.399 + 149.88 * 0, 65.998499 + 191.64 * 2,
                 56.398501 + 172.32 * 3, 53.999001]
-    np.testing.assert_allclose(pu_busy_time_s(v, params)[0], expected, rtol=1e-12)
+    got = [pu_busy_time_s(i, v[0, i], params) for i in range(cfg5.n_containers)]
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
 
 
 def test_timer_set_to_g_at_t_plus_1_then_counts_down_by_delta(cfg5):
     """The paper's p_{k,t+1} = g(v_t): no δ is subtracted in the emptying step (unlike the
     reference code); the PU is free again only once its timer reaches exactly 0."""
-    params = cfg5.params()
+    params = PlantParams.from_config(cfg5)
     n = cfg5.n_containers
     state = make_state([27.3, 5, 5, 5, 5], [0.0, 500.0])
     requests = np.zeros((1, n), bool)
@@ -89,7 +93,7 @@ def test_timer_set_to_g_at_t_plus_1_then_counts_down_by_delta(cfg5):
 def test_busy_pu_with_small_remaining_time_is_not_free(cfg5):
     """A timer of 11.7 s is still busy: an emptying request is denied with r_pen and the
     container keeps filling."""
-    params = cfg5.params()
+    params = PlantParams.from_config(cfg5)
     n = cfg5.n_containers
     state = make_state([27.0, 5, 5, 5, 5], [11.7, 3.0])
     requests = np.zeros((1, n), bool)
@@ -102,7 +106,7 @@ def test_busy_pu_with_small_remaining_time_is_not_free(cfg5):
 
 
 def test_emptying_an_empty_container_costs_r_pen_and_still_uses_a_pu(cfg5):
-    params = cfg5.params()
+    params = PlantParams.from_config(cfg5)
     n = cfg5.n_containers
     state = make_state([0.0, 5, 5, 5, 5], [0.0, 0.0])
     requests = np.zeros((1, n), bool)
@@ -115,7 +119,7 @@ def test_emptying_an_empty_container_costs_r_pen_and_still_uses_a_pu(cfg5):
 
 # ---- volumes -------------------------------------------------------------------------------------
 def test_emptied_container_is_zero_and_reward_uses_volume_before_inflow(cfg5):
-    params = cfg5.params()
+    params = PlantParams.from_config(cfg5)
     n = cfg5.n_containers
     state = make_state([25.0, 10, 10, 10, 10], [0.0, 0.0])
     requests = np.zeros((1, n), bool)
@@ -130,7 +134,7 @@ def test_emptied_container_is_zero_and_reward_uses_volume_before_inflow(cfg5):
 
 
 def test_volume_is_clipped_at_zero(cfg5):
-    params = cfg5.params()
+    params = PlantParams.from_config(cfg5)
     n = cfg5.n_containers
     new, _ = dynamics.step(make_state([0.1] * n, [0, 0]), np.zeros((1, n), bool), params,
                            np.full((1, n), -10.0), zeros(n))
@@ -180,7 +184,7 @@ def test_fill_over_many_steps_of_one_simulation():
 def test_overflow_terminates_with_r_min_replacing_the_step_reward(cfg5):
     """Container 2 overflows in the same step as container 1 is emptied at its optimum: the plant
     reward is r_min (not r_min + 1), individual rewards give r_min only to the overflowing one."""
-    params = cfg5.params()
+    params = PlantParams.from_config(cfg5)
     n = cfg5.n_containers
     state = make_state([27.0, 39.9, 5, 5, 5], [0.0, 0.0])
     requests = np.zeros((1, n), bool)
@@ -201,7 +205,7 @@ def test_volume_exactly_v_max_counts_as_overflow(cfg5):
     c0 = cfg5.containers[0]
     exact = type(c0)(**{**c0.__dict__, "fill_rate_per_s": 0.5, "fill_noise_per_sqrt_s": 0.0})
     cfg = cfg5.replace(timestep_s=2.0, containers=(exact, *cfg5.containers[1:]))
-    params = cfg.params()
+    params = PlantParams.from_config(cfg)
     n = cfg.n_containers
     new, out = dynamics.step(make_state([39.0, 5, 5, 5, 5], [0, 0]), np.zeros((1, n), bool), params,
                              zeros(n), zeros(n))
@@ -211,7 +215,7 @@ def test_volume_exactly_v_max_counts_as_overflow(cfg5):
 
 def test_truncation_at_T_and_overflow_on_the_last_step_is_termination():
     cfg = load_config("n5_m2_dt120", episode_length_steps=3)
-    params = cfg.params()
+    params = PlantParams.from_config(cfg)
     n = cfg.n_containers
     state = make_state([5] * n, [0, 0], step_count=2)
     _, out = dynamics.step(state, np.zeros((1, n), bool), params, zeros(n), zeros(n))

@@ -1,16 +1,18 @@
 """The shared physics core: batched over simulations, no environment API.
 
-:mod:`.dynamics` defines the physics as pure numpy functions; :mod:`.compiled` runs the same step
-compiled with numba when it is installed (``backend="auto"``), with identical states.
+:mod:`.dynamics` is the one definition of a step (compiled with numba) with the registry of
+arbitration rules; :mod:`.rng` the per-simulation random streams and :mod:`.simulator`
+a batch of simulations that the views hold.
 """
 
 from containergym_marl.core.dynamics import (
     ARBITRATION_RULES,
+    ArbitrationRule,
     PlantState,
     StepOutcome,
-    arbitrate,
     emptying_reward,
-    priority_keys,
+    emptying_rewards,
+    get_rule,
     pu_busy_time_s,
     reset_state,
     step,
@@ -21,6 +23,7 @@ from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulato
 
 __all__ = [
     "ARBITRATION_RULES",
+    "ArbitrationRule",
     "BLOCK_ROWS",
     "EpisodeFinishedError",
     "NoiseStreams",
@@ -28,9 +31,9 @@ __all__ = [
     "PlantSimulator",
     "PlantState",
     "StepOutcome",
-    "arbitrate",
     "emptying_reward",
-    "priority_keys",
+    "emptying_rewards",
+    "get_rule",
     "pu_busy_time_s",
     "reset_state",
     "step",

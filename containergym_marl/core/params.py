@@ -1,8 +1,14 @@
-"""Immutable array form of a plant config: what the pure physics functions read."""
+"""Immutable array form of a plant config: what the compiled physics step reads.
+
+``PlantParams`` is a named tuple of read-only arrays and plain numbers, so numba takes it as one
+argument with named fields (gymnax's ``EnvParams``, kept apart from the state). It is derived from a
+:class:`~containergym_marl.config.PlantConfig` by :meth:`PlantParams.from_config`; the config knows
+nothing about it.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -13,8 +19,7 @@ def _frozen(a) -> np.ndarray:
     return out
 
 
-@dataclass(frozen=True, eq=False)
-class PlantParams:
+class PlantParams(NamedTuple):
     """Per-container arrays (shape ``(n,)`` or ``(n, K)``) and plant scalars.
 
     Reward peaks are padded to the largest number of peaks ``K``; padded entries have a zero
@@ -23,22 +28,22 @@ class PlantParams:
 
     n_containers: int
     n_pus: int
-    timestep_s: float
-    episode_length_steps: int
+    timestep_s: float  # δ
+    episode_length_steps: int  # T
     initial_volume_min: float
     initial_volume_max: float
     overflow_reward: float  # r_min
     penalty_reward: float  # r_pen
-    fill_mean_per_step: np.ndarray  # μ·δ
+    fill_mean_per_step: np.ndarray  # μ·δ, volume units per step
     fill_std_per_step: np.ndarray  # σ·√δ
-    max_volume: np.ndarray
-    product_size: np.ndarray
+    max_volume: np.ndarray  # v_max
+    product_size: np.ndarray  # b, volume units per product
     pu_offset_s: np.ndarray  # β
     pu_time_per_product_s: np.ndarray  # λ
-    reward_peaks: np.ndarray  # (n, K)
-    reward_coef: np.ndarray  # (n, K): h - r_pen, 0 for padding
-    reward_two_width_sq: np.ndarray  # (n, K): 2 w², 1 for padding
-    target_volume: np.ndarray  # global optimum per container
+    reward_peaks: np.ndarray  # (n, K) v*_k
+    reward_coef: np.ndarray  # (n, K): h_k - r_pen, 0 for padding
+    reward_two_width_sq: np.ndarray  # (n, K): 2 w_k², 1 for padding
+    target_volume: np.ndarray  # the global optimum v* of each container
     max_pu_time_s: float  # largest g_i(v) for v < v_max: an upper bound of every PU timer
 
     @classmethod
@@ -53,14 +58,15 @@ class PlantParams:
             peaks[i, :p] = c.reward_peaks
             coef[i, :p] = np.asarray(c.reward_heights) - cfg.penalty_reward
             two_w_sq[i, :p] = 2.0 * np.asarray(c.reward_widths) ** 2
-        c_arr = lambda attr: np.array([getattr(c, attr) for c in cfg.containers], dtype=np.float64)  # noqa: E731
-        vmax = c_arr("max_volume")
-        b = c_arr("product_size")
-        beta = c_arr("pu_offset_s")
-        lam = c_arr("pu_time_per_product_s")
+
+        def column(attr: str) -> np.ndarray:
+            return np.array([getattr(c, attr) for c in cfg.containers], dtype=np.float64)
+
+        vmax, size = column("max_volume"), column("product_size")
+        beta, lam = column("pu_offset_s"), column("pu_time_per_product_s")
         # A container is only emptied while v < v_max (reaching v_max ends the episode), so
         # g(v) <= β + λ·⌊v_max / b⌋ bounds every timer.
-        max_pu_time = float(np.max(beta + lam * np.floor(vmax / b)))
+        max_pu_time = float(np.max(beta + lam * np.floor(vmax / size)))
         dt = float(cfg.timestep_s)
         return cls(
             n_containers=n,
@@ -71,10 +77,10 @@ class PlantParams:
             initial_volume_max=float(cfg.initial_volume_max),
             overflow_reward=float(cfg.overflow_reward),
             penalty_reward=float(cfg.penalty_reward),
-            fill_mean_per_step=_frozen(c_arr("fill_rate_per_s") * dt),
-            fill_std_per_step=_frozen(c_arr("fill_noise_per_sqrt_s") * np.sqrt(dt)),
+            fill_mean_per_step=_frozen(column("fill_rate_per_s") * dt),
+            fill_std_per_step=_frozen(column("fill_noise_per_sqrt_s") * np.sqrt(dt)),
             max_volume=_frozen(vmax),
-            product_size=_frozen(b),
+            product_size=_frozen(size),
             pu_offset_s=_frozen(beta),
             pu_time_per_product_s=_frozen(lam),
             reward_peaks=_frozen(peaks),

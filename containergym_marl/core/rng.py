@@ -14,8 +14,6 @@ from typing import Sequence
 
 import numpy as np
 
-from containergym_marl.core import compiled
-
 #: Rows drawn per refill. Part of the definition of the random stream: changing it changes every
 #: trajectory for a given seed (and would bump the environments' versions).
 BLOCK_ROWS = 32
@@ -30,17 +28,10 @@ class NoiseStreams:
     drawing a new ``(BLOCK_ROWS, n)`` array.
     """
 
-    def __init__(self, generators: Sequence[np.random.Generator], n_containers: int, *,
-                 compiled_refill: bool = False):
+    def __init__(self, generators: Sequence[np.random.Generator], n_containers: int):
         self.n_containers = int(n_containers)
         self._generators = list(generators)
         b = len(self._generators)
-        # With compiled_refill, blocks are drawn by numpy's own C fill functions called from
-        # compiled code (containergym_marl.core.compiled.refill_blocks): the same numbers, no
-        # Python call per simulation, several threads.
-        self._compiled_refill = bool(compiled_refill)
-        self._bitgen_addresses = None
-        self._init_compiled_refill()
         self._normals = np.empty((b * BLOCK_ROWS, self.n_containers))
         self._uniforms = np.empty((b * BLOCK_ROWS, self.n_containers))
         self._make_block_views()
@@ -57,29 +48,17 @@ class NoiseStreams:
         self._normal_blocks = [self._normals[i * BLOCK_ROWS:(i + 1) * BLOCK_ROWS] for i in range(b)]
         self._uniform_blocks = [self._uniforms[i * BLOCK_ROWS:(i + 1) * BLOCK_ROWS] for i in range(b)]
 
-    def _init_compiled_refill(self) -> None:
-        """The C addresses of the generators' states, for the compiled refill (if asked and
-        available). Refilled in parallel only while every simulation has its own generator."""
-        self._bitgen_addresses = None
-        if self._compiled_refill:
-            if compiled.refill_available():
-                self._refill_blocks = compiled.refill_blocks
-                self._bitgen_addresses = np.array([compiled.bitgen_address(g) for g in self._generators],
-                                                  dtype=np.uint64)
-                self._addresses_checked = False
-
     # Copies (deepcopy, pickle: SuperSuit and subprocess vec envs copy environments) must own
-    # their buffers' block views and their own generators' C addresses, never the original's.
+    # their buffers' block views, never views of the original's buffers.
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        for key in ("_normal_blocks", "_uniform_blocks", "_bitgen_addresses", "_refill_blocks"):
+        for key in ("_normal_blocks", "_uniform_blocks"):
             state.pop(key, None)
         return state
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self._make_block_views()
-        self._init_compiled_refill()
 
     @property
     def batch_size(self) -> int:
@@ -91,25 +70,11 @@ class NoiseStreams:
     def set_generator(self, index: int, generator: np.random.Generator) -> None:
         """Replace simulation ``index``'s generator (a reseed); its buffered rows are discarded."""
         self._generators[index] = generator
-        if self._bitgen_addresses is not None:
-            self._bitgen_addresses[index] = compiled.bitgen_address(generator)
-            self._addresses_checked = False
         self._cursor[index] = BLOCK_ROWS
         self._max_cursor = BLOCK_ROWS
 
     def _refill(self, sims: np.ndarray) -> None:
         """Draw a new block for each simulation in ``sims`` (each from its own generator)."""
-        if self._bitgen_addresses is not None:
-            if not self._addresses_checked:  # after (re)seeding: is every generator distinct?
-                addresses = self._bitgen_addresses
-                self._addresses_distinct = np.unique(addresses).size == addresses.size
-                self._addresses_checked = True
-            # A generator shared by several simulations must serve them one after another, in
-            # order: the Python loop below does that.
-            if self._addresses_distinct:
-                self._refill_blocks(self._bitgen_addresses, sims, self._normals, self._uniforms, BLOCK_ROWS)
-                self._cursor[sims] = 0
-                return
         gens, nb, ub = self._generators, self._normal_blocks, self._uniform_blocks
         for i in sims.tolist():  # each simulation refills once every BLOCK_ROWS events
             gen = gens[i]

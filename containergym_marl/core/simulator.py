@@ -11,9 +11,10 @@ from typing import Sequence
 import numpy as np
 
 from containergym_marl.config import PlantConfig
-from containergym_marl.core import compiled, dynamics
-from containergym_marl.core.dynamics import ARBITRATION_RULES, PlantState, StepOutcome
+from containergym_marl.core import dynamics
+from containergym_marl.core.dynamics import PlantState, StepOutcome, get_rule
 from containergym_marl.core.observations import global_state
+from containergym_marl.core.params import PlantParams
 from containergym_marl.core.rng import NoiseStreams
 
 
@@ -22,32 +23,22 @@ class EpisodeFinishedError(RuntimeError):
 
 
 class PlantSimulator:
-    """B simulations of one plant, stepped together by one core call.
+    """B simulations of one plant, stepped together by one call of the compiled step.
 
     Args:
         config: the plant.
         batch_size: number of simulations B.
-        arbitration: how competing requests are ranked (see :data:`ARBITRATION_RULES`).
-        backend: ``"numpy"`` (:func:`.dynamics.step`), ``"numba"`` (:func:`.compiled.step`: the same
-            step compiled; states bit-identical, rewards within 1e-15) or ``"auto"`` (numba when
-            installed, unless the ``CONTAINERGYM_MARL_BACKEND`` environment variable says otherwise).
+        arbitration: how competing requests are ranked, a name of
+            :data:`~containergym_marl.core.dynamics.ARBITRATION_RULES`.
     """
 
-    def __init__(self, config: PlantConfig, batch_size: int = 1, arbitration: str = "fullest",
-                 backend: str = "auto"):
-        if arbitration not in ARBITRATION_RULES:
-            raise ValueError(
-                f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}"
-            )
-        if int(batch_size) < 1:
-            raise ValueError(f"batch_size: must be >= 1, got {batch_size!r}")
+    def __init__(self, config: PlantConfig, batch_size: int = 1, arbitration: str = "fullest"):
+        get_rule(arbitration)  # validated once, before anything is built
+        if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
+            raise ValueError(f"batch_size: expected an integer >= 1, got {batch_size!r}")
         self.config = config
-        self.params = config.params()
-        self.backend = compiled.resolve_backend(backend, self.params)
-        self._step_fn = compiled.step if self.backend == "numba" else dynamics.step
-        self._global_state = compiled.global_state if self.backend == "numba" else global_state
+        self.params = PlantParams.from_config(config)
         self.arbitration = arbitration
-        self._needs_uniforms = arbitration == "random"
         self.batch_size = int(batch_size)
         n, m = self.params.n_containers, self.params.n_pus
         self._streams: NoiseStreams | None = None
@@ -72,8 +63,7 @@ class PlantSimulator:
             if len(sims) != self.batch_size:
                 raise ValueError("the first reset must provide a generator for every simulation")
             order = np.argsort(sims)
-            self._streams = NoiseStreams([generators[i] for i in order], self.params.n_containers,
-                                         compiled_refill=self.backend == "numba")
+            self._streams = NoiseStreams([generators[i] for i in order], self.params.n_containers)
             return
         for sim, gen in zip(sims, generators):
             if gen is not self._streams.generator(int(sim)):
@@ -109,6 +99,22 @@ class PlantSimulator:
         self.finished[idx] = False
         self._any_finished = bool(self.finished.any())
 
+    def _check_requests(self, requests) -> np.ndarray:
+        """(B, n) bool requests; integer 0/1 entries are accepted, anything else is refused."""
+        if type(requests) is np.ndarray and requests.dtype == np.bool_:
+            out = requests
+        else:
+            out = np.asarray(requests)
+            if out.dtype != np.bool_:
+                if not np.issubdtype(out.dtype, np.integer) or ((out != 0) & (out != 1)).any():
+                    raise ValueError(f"requests: expected booleans (or integers 0/1), got dtype {out.dtype}"
+                                     + ("" if np.issubdtype(out.dtype, np.integer) else f": {out!r}"))
+                out = out.astype(bool)
+        shape = (self.batch_size, self.params.n_containers)
+        if out.shape != shape:
+            raise ValueError(f"requests: expected shape {shape}, got {out.shape}")
+        return out
+
     def step(self, requests: np.ndarray) -> StepOutcome:
         """Step every simulation by one δ with a (B, n) boolean request matrix."""
         if self._any_finished:
@@ -117,10 +123,9 @@ class PlantSimulator:
                 f"simulation(s) {bad} finished their episode (overflow or time limit); "
                 f"call reset() before stepping again"
             )
-        normals, uniforms = self._streams.next_rows(uniforms=self._needs_uniforms)
-        self.state, outcome = self._step_fn(
-            self.state, requests, self.params, normals, uniforms, self.arbitration
-        )
+        requests = self._check_requests(requests)  # before a random row is consumed
+        normals, uniforms = self._streams.next_rows()
+        self.state, outcome = dynamics.step(self.state, requests, self.params, normals, uniforms, self.arbitration)
         self.previous_requests = outcome.requested.copy()
         finished = self.finished = outcome.terminated | outcome.truncated
         # a Python bool for the check above (ndarray.any() costs ~1 µs, a tenth of a small step)
@@ -131,7 +136,7 @@ class PlantSimulator:
     def global_state(self, state: PlantState | None = None) -> np.ndarray:
         """(B, n + m) float32 global state ``[v, p]`` of ``state`` (default: the current one), as
         :func:`.observations.global_state` computes it."""
-        return self._global_state(self.state if state is None else state, self.params)
+        return global_state(self.state if state is None else state, self.params)
 
     # ---- helpers for the views ---------------------------------------------------------------
     def free_pu_count(self) -> np.ndarray:

@@ -60,8 +60,7 @@ class ContainerGymEnv(gym.Env):
     ``render_mode``: ``None``, ``"human"`` (a live diagram, drawn at every reset and step; shown in
     a window only when a display is available, otherwise drawn off-screen without blocking),
     ``"rgb_array"`` (that diagram as an ``(H, W, 3)`` uint8 frame) or ``"ansi"`` (text); see
-    :mod:`containergym_marl.render`; ``backend``: how the core steps, ``"auto"`` (numba when
-    installed), ``"numpy"`` or ``"numba"`` (see :class:`~containergym_marl.core.simulator.PlantSimulator`).
+    :mod:`containergym_marl.render`.
 
     ## Info
     ``emptied_container`` (name or None), ``emptied_volume``, ``emptying_reward`` (reward of this
@@ -84,7 +83,6 @@ class ContainerGymEnv(gym.Env):
         *,
         render_mode: str | None = None,
         protocol: str | None = None,
-        backend: str = "auto",
         **overrides: Any,
     ):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -93,7 +91,7 @@ class ContainerGymEnv(gym.Env):
             )
         self.config = load_config(config, protocol=protocol, **overrides)
         self.render_mode = render_mode
-        self._sim = PlantSimulator(self.config, batch_size=1, backend=backend)
+        self._sim = PlantSimulator(self.config, batch_size=1)
         self._renderer = EnvRenderer(self._sim, render_mode, view="centralised")
         params = self._sim.params
         self.n_containers, self.n_pus = params.n_containers, params.n_pus

@@ -15,7 +15,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import conversions, wrappers
 
 from containergym_marl.config import PlantConfig, load_config
-from containergym_marl.core.dynamics import ARBITRATION_RULES
+from containergym_marl.core.dynamics import get_rule
 from containergym_marl.core.observations import (
     agent_feature_names,
     agent_observation_bounds,
@@ -83,9 +83,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ``"human"`` (a live diagram drawn at every reset and step, in a window only when a display is
     available, otherwise off-screen without blocking), ``"rgb_array"`` (that diagram as an
     ``(H, W, 3)`` uint8 frame, with the last step's granted and denied requests marked per
-    container) or ``"ansi"`` (text); see :mod:`containergym_marl.render`; ``backend``: how the
-    core steps, ``"auto"``, ``"numpy"`` or ``"numba"`` (see
-    :class:`~containergym_marl.core.simulator.PlantSimulator`).
+    container) or ``"ansi"`` (text); see :mod:`containergym_marl.render`.
 
     ## Version history
     * v0: first release.
@@ -107,11 +105,9 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         action_masking: bool = False,
         render_mode: str | None = None,
         protocol: str | None = None,
-        backend: str = "auto",
         **overrides: Any,
     ):
-        if arbitration not in ARBITRATION_RULES:
-            raise ValueError(f"arbitration: unknown rule {arbitration!r}; choose one of {ARBITRATION_RULES}")
+        get_rule(arbitration)  # a clear error for an unknown rule, before anything is built
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose one of {REWARD_MODES}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -123,7 +119,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self.reward_mode = reward_mode
         self.action_masking = bool(action_masking)
         self.render_mode = render_mode
-        self._sim = PlantSimulator(self.config, batch_size=1, arbitration=arbitration, backend=backend)
+        self._sim = PlantSimulator(self.config, batch_size=1, arbitration=arbitration)
         self._renderer = EnvRenderer(self._sim, render_mode, view="decentralised")
         params = self._sim.params
 

@@ -19,9 +19,6 @@ last observation of the finished episode is in ``infos[k]["terminal_observation"
 ``infos["final_obs"]`` (Gymnasium, ``SAME_STEP`` mode), and SB3's ``infos[k]["TimeLimit.truncated"]``
 tells a time-limit cut (bootstrap) from an overflow (terminal).
 
-Every constructor takes ``backend`` (``"auto"``, ``"numpy"`` or ``"numba"``), passed to
-:class:`~containergym_marl.core.simulator.PlantSimulator`.
-
 Cost: one step is one core call for all B simulations plus work proportional to the number of
 episode ends; there is no Python loop over simulations or slots. In the SB3 envs, the info of a
 slot with nothing to report is one shared, read-only empty dict (:data:`NO_INFO`; writing to it
@@ -46,6 +43,7 @@ from containergym_marl.core.observations import (
     agent_observations,
     global_state_bounds,
 )
+from containergym_marl.core.params import PlantParams
 from containergym_marl.core.simulator import PlantSimulator
 
 try:  # SB3 is an optional (training) dependency
@@ -76,8 +74,8 @@ NO_INFO: dict = _ReadOnlyEmptyInfo()
 class _AutoresetBatch:
     """B simulations with per-simulation seeds and automatic reset (shared by all vector envs)."""
 
-    def __init__(self, config: PlantConfig, num_sims: int, arbitration: str = "fullest", backend: str = "auto"):
-        self.sim = PlantSimulator(config, batch_size=num_sims, arbitration=arbitration, backend=backend)
+    def __init__(self, config: PlantConfig, num_sims: int, arbitration: str = "fullest"):
+        self.sim = PlantSimulator(config, batch_size=num_sims, arbitration=arbitration)
         self.params = self.sim.params
         self.num_sims = num_sims
 
@@ -136,9 +134,9 @@ class _SB3Base(VecEnv):
 
     render_mode = None
 
-    def _init_sb3(self, config, num_sims, arbitration, backend, num_slots, obs_space, act_space):
+    def _init_sb3(self, config, num_sims, arbitration, num_slots, obs_space, act_space):
         self.config = config
-        self._batch = _AutoresetBatch(self.config, num_sims, arbitration, backend)
+        self._batch = _AutoresetBatch(self.config, num_sims, arbitration)
         self.num_sims = num_sims
         self._sim_seeds: list[int | None] = [None] * num_sims
         self._actions: np.ndarray | None = None
@@ -197,10 +195,10 @@ class ContainerGymVecEnv(_SB3Base):
     """
 
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_envs: int = 8, *,
-                 protocol: str | None = None, backend: str = "auto", **overrides: Any):
+                 protocol: str | None = None, **overrides: Any):
         cfg = load_config(config, protocol=protocol, **overrides)
-        low, high = global_state_bounds(cfg.params())
-        self._init_sb3(cfg, int(num_envs), "fullest", backend, int(num_envs),
+        low, high = global_state_bounds(PlantParams.from_config(cfg))
+        self._init_sb3(cfg, int(num_envs), "fullest", int(num_envs),
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(cfg.n_containers + 1))
 
     def _observe(self, state, previous_requests) -> np.ndarray:
@@ -237,14 +235,14 @@ class ContainerAgentsVecEnv(_SB3Base):
 
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_sims: int = 8, *,
                  arbitration: str = "fullest", reward_mode: str = "individual",
-                 protocol: str | None = None, backend: str = "auto", **overrides: Any):
+                 protocol: str | None = None, **overrides: Any):
         if reward_mode not in ("individual", "team"):
             raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose 'individual' or 'team'")
         cfg = load_config(config, protocol=protocol, **overrides)
         self.reward_mode = reward_mode
         self.n_agents = cfg.n_containers
-        low, high = agent_observation_bounds(cfg.params())
-        self._init_sb3(cfg, int(num_sims), arbitration, backend, int(num_sims) * cfg.n_containers,
+        low, high = agent_observation_bounds(PlantParams.from_config(cfg))
+        self._init_sb3(cfg, int(num_sims), arbitration, int(num_sims) * cfg.n_containers,
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(2))
 
     def _observe(self, state, previous_requests) -> np.ndarray:
@@ -286,13 +284,13 @@ class ContainerGymVectorEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
     def __init__(self, num_envs: int = 8, config: str | PlantConfig = "n5_m2_dt120", *,
-                 protocol: str | None = None, render_mode: str | None = None, backend: str = "auto",
+                 protocol: str | None = None, render_mode: str | None = None,
                  **overrides: Any):
         if render_mode is not None:
             raise ValueError("render_mode: the vector env does not render; render a single env instead")
         self.config = load_config(config, protocol=protocol, **overrides)
         self.num_envs = int(num_envs)
-        self._batch = _AutoresetBatch(self.config, self.num_envs, backend=backend)
+        self._batch = _AutoresetBatch(self.config, self.num_envs)
         params = self._batch.params
         low, high = global_state_bounds(params)
         self.single_observation_space = spaces.Box(low, high, dtype=np.float32)

@@ -41,7 +41,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from containergym_marl.config import PlantConfig, load_config
-from containergym_marl.core.dynamics import emptying_reward
+from containergym_marl.core.dynamics import emptying_rewards
+from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation.records import EpisodeRecord
 from containergym_marl.render import container_colors
 
@@ -170,7 +171,7 @@ def plot_reward_function(config: str | PlantConfig, container: str | int, path: 
     x = x[(x >= 0.0) & (x < vmax)]
     vols = np.zeros((x.size, cfg.n_containers))
     vols[:, i] = x
-    y = emptying_reward(vols, cfg.params())[:, i]
+    y = emptying_rewards(vols, PlantParams.from_config(cfg))[:, i]
 
     fig = Figure(figsize=(6.4, 3.8), layout="constrained")
     ax = fig.add_subplot()
