@@ -12,15 +12,9 @@ from containergym_marl import ConfigError, load_config
 from containergym_marl.cli import main as cli_main
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
-from containergym_marl.training.runs import (
-    RunError,
-    TrainArgs,
-    evaluate_run,
-    latest_checkpoint,
-    load_model,
-    read_metrics,
-    train,
-)
+from containergym_marl.evaluation.runs import evaluate_run
+from containergym_marl.training import RunError, TrainArgs, train
+from containergym_marl.training.runs import latest_checkpoint, load_model, read_metrics
 
 TINY = dict(timesteps=512, n_envs=2, checkpoint_every=128, progress_bar=False,
             hyperparams={"n_steps": 64, "batch_size": 64})
@@ -29,12 +23,14 @@ SHORT = EvalProtocol(episodes=3)
 
 def test_save_load_evaluate_gives_identical_numbers(tmp_path):
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
 
     from containergym_marl.envs.vector import ContainerAgentsVecEnv, ContainerGymVecEnv
 
     for venv, policy_cls in ((ContainerGymVecEnv("n5_m2_dt120", 2), CentralisedModelPolicy),
                              (ContainerAgentsVecEnv("n5_m2_dt120", 2), SharedModelPolicy)):
         model = PPO("MlpPolicy", venv, n_steps=64, batch_size=64, seed=0, device="cpu")
+        model.set_logger(configure(str(tmp_path / "log"), []))  # no SB3-<date> folder in the temp dir
         model.learn(256)
         before = evaluate(policy_cls(model), "n5_m2_dt120", SHORT)
         model.save(tmp_path / "m.zip")
@@ -128,7 +124,7 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
 
 
 def test_default_budget_is_the_papers():
-    from containergym_marl.training.runs import paper_budget
+    from containergym_marl.training import paper_budget
 
     assert paper_budget(load_config("n5_m2_dt120").n_containers) == 2_000_000
     assert paper_budget(load_config("n11_m2_dt120").n_containers) == 5_000_000
@@ -143,7 +139,7 @@ def test_training_uses_fused_adam_unless_the_caller_overrides_it(tmp_path):
     from stable_baselines3 import DQN, PPO
 
     from containergym_marl.envs.vector import ContainerGymVecEnv
-    from containergym_marl.training.runs import algorithm_kwargs
+    from containergym_marl.training.loop import algorithm_kwargs
 
     before = torch.distributions.Distribution._validate_args
     run = train(TrainArgs(algo="ppo", out=str(tmp_path / "ppo"), **TINY))
