@@ -49,6 +49,7 @@ from containergym_marl.training.runs import (
     prepare_run_dir,
     read_metrics,
     read_progress,
+    read_run_summary,
     run_args,
     save_checkpoint,
     truncate_metrics,
@@ -148,33 +149,38 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
 
         def _on_rollout_end(self) -> None:
             steps = self.num_timesteps
-            if steps - self.last_row < log_every:
-                return
-            self.last_row = steps
-            p = self.progress
-            if p.returns:
-                recent = float(np.mean(p.returns))
-                length = float(np.mean(p.lengths))
-                self.logger.record("plant/train_return_mean100", recent)
-                self.logger.record("plant/train_episode_length_mean100", length)
-                improved = recent > p.best_train_return
-                if improved:
-                    p.best_train_return, p.best_timesteps = recent, steps
-                    atomic_save_model(self.model, run / "best_model.zip")
-                append_metrics(run, {
-                    "timesteps": steps,
-                    "episodes": p.episodes,
-                    "train_return_mean100": recent,
-                    "train_episode_length_mean100": length,
-                    "best_train_return": p.best_train_return,
-                    "saved_best": int(improved),
-                    "wall_time_s": self._wall(),
-                })
-                if self.bar is not None:
-                    self.bar.set_postfix_str(f"training return {recent:.2f}", refresh=False)
+            if steps - self.last_row >= log_every:
+                self.last_row = steps
+                self._log(steps)
             if steps - self.last_checkpoint >= interval and steps < budget:
-                p.wall_time_s = self._wall()
-                self.last_checkpoint = save_checkpoint(run, self.model, p, replay_buffer=spec.replay_buffer)
+                self.progress.wall_time_s = self._wall()
+                self.last_checkpoint = save_checkpoint(run, self.model, self.progress,
+                                                       replay_buffer=spec.replay_buffer)
+
+        def _log(self, steps: int) -> None:
+            """A metrics row, and the best model when the 100-episode mean improved."""
+            p = self.progress
+            if not p.returns:
+                return
+            recent = float(np.mean(p.returns))
+            length = float(np.mean(p.lengths))
+            self.logger.record("plant/train_return_mean100", recent)
+            self.logger.record("plant/train_episode_length_mean100", length)
+            improved = recent > p.best_train_return
+            if improved:
+                p.best_train_return, p.best_timesteps = recent, steps
+                atomic_save_model(self.model, run / "best_model.zip")
+            append_metrics(run, {
+                "timesteps": steps,
+                "episodes": p.episodes,
+                "train_return_mean100": recent,
+                "train_episode_length_mean100": length,
+                "best_train_return": p.best_train_return,
+                "saved_best": int(improved),
+                "wall_time_s": self._wall(),
+            })
+            if self.bar is not None:
+                self.bar.set_postfix_str(f"training return {recent:.2f}", refresh=False)
 
         def _on_training_end(self) -> None:
             self.progress.wall_time_s = self._wall()
@@ -200,7 +206,13 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env):
     """(model, samples, progress) from the newest intact checkpoint, the run directory made
     consistent with it; None when there is no intact checkpoint (the run directory is then cleared
     for a fresh start)."""
+    # Sidecars are written last: in a run that has them, a checkpoint without one was cut short.
+    with_progress = any((run / "checkpoints").glob("ckpt_*_steps.json"))
     for steps, path in intact_checkpoints(run):
+        if with_progress and not checkpoint_files(run, steps)["progress"].is_file():
+            warnings.warn(f"checkpoint {path.name} is incomplete (no progress file); trying the previous one",
+                          RunWarning, stacklevel=3)
+            continue
         try:
             model = load_model(path, algo=args.algo, env=env)
         except ValueError as exc:
@@ -281,6 +293,11 @@ def train(args: TrainArgs) -> Path:
 
 
 def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, plant: PlantConfig, env, interval: int):
+    if args.resume and (run / "final_model.zip").is_file():
+        done = read_run_summary(run)
+        if done is not None and done["timesteps"] >= args.timesteps:
+            print(f"{run} finished already ({done['timesteps']:,} samples); nothing to resume")
+            return
     resumed = _resume(run, spec, args, env) if args.resume else None
     if resumed is None:
         env.seed(args.seed)
@@ -296,9 +313,9 @@ def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, plant: Pla
         with _no_distribution_validation():
             model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=resumed is None,
                         progress_bar=False, tb_log_name="run")
-    atomic_save_model(model, run / "final_model.zip")
     if progress.episodes == 0 and not progress.returns:
         (run / "best_model.zip").unlink(missing_ok=True)
+    best = (run / "best_model.zip").is_file()
     summary = {
         "status": "finished",
         "algo": args.algo,
@@ -308,9 +325,11 @@ def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, plant: Pla
         "train_return_mean100": float(np.mean(progress.returns)) if progress.returns else None,
         "best_train_return": None if math.isinf(progress.best_train_return) else progress.best_train_return,
         "best_timesteps": progress.best_timesteps,
-        "best_model": "best_model.zip" if (run / "best_model.zip").is_file() else None,
+        "best_model": "best_model.zip" if best else None,
         "resumed_from": start if resumed is not None else None,
         "wall_time_s": progress.wall_time_s,
-        "note": NO_EPISODE_NOTE if progress.episodes == 0 and not (run / "best_model.zip").is_file() else None,
+        "note": NO_EPISODE_NOTE if progress.episodes == 0 and not best else None,
     }
+    # run.json first: final_model.zip is the mark of a finished run (compare reuses such runs).
     atomic_write_text(run / "run.json", json.dumps(summary, indent=2))
+    atomic_save_model(model, run / "final_model.zip")
