@@ -129,6 +129,23 @@ def test_resume_continues_metrics_without_duplicates_and_the_bar_stops_at_the_bu
     assert bars and all(int(n) <= int(total) == 700 for n, total in bars)
 
 
+def test_resume_of_a_run_from_before_progress_files(run_copy):
+    """Run directories written before checkpoints carried progress files (and before run.json)
+    still resume: the episode counter continues from metrics.csv, the best model is kept."""
+    run = run_copy
+    for p in [*run.glob("checkpoints/*.json"), *run.glob("checkpoints/best_model_*"), run / "run.json",
+              run / "final_model.zip"]:
+        p.unlink()
+    best = (run / "best_model.zip").read_bytes()
+    episodes_at_384 = read_metrics(run)[2]["episodes"]
+    with pytest.warns(RunWarning, match="dropped 1 row"):
+        train(TrainArgs(algo="ppo", out=str(run), timesteps=640, resume=True, **TINY))
+    rows = read_metrics(run)
+    assert _steps(run) == [128, 256, 384, 512, 640]
+    assert rows[3]["episodes"] > episodes_at_384 and rows[4]["episodes"] > rows[3]["episodes"]
+    assert any(r["saved_best"] for r in rows[3:]) or (run / "best_model.zip").read_bytes() == best
+
+
 # ---- broken files ---------------------------------------------------------------------------------
 def _cut(path: Path) -> None:
     data = path.read_bytes()
@@ -144,6 +161,16 @@ def test_resume_skips_a_checkpoint_cut_short(run_copy):
     assert read_run_summary(run)["resumed_from"] == 256
     assert (run / "checkpoints" / "ckpt_384_steps.zip.broken").is_file()
     assert _steps(run) == [128, 256, 384, 512]
+
+
+def test_resume_skips_a_checkpoint_whose_progress_file_was_not_written(run_copy):
+    """Killed between the checkpoint's model and its progress file: that checkpoint is incomplete."""
+    run = run_copy
+    (run / "final_model.zip").unlink()
+    checkpoint_files(run, 384)["progress"].unlink()
+    with pytest.warns(RunWarning, match="ckpt_384_steps.zip is incomplete"):
+        train(TrainArgs(algo="ppo", out=str(run), timesteps=512, resume=True, **TINY))
+    assert read_run_summary(run)["resumed_from"] == 256
 
 
 def test_resume_without_an_intact_checkpoint_starts_again(run_copy):

@@ -44,6 +44,7 @@ from containergym_marl.training.runs import (
     atomic_write_text,
     checkpoint_files,
     checkpoint_interval,
+    checkpoints,
     intact_checkpoints,
     load_model,
     prepare_run_dir,
@@ -206,10 +207,12 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env):
     """(model, samples, progress) from the newest intact checkpoint, the run directory made
     consistent with it; None when there is no intact checkpoint (the run directory is then cleared
     for a fresh start)."""
-    # Sidecars are written last: in a run that has them, a checkpoint without one was cut short.
-    with_progress = any((run / "checkpoints").glob("ckpt_*_steps.json"))
+    # Progress files are written last: a checkpoint without one, newer than one with one, was cut
+    # short (older ones without are from before progress files existed).
+    first_with_progress = min((s for s, _ in checkpoints(run) if checkpoint_files(run, s)["progress"].is_file()),
+                              default=math.inf)
     for steps, path in intact_checkpoints(run):
-        if with_progress and not checkpoint_files(run, steps)["progress"].is_file():
+        if steps > first_with_progress and not checkpoint_files(run, steps)["progress"].is_file():
             warnings.warn(f"checkpoint {path.name} is incomplete (no progress file); trying the previous one",
                           RunWarning, stacklevel=3)
             continue
