@@ -68,9 +68,12 @@ def _print_training_end(run) -> None:
     s = read_run_summary(run) or {}
     print(f"run directory: {run}")
     if s.get("train_return_mean100") is not None:
+        best = ""
+        if s.get("best_model") and s.get("best_train_return") is not None:
+            at = f" at {s['best_timesteps']:,} samples" if s.get("best_timesteps") is not None else ""
+            best = f"; best {s['best_train_return']:.2f}{at} (best_model.zip)"
         print(f"training return (mean of the last {min(s['episodes'], 100)} of {s['episodes']} training "
-              f"episodes): {s['train_return_mean100']:.2f} after {s['timesteps']:,} samples; best "
-              f"{s['best_train_return']:.2f} at {s['best_timesteps']:,} samples (best_model.zip)")
+              f"episodes): {s['train_return_mean100']:.2f} after {s['timesteps']:,} samples{best}")
         print(f"next: containergym-marl evaluate {shlex.quote(str(run))}")
     else:
         print(f"note: {s.get('note') or 'no training episode finished'}")
@@ -122,8 +125,9 @@ def _print_evaluation(result, json_path: str | None) -> int:
           f"{s['good_emptying_share']:.2f}, r<0 {s['negative_emptying_share']:.2f}; denied/episode "
           f"{s['denied_requests_mean']:.1f}; PU utilisation {s['pu_utilisation']:.2f}")
     if json_path:
-        with open(json_path, "w") as f:
-            f.write(result.to_json())
+        from containergym_marl.training.runs import atomic_write_text
+
+        atomic_write_text(json_path, result.to_json())
     return 0
 
 

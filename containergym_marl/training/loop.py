@@ -184,6 +184,9 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
                 self.bar.set_postfix_str(f"training return {recent:.2f}", refresh=False)
 
         def _on_training_end(self) -> None:
+            if self.num_timesteps > self.last_row:  # replay-buffer algorithms: a last row at the end
+                self.last_row = self.num_timesteps
+                self._log(self.num_timesteps)
             self.progress.wall_time_s = self._wall()
             if self.bar is not None:
                 self.bar.close()
