@@ -34,6 +34,8 @@ from containergym_marl.training.runs import (
     read_run_summary,
 )
 
+# RunWarnings are what these tests provoke; each test asserts the ones it is about.
+pytestmark = pytest.mark.filterwarnings("ignore::containergym_marl.training.runs.RunWarning")
 REPO = Path(__file__).resolve().parents[1]
 # 2 simulations, rollouts of 64 x 2 = 128 samples, training episodes of T = 50 steps (they finish)
 TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 64, "batch_size": 64},

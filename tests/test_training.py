@@ -16,6 +16,8 @@ from containergym_marl.evaluation.runs import evaluate_run
 from containergym_marl.training import RunError, TrainArgs, train
 from containergym_marl.training.runs import latest_checkpoint, load_model, read_metrics
 
+NO_EPISODE = pytest.mark.filterwarnings(  # TINY runs end no training episode: "best" is the final model
+    "ignore:.*no training episode finished:containergym_marl.training.runs.RunWarning")
 TINY = dict(timesteps=512, n_envs=2, checkpoint_every=128, progress_bar=False,
             hyperparams={"n_steps": 64, "batch_size": 64})
 SHORT = EvalProtocol(episodes=3)
@@ -39,6 +41,7 @@ def test_save_load_evaluate_gives_identical_numbers(tmp_path):
         assert [e.emptyings for e in before.episodes] == [e.emptyings for e in after.episodes]
 
 
+@NO_EPISODE
 def test_evaluation_is_deterministic_and_uses_fixed_seeds(tmp_path):
     run = train(TrainArgs(algo="ppo", out=str(tmp_path / "r"), **TINY))
     a = evaluate_run(run, protocol=SHORT, write=False)
@@ -87,6 +90,7 @@ def test_refuses_to_overwrite_a_run_with_results(tmp_path):
         train(TrainArgs(algo="ppo", out=str(tmp_path / "empty"), resume=True, **TINY))
 
 
+@NO_EPISODE
 def test_clear_errors_for_unknown_algorithm_config_and_mismatched_model(tmp_path, capsys):
     with pytest.raises(ValueError, match="unknown algorithm 'a2c'"):
         train(TrainArgs(algo="a2c", out=str(tmp_path / "a")))
