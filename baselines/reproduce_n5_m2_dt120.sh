@@ -26,7 +26,7 @@ one_run() {  # algo seed
   local out="runs/paper/$1_${CONFIG}_s$2"
   if [ -f "$out/final_model.zip" ]; then echo "skip $out (finished)"; return; fi
   local resume=""
-  if [ -d "$out" ]; then resume="--resume"; fi
+  if [ -f "$out/args.json" ]; then resume="--resume"; fi
   $CLI train --algo "$1" --config "$CONFIG" --seed "$2" --timesteps "$BUDGET" --out "$out" --no-progress $resume
 }
 export -f one_run; export CLI CONFIG BUDGET

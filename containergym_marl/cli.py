@@ -18,7 +18,16 @@ from containergym_marl.config import ConfigError, list_configs, load_config
 from containergym_marl.core.dynamics import ARBITRATION_RULES
 from containergym_marl.core.params import PlantParams
 
-BUILTIN_POLICIES = ("rule_based", "rule_based_agents")
+
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (budgets, simulations, episodes)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
 
 
 def _parse_kv(items: list[str], what: str) -> dict[str, Any]:
@@ -35,7 +44,7 @@ def _parse_kv(items: list[str], what: str) -> dict[str, Any]:
 
 
 def _cmd_train(ns: argparse.Namespace) -> int:
-    from containergym_marl.training.runs import TrainArgs, train
+    from containergym_marl.training import TrainArgs, train
 
     args = TrainArgs(
         algo=ns.algo, config=ns.config, seed=ns.seed, timesteps=ns.timesteps, out=ns.out, resume=ns.resume,
@@ -45,28 +54,60 @@ def _cmd_train(ns: argparse.Namespace) -> int:
         overrides=_parse_kv(ns.override, "--override"),
     )
     run = train(args)
-    print(f"run directory: {run}")
+    _print_training_end(run)
     if ns.evaluate:
         return _print_evaluation(_evaluate_target(str(run), ns.config, ns.episodes, "best"), ns.json)
     return 0
 
 
+def _print_training_end(run) -> None:
+    """What the run reached and the command to run next."""
+    import shlex
+
+    from containergym_marl.training.runs import read_run_summary
+
+    s = read_run_summary(run) or {}
+    print(f"run directory: {run}")
+    if s.get("train_return_mean100") is not None:
+        best = ""
+        if s.get("best_model") and s.get("best_train_return") is not None:
+            at = f" at {s['best_timesteps']:,} samples" if s.get("best_timesteps") is not None else ""
+            best = f"; best {s['best_train_return']:.2f}{at} (best_model.zip)"
+        print(f"training return (mean of the last {min(s['episodes'], 100)} of {s['episodes']} training "
+              f"episodes): {s['train_return_mean100']:.2f} after {s['timesteps']:,} samples{best}")
+        print(f"next: containergym-marl evaluate {shlex.quote(str(run))}")
+    else:
+        print(f"note: {s.get('note') or 'no training episode finished'}")
+        print(f"next: containergym-marl evaluate {shlex.quote(str(run))} --model final  (or train longer)")
+
+
 def _evaluate_target(target: str, config: str | None, episodes: int, which: str, arbitration: str | None = None):
+    import warnings
     from pathlib import Path
 
     from containergym_marl.evaluation import PAPER, EvalProtocol, evaluate
-    from containergym_marl.policies import RuleBasedAgents, RuleBasedController
-    from containergym_marl.training.runs import evaluate_run
+    from containergym_marl.training.algorithms import RULE_BASED
 
     protocol = EvalProtocol(episodes=episodes) if episodes != PAPER.episodes else PAPER
-    if target in BUILTIN_POLICIES:
+    if target in RULE_BASED:
         plant = load_config(config or "n5_m2_dt120")
-        cls = RuleBasedController if target == "rule_based" else RuleBasedAgents
-        return evaluate(cls(PlantParams.from_config(plant)), plant, protocol, arbitration=arbitration or "fullest")
+        policy = RULE_BASED[target](PlantParams.from_config(plant))
+        return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest")
     if Path(target).is_dir():
-        return evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration)
+        from containergym_marl.evaluation.runs import evaluate_run
+        from containergym_marl.training.runs import RunWarning
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", RunWarning)
+            result = evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration)
+        for w in caught:
+            if issubclass(w.category, RunWarning):
+                print(f"note: {w.message}", file=sys.stderr)
+            else:
+                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+        return result
     raise SystemExit(
-        f"evaluate: {target!r} is neither a run directory nor a built-in policy ({', '.join(BUILTIN_POLICIES)})"
+        f"evaluate: {target!r} is neither a run directory nor a built-in policy ({', '.join(RULE_BASED)})"
     )
 
 
@@ -85,8 +126,9 @@ def _print_evaluation(result, json_path: str | None) -> int:
           f"{s['good_emptying_share']:.2f}, r<0 {s['negative_emptying_share']:.2f}; denied/episode "
           f"{s['denied_requests_mean']:.1f}; PU utilisation {s['pu_utilisation']:.2f}")
     if json_path:
-        with open(json_path, "w") as f:
-            f.write(result.to_json())
+        from containergym_marl.training.runs import atomic_write_text
+
+        atomic_write_text(json_path, result.to_json())
     return 0
 
 
@@ -105,41 +147,47 @@ def _cmd_compare(ns: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from containergym_marl.training.runs import ALGORITHMS
+    from containergym_marl.training.algorithms import ALGORITHMS, METHODS, REGISTRY, RULE_BASED
 
+    reward_modes = tuple(dict.fromkeys(m for spec in REGISTRY.values() for m in spec.reward_modes))
     parser = argparse.ArgumentParser(prog="containergym-marl", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
     t = sub.add_parser("train", help="train a baseline; writes a run directory")
-    t.add_argument("--algo", required=True, choices=ALGORITHMS)
+    t.add_argument("--algo", required=True, choices=ALGORITHMS,
+                   help="; ".join(f"{name}: {spec.description}" for name, spec in REGISTRY.items()))
     t.add_argument("--config", default="n5_m2_dt120", help=f"built-in ({', '.join(list_configs())}) or a path")
     t.add_argument("--seed", type=int, default=1)
-    t.add_argument("--timesteps", type=int, default=None,
+    t.add_argument("--timesteps", type=_positive_int, default=None,
                    help="budget in samples (agent steps for shared_ppo); default: the paper's, "
                         "2M for n=5 and 5M for n=11")
     t.add_argument("--out", default=None, help="run directory (default runs/<algo>_<config>_s<seed>)")
     t.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
-    t.add_argument("--n-envs", type=int, default=None, help="parallel simulations (default 8, DQN 1)")
+    t.add_argument("--n-envs", type=_positive_int, default=None,
+                   help="parallel simulations (default: " + ", ".join(
+                       f"{name} {spec.default_n_envs}" for name, spec in REGISTRY.items()) + ")")
     t.add_argument("--vec", choices=("native", "supersuit"), default="native",
                    help="shared_ppo's vectorisation: our batched env or the SuperSuit stack")
     t.add_argument("--num-cpus", type=int, default=0, help="SuperSuit worker processes")
-    t.add_argument("--reward-mode", choices=("individual", "team"), default="individual")
+    t.add_argument("--reward-mode", choices=reward_modes, default=reward_modes[0],
+                   help="agent rewards of the decentralised algorithms")
     t.add_argument("--arbitration", default="fullest", choices=tuple(ARBITRATION_RULES))
-    t.add_argument("--checkpoint-every", type=int, default=200_000, help="samples between checkpoints")
+    t.add_argument("--checkpoint-every", type=_positive_int, default=None,
+                   help="samples between checkpoints (default: min(200000, budget/10) in whole vector steps)")
     t.add_argument("--gamma", type=float, default=0.99)
     t.add_argument("--hp", nargs="*", default=[], metavar="KEY=VALUE", help="extra SB3 hyperparameters")
     t.add_argument("--override", nargs="*", default=[], metavar="KEY=VALUE", help="plant config overrides")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.add_argument("--evaluate", action="store_true", help="evaluate the best model when training ends")
-    t.add_argument("--episodes", type=int, default=15)
+    t.add_argument("--episodes", type=_positive_int, default=15)
     t.add_argument("--json", default=None, help="write the evaluation as JSON here")
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("evaluate", help="evaluate a run directory or a built-in policy (paper protocol)")
-    e.add_argument("target", help=f"a run directory or one of {BUILTIN_POLICIES}")
+    e.add_argument("target", help=f"a run directory or one of {tuple(RULE_BASED)}")
     e.add_argument("--config", default=None, help="plant (default: the run's own, or n5_m2_dt120)")
-    e.add_argument("--episodes", type=int, default=15)
+    e.add_argument("--episodes", type=_positive_int, default=15)
     e.add_argument("--model", choices=("best", "final"), default="best")
     e.add_argument("--arbitration", default=None, choices=tuple(ARBITRATION_RULES))
     e.add_argument("--json", default=None, help="write the evaluation as JSON here")
@@ -153,7 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "on n5_m2_dt120 (rule-based vs briefly trained PPO and shared PPO).")
     c.add_argument("--configs", nargs="+", default=d.configs)
     c.add_argument("--methods", nargs="+", default=d.methods,
-                   help="rule_based, rule_based_agents, ppo, trpo, dqn, maskable_ppo, shared_ppo")
+                   help=", ".join(METHODS))
     c.add_argument("--seeds", nargs="+", type=int, default=d.seeds)
     c.add_argument("--timesteps", type=int, default=d.timesteps, help="training budget per run (samples)")
     c.add_argument("--episodes", type=int, default=d.episodes)
@@ -168,12 +216,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from containergym_marl.training.algorithms import MissingExtraError
     from containergym_marl.training.runs import RunError
 
     ns = build_parser().parse_args(argv)
     try:
         return ns.func(ns)
-    except (ConfigError, RunError, FileNotFoundError, ValueError) as exc:
+    except (ConfigError, RunError, MissingExtraError, FileNotFoundError, ValueError) as exc:
         print(f"containergym-marl {ns.command}: error: {exc}", file=sys.stderr)
         return 2
 

@@ -38,6 +38,7 @@ class MethodRow:
     best: tuple[float, float, int]  # mean, std, seed
     median: tuple[float, float, int]
     overflow_rate_best: float
+    view: str  # "centralised" or "decentralised", as the evaluation files record it
 
 
 _NAME = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")
@@ -62,8 +63,17 @@ def method_rows(results: str | Path) -> list[MethodRow]:
         stats.sort(key=lambda s: s[0], reverse=True)
         best = stats[0]
         median = stats[(len(stats) - 1) // 2]  # the lower median for an even count
-        rows.append(MethodRow(method, sorted(s[2] for s in stats), best[:3], median[:3], best[3]))
+        rows.append(MethodRow(method, sorted(s[2] for s in stats), best[:3], median[:3], best[3], _view(method, runs[0][1])))
     return rows
+
+
+def _view(method: str, evaluation: dict) -> str:
+    """The view an evaluation file records; for files without one, the registry's."""
+    if "view" in evaluation:
+        return evaluation["view"]
+    from containergym_marl.training.algorithms import view_of
+
+    return view_of(method)
 
 
 def markdown_table(results: str | Path, config: str | None = None) -> str:
@@ -76,11 +86,10 @@ def markdown_table(results: str | Path, config: str | None = None) -> str:
         "| method | view | seeds | best | median | overflow rate (best) |",
         "|---|---|---|---|---|---|",
     ]
-    views = {"shared_ppo": "decentralised", "rule_based_agents": "decentralised"}
     for row in method_rows(results):
         seeds = "–" if row.seeds == [-1] else str(len(row.seeds))
         lines.append(
-            f"| {row.method} | {views.get(row.method, 'centralised')} | {seeds} | "
+            f"| {row.method} | {row.view} | {seeds} | "
             f"{row.best[0]:.2f} ± {row.best[1]:.2f} | {row.median[0]:.2f} ± {row.median[1]:.2f} | "
             f"{row.overflow_rate_best:.2f} |"
         )

@@ -1,16 +1,28 @@
-"""Training runs: algorithms, environments, run directories, checkpoints, best-model selection.
+"""Run directories: their layout, arguments, metrics, checkpoints, crash-safe writes and the lock.
 
 A run directory holds everything needed to inspect, resume and evaluate a run::
 
     RUN/
       args.json           the TrainArgs of the run (resolved)
       config.toml         the plant the run trains on (after overrides)
-      metrics.csv         one row per rollout/log interval: timesteps, plant return of training episodes…
-      best_model.zip      the policy with the best training cumulative reward (paper, section 6.1)
+      metrics.csv         one row per rollout: timesteps, plant return of training episodes…
+      best_model.zip      the policy with the best training cumulative reward (paper, section 6.1);
+                          absent when no training episode finished (run.json says so)
       final_model.zip     the policy at the end of the budget
-      checkpoints/        periodic checkpoints (plus the replay buffer for DQN), used by --resume
+      run.json            written when training ends: samples, episodes, training returns, notes
+      checkpoints/        ckpt_<S>_steps.zip every checkpoint interval, used by --resume, with
+                          ckpt_<S>_steps.json (episode counter, 100-episode window, best so far),
+                          best_model_<S>_steps.zip (the best model at that point) and, for
+                          replay-buffer algorithms, ckpt_replay_buffer_<S>_steps.pkl
       tb/                 TensorBoard logs
+      .lock               held (flock) by the process training in the directory
       evaluation_best.json / evaluation_final.json   written by `containergym-marl evaluate RUN`
+
+Every file is written crash-safe: to a temporary file in the same directory, flushed to disk, then
+renamed over the target, so a reader sees the old or the new file, never a part (metrics.csv is
+appended one fsynced row at a time, and a partial last row is ignored with a warning). Readers
+treat an unreadable model file as broken and say so; --resume falls back to the newest intact
+checkpoint.
 
 Budgets are SB3 timesteps, i.e. samples: one per environment step for the centralised algorithms
 and one per *agent* step for shared PPO (a simulation step of an n-container plant gives n samples).
@@ -23,20 +35,23 @@ import csv
 import dataclasses
 import json
 import math
+import os
 import re
+import socket
+import tempfile
 import time
+import warnings
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Iterator
 
-import numpy as np
+from containergym_marl.training.algorithms import get_algorithm
 
-from containergym_marl.config import PlantConfig, load_config
-
-ALGORITHMS = ("ppo", "trpo", "dqn", "maskable_ppo", "shared_ppo")
-#: Samples per policy update for PPO / TRPO / MaskablePPO (the paper's n_steps with one env).
-ROLLOUT_SAMPLES = 6144
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows: no OS lock (documented in RunLock)
+    fcntl = None
 
 
 @dataclass
@@ -44,23 +59,25 @@ class TrainArgs:
     """Arguments of one training run (also the CLI's ``train`` options).
 
     Attributes:
-        algo: ppo | trpo | dqn | maskable_ppo (centralised) or shared_ppo (one policy shared by all
-            container agents, trained on the decentralised view).
+        algo: one of :data:`~containergym_marl.training.algorithms.ALGORITHMS` (ppo, trpo, dqn,
+            maskable_ppo: centralised; shared_ppo: one policy shared by all container agents,
+            trained on the decentralised view).
         config: built-in config name or path; training uses its δ and T (1500 for the paper's).
         seed: training seed (simulation b of the vectorised env is seeded seed + b).
-        timesteps: budget in SB3 timesteps (samples); None = the paper's budget for the plant's size
-            (2M for n <= 5 containers, 5M for more).
+        timesteps: budget in SB3 timesteps (samples), > 0; None = the paper's budget for the
+            plant's size (2M for n <= 5 containers, 5M for more).
         out: run directory (default ``runs/<algo>_<config>_s<seed>``).
-        resume: continue an interrupted run from its last checkpoint.
-        n_envs: parallel simulations (default 8; DQN 1, as the paper's SB3 defaults).
+        resume: continue an interrupted run from its newest intact checkpoint.
+        n_envs: parallel simulations, >= 1 (None: the algorithm's default, 8; DQN 1).
         vec: "native" (our batched vec envs) or "supersuit" (shared_ppo through SuperSuit).
         num_cpus: SuperSuit worker processes (vec="supersuit" only).
         reward_mode: shared_ppo's agent rewards, "individual" or "team".
         arbitration: shared_ppo's arbitration rule.
-        checkpoint_every: samples between checkpoints.
+        checkpoint_every: samples between checkpoints (taken at the end of a rollout); None =
+            min(200k, budget / 10) in whole vector steps, so every interrupted run can resume.
         gamma: discount factor (paper: 0.99).
         hyperparams: further keyword arguments for the SB3 algorithm (e.g. learning_rate).
-        progress_bar: show SB3's progress bar.
+        progress_bar: show a progress bar (samples, samples/s, latest training return).
         torch_threads: torch.set_num_threads; 1 is fastest for these small MLPs on 2 cores.
         overrides: plant-level config overrides for training (e.g. episode_length_steps).
     """
@@ -76,7 +93,7 @@ class TrainArgs:
     num_cpus: int = 0
     reward_mode: str = "individual"
     arbitration: str = "fullest"
-    checkpoint_every: int = 200_000
+    checkpoint_every: int | None = None
     gamma: float = 0.99
     hyperparams: dict[str, Any] = field(default_factory=dict)
     progress_bar: bool = True
@@ -89,344 +106,438 @@ class TrainArgs:
         name = Path(str(self.config)).stem
         return Path("runs") / f"{self.algo}_{name}_s{self.seed}"
 
+    def validate(self) -> None:
+        """Refuse bad values up front (a ValueError naming the argument)."""
+        spec = get_algorithm(self.algo)
+        for name in ("timesteps", "n_envs", "checkpoint_every"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise ValueError(f"{name}: expected a positive integer, got {value!r}")
+        if self.vec not in ("native", "supersuit"):
+            raise ValueError(f"vec: unknown vectorisation {self.vec!r}; choose 'native' or 'supersuit'")
+        if self.vec == "supersuit" and spec.view != "decentralised":
+            raise ValueError(f"vec: {self.vec!r} applies to decentralised algorithms only; {self.algo} uses 'native'")
+        if spec.reward_modes and self.reward_mode not in spec.reward_modes:
+            raise ValueError(f"reward_mode: unknown mode {self.reward_mode!r}; choose one of {spec.reward_modes}")
+
 
 class RunError(RuntimeError):
-    """A run directory cannot be used as asked (would overwrite results, nothing to resume…)."""
+    """A run directory cannot be used as asked (would overwrite results, nothing to resume, in use…)."""
 
 
-def paper_budget(n_containers: int) -> int:
-    """The paper's training budget: 2M samples for n = 5, 5M for n = 11 (section 6.1)."""
-    return 2_000_000 if n_containers <= 5 else 5_000_000
+class RunWarning(UserWarning):
+    """Something in a run directory was unreadable or incomplete and was skipped (said what)."""
 
 
-# ---- algorithms and environments ----------------------------------------------------------------
-def algorithm_class(algo: str):
-    if algo not in ALGORITHMS:
-        raise ValueError(f"algo: unknown algorithm {algo!r}; choose one of {ALGORITHMS}")
-    if algo in ("ppo", "shared_ppo"):
-        from stable_baselines3 import PPO
-
-        return PPO
-    if algo == "dqn":
-        from stable_baselines3 import DQN
-
-        return DQN
-    if algo == "trpo":
-        from sb3_contrib import TRPO
-
-        return TRPO
-    from sb3_contrib import MaskablePPO
-
-    return MaskablePPO
-
-
-def default_n_envs(algo: str) -> int:
-    return 1 if algo == "dqn" else 8
-
-
-def make_training_env(args: TrainArgs, plant: PlantConfig, n_envs: int):
-    """The vectorised training env of ``args.algo`` (native by default)."""
-    if args.algo == "shared_ppo":
-        if args.vec == "supersuit":
-            from containergym_marl.training.supersuit_adapter import SuperSuitVecEnv
-
-            return SuperSuitVecEnv(num_copies=n_envs, num_cpus=args.num_cpus, seed=args.seed, config=plant,
-                                   arbitration=args.arbitration, reward_mode=args.reward_mode)
-        if args.vec != "native":
-            raise ValueError(f"vec: unknown vectorisation {args.vec!r}; choose 'native' or 'supersuit'")
-        from containergym_marl.envs.vector import ContainerAgentsVecEnv
-
-        return ContainerAgentsVecEnv(plant, n_envs, arbitration=args.arbitration, reward_mode=args.reward_mode)
-    if args.vec != "native":
-        raise ValueError(f"vec: {args.vec!r} applies to shared_ppo only; centralised algorithms use 'native'")
-    from containergym_marl.envs.vector import ContainerGymVecEnv
-
-    return ContainerGymVecEnv(plant, n_envs)
-
-
-def algorithm_kwargs(args: TrainArgs, num_slots: int) -> dict[str, Any]:
-    kwargs: dict[str, Any] = {"gamma": args.gamma}
-    if args.algo in ("ppo", "trpo", "maskable_ppo", "shared_ppo"):
-        # The paper's 6144 samples per update, spread over the vectorised slots.
-        kwargs["n_steps"] = max(ROLLOUT_SAMPLES // num_slots, 2)
-        if args.algo != "trpo":
-            kwargs["batch_size"] = 64  # SB3's default, kept explicit
-    # Adam's fused CPU kernel: the same update rule as SB3's default Adam, one kernel per step
-    # instead of a dozen small ops per parameter tensor; with these small MLPs that makes a
-    # PPO run ~25 % faster. (Rounding differs in the last bits, as between any two Adam kernels.)
-    # Passing optimizer_kwargs replaces SB3's own: its actor-critic policies (PPO, TRPO,
-    # MaskablePPO) use eps = 1e-5 only when given none, so that value is restated here; DQN's
-    # policy keeps torch's default eps.
-    optimizer_kwargs: dict[str, Any] = {"fused": True}
-    if args.algo != "dqn":
-        optimizer_kwargs["eps"] = 1e-5
-    kwargs["policy_kwargs"] = {"optimizer_kwargs": optimizer_kwargs}
-    for key, value in args.hyperparams.items():
-        if key == "policy_kwargs":  # the caller's policy settings win, key by key
-            kwargs["policy_kwargs"] = {**kwargs["policy_kwargs"], **value}
-        else:
-            kwargs[key] = value
-    return kwargs
-
-
-@contextlib.contextmanager
-def _no_distribution_validation():
-    """Skip torch.distributions' argument checks while training (SB3 builds a distribution for
-    every rollout step and minibatch; the policy's own outputs need no validation). The previous
-    setting is restored afterwards."""
-    from torch.distributions import Distribution
-
-    previous = Distribution._validate_args
-    Distribution.set_default_validate_args(False)
+# ---- crash-safe writes ----------------------------------------------------------------------------
+def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
+    """Write ``path`` crash-safe: ``write(tmp)`` fills a temporary file in the same directory, which
+    is flushed to disk and renamed over ``path``. A reader sees the old or the new file, never a part."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(name)
     try:
-        yield
-    finally:
-        Distribution.set_default_validate_args(previous)
+        write(tmp)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_dir(path.parent)
+    return path
 
 
-# ---- callbacks ------------------------------------------------------------------------------------
-def _make_callbacks(run: Path, args: TrainArgs, n_envs: int, num_slots: int, best_so_far: float):
-    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
-
-    class PlantReturnCallback(BaseCallback):
-        """Tracks the plant's return of every training episode; saves the best model (by the mean
-        of the last 100 training episodes, as SB3's episode buffer) and writes metrics.csv."""
-
-        def __init__(self):
-            super().__init__()
-            self.best = best_so_far
-            self.returns: list[float] = []
-            self.lengths: list[int] = []
-            self._acc = np.zeros(n_envs)
-            self._len = np.zeros(n_envs, dtype=np.int64)
-            self._t0 = time.perf_counter()
-
-        def _plant_step(self):
-            env = self.training_env
-            if hasattr(env, "last_plant_step"):
-                return env.last_plant_step()
-            out = env.simulator.last_outcome
-            return out.plant_reward, out.terminated | out.truncated
-
-        def _on_step(self) -> bool:
-            rewards, dones = self._plant_step()
-            self._acc += rewards
-            self._len += 1
-            for b in np.flatnonzero(dones):
-                self.returns.append(float(self._acc[b]))
-                self.lengths.append(int(self._len[b]))
-                self._acc[b], self._len[b] = 0.0, 0
-            return True
-
-        def _on_rollout_end(self) -> None:
-            if not self.returns:
-                return
-            recent = float(np.mean(self.returns[-100:]))
-            self.logger.record("plant/train_return_mean100", recent)
-            self.logger.record("plant/train_episode_length_mean100", float(np.mean(self.lengths[-100:])))
-            improved = recent > self.best
-            if improved:
-                self.best = recent
-                self.model.save(run / "best_model.zip")
-            _append_metrics(run, {
-                "timesteps": self.num_timesteps,
-                "episodes": len(self.returns),
-                "train_return_mean100": recent,
-                "train_episode_length_mean100": float(np.mean(self.lengths[-100:])),
-                "best_train_return": self.best,
-                "saved_best": int(improved),
-                "wall_time_s": round(time.perf_counter() - self._t0, 2),
-            })
-
-    save_freq = max(args.checkpoint_every // max(num_slots, 1), 1)  # callback calls = vec steps
-    checkpoint = CheckpointCallback(save_freq=save_freq, save_path=str(run / "checkpoints"), name_prefix="ckpt",
-                                    save_replay_buffer=args.algo == "dqn")
-    return PlantReturnCallback(), checkpoint
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    return atomic_write(path, lambda tmp: tmp.write_text(text))
 
 
-METRIC_FIELDS = ("timesteps", "episodes", "train_return_mean100", "train_episode_length_mean100",
-                 "best_train_return", "saved_best", "wall_time_s")
+def atomic_save_model(model: Any, path: str | Path) -> Path:
+    """``model.save`` to a temporary file, then renamed over ``path``."""
+    return atomic_write(path, lambda tmp: _save_via_file(model.save, tmp))
 
 
-def _append_metrics(run: Path, row: dict) -> None:
-    path = run / "metrics.csv"
-    new = not path.exists()
-    with path.open("a", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=METRIC_FIELDS)
-        if new:
-            w.writeheader()
-        w.writerow(row)
+def _save_via_file(save: Callable[[Any], None], tmp: Path) -> None:
+    with open(tmp, "wb") as f:  # a file object: SB3 would otherwise append ".zip"/".pkl" to the name
+        save(f)
 
 
-def read_metrics(run: str | Path) -> list[dict[str, float]]:
-    path = Path(run) / "metrics.csv"
-    if not path.exists():
-        return []
-    with path.open() as f:
-        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
-
-
-# ---- run directories ------------------------------------------------------------------------------
-_CKPT = re.compile(r"ckpt_(\d+)_steps\.zip$")
-
-
-def latest_checkpoint(run: Path) -> tuple[Path, int] | None:
-    found = []
-    for p in (run / "checkpoints").glob("ckpt_*_steps.zip"):
-        m = _CKPT.search(p.name)
-        if m:
-            found.append((int(m.group(1)), p))
-    if not found:
-        return None
-    steps, path = max(found)
-    return path, steps
-
-
-def _prepare_run_dir(args: TrainArgs, plant: PlantConfig) -> Path:
-    run = args.run_dir()
-    existing = sorted(p.name for p in run.iterdir()) if run.exists() else []
-    if args.resume:
-        if not existing:
-            raise RunError(f"--resume: run directory {str(run)!r} does not exist or is empty; nothing to resume")
-        saved = json.loads((run / "args.json").read_text())
-        for key in ("algo", "config", "seed", "n_envs", "vec", "reward_mode", "arbitration", "overrides"):
-            if key != "n_envs" and saved.get(key) != _jsonable(getattr(args, key)):
-                raise RunError(f"--resume: {key}={getattr(args, key)!r} differs from the run's {saved.get(key)!r}")
-        return run
-    if existing:
-        raise RunError(
-            f"run directory {str(run)!r} already holds results ({', '.join(existing[:5])}); refusing to "
-            f"overwrite them: pass --resume to continue that run or choose another --out"
-        )
-    run.mkdir(parents=True, exist_ok=True)
-    (run / "config.toml").write_text(plant.to_toml())
-    (run / "args.json").write_text(json.dumps(_jsonable(dataclasses.asdict(args)), indent=2))
-    return run
+def _fsync_dir(directory: Path) -> None:
+    with contextlib.suppress(OSError):  # not every platform / file system can open directories
+        fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def _jsonable(x):
     return json.loads(json.dumps(x, default=str))
 
 
-def train(args: TrainArgs) -> Path:
-    """Train one run; returns its directory. Resumable, never overwrites results."""
-    import torch
-
-    algo_cls = algorithm_class(args.algo)
-    plant = load_config(args.config, **args.overrides)  # raises ConfigError for unknown configs
-    if args.timesteps is None:
-        args = dataclasses.replace(args, timesteps=paper_budget(plant.n_containers))
-    if args.resume and (args.run_dir() / "args.json").is_file():
-        saved_n_envs = json.loads((args.run_dir() / "args.json").read_text()).get("n_envs")
-        args = dataclasses.replace(args, n_envs=saved_n_envs)  # the model's rollout shape
-    n_envs = int(args.n_envs or default_n_envs(args.algo))
-    args = dataclasses.replace(args, n_envs=n_envs)
-    run = _prepare_run_dir(args, plant)
-    torch.set_num_threads(max(int(args.torch_threads), 1))
-
-    env = make_training_env(args, plant, n_envs)
-    best_so_far = -math.inf
-    if args.resume:
-        ckpt = latest_checkpoint(run)
-        if ckpt is None:
-            env.close()
-            raise RunError(f"--resume: run directory {str(run)!r} has no checkpoint to resume from")
-        path, steps = ckpt
-        # Fresh simulation seeds after a resume (an uninterrupted run's streams are not replayed).
-        env.seed(args.seed + steps)
-        model = load_model(path, algo=args.algo, env=env)
-        if args.algo == "dqn":
-            buffer = path.with_name(path.name.replace("ckpt_", "ckpt_replay_buffer_").replace(".zip", ".pkl"))
-            if buffer.exists():
-                model.load_replay_buffer(buffer)
-        rows = read_metrics(run)
-        best_so_far = max((r["best_train_return"] for r in rows), default=-math.inf)
-        reset = False
-    else:
-        env.seed(args.seed)
-        model = algo_cls("MlpPolicy", env, seed=args.seed, verbose=0, tensorboard_log=str(run / "tb"),
-                         device="cpu", **algorithm_kwargs(args, env.num_envs))
-        reset = True
-    remaining = args.timesteps - model.num_timesteps
-    if remaining <= 0:
-        if not (run / "final_model.zip").exists():
-            model.save(run / "final_model.zip")
-        env.close()
-        return run
-    callbacks = _make_callbacks(run, args, n_envs, env.num_envs, best_so_far)
-    with _no_distribution_validation():
-        model.learn(total_timesteps=remaining, callback=list(callbacks), reset_num_timesteps=reset,
-                    progress_bar=args.progress_bar, tb_log_name="run")
-    model.save(run / "final_model.zip")
-    if not (run / "best_model.zip").exists():  # budget too small to finish a training episode
-        model.save(run / "best_model.zip")
-    env.close()
-    return run
+# ---- one writer per directory ---------------------------------------------------------------------
+LOCK_NAME = ".lock"
 
 
-# ---- loading and evaluating runs ------------------------------------------------------------------
-def load_model(path: str | Path, algo: str, env=None):
-    """Load an SB3 model file with a clear error when it is missing or unreadable."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"model file {str(path)!r} does not exist")
-    try:
-        with zipfile.ZipFile(path) as z:
-            z.testzip()
-        return algorithm_class(algo).load(path, env=env, device="cpu")
-    except (zipfile.BadZipFile, KeyError, ValueError, RuntimeError, EOFError, OSError) as exc:
-        raise ValueError(f"cannot read model file {str(path)!r} as a {algo} model: {exc}") from exc
+class RunLock:
+    """An exclusive OS lock (``flock``) on ``RUN/.lock`` for the process that writes the run.
+
+    The OS releases it when the process ends, however it ends (a crash or ``kill -9`` included), so
+    a stale lock file never blocks a rerun. A second writer fails at once with a :class:`RunError`
+    naming the holder's pid and host (written into the lock file). Platforms without ``fcntl``
+    (Windows) get no lock.
+    """
+
+    def __init__(self, run: str | Path):
+        self.path = Path(run) / LOCK_NAME
+        self._file = None
+
+    def acquire(self) -> "RunLock":
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        f = open(self.path, "a+")
+        if fcntl is not None:
+            try:
+                fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                f.seek(0)
+                holder = f.read().strip() or "unknown process"
+                f.close()
+                raise RunError(
+                    f"run directory {str(self.path.parent)!r} is in use by another writer ({holder}); "
+                    f"wait for it to finish or stop it, or choose another directory"
+                ) from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"pid {os.getpid()} on host {socket.gethostname()}, since {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
+        f.flush()
+        self._file = f
+        return self
+
+    def release(self) -> None:
+        if self._file is not None:
+            self._file.close()  # closing the descriptor releases the flock
+            self._file = None
+
+    def __enter__(self) -> "RunLock":
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
 
 
+def _contents(run: Path) -> list[str]:
+    """What a run directory holds, without the lock file and temporary files."""
+    if not run.is_dir():
+        return []
+    return sorted(p.name for p in run.iterdir() if p.name != LOCK_NAME and not p.name.endswith(".tmp"))
+
+
+# ---- arguments, summary, status -------------------------------------------------------------------
 def run_args(run: str | Path) -> dict[str, Any]:
     path = Path(run) / "args.json"
     if not path.is_file():
         raise FileNotFoundError(f"{str(run)!r} is not a run directory (no args.json)")
-    return json.loads(path.read_text())
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise RunError(f"{str(path)!r} is broken (not valid JSON: {exc})") from exc
 
 
-def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = True):
-    """The evaluation policy of a run directory (``which`` = "best" or "final")."""
-    from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
-
-    if which not in ("best", "final"):
-        raise ValueError(f"which: expected 'best' or 'final', got {which!r}")
-    saved = run_args(run)
-    model = load_model(Path(run) / f"{which}_model.zip", algo=saved["algo"])
-    name = f"{saved['algo']}[s{saved['seed']},{which}]"
-    if saved["algo"] == "shared_ppo":
-        return SharedModelPolicy(model, name=name, deterministic=deterministic)
-    return CentralisedModelPolicy(model, name=name, deterministic=deterministic)
-
-
-def evaluate_run(run: str | Path, config: str | None = None, which: str = "best", protocol=None,
-                 arbitration: str | None = None, write: bool = True):
-    """Evaluate a run's model with the paper's test protocol (on its own config by default)."""
-    from containergym_marl.evaluation import PAPER, evaluate
-
-    saved = run_args(run)
-    policy = policy_from_run(run, which)
-    result = evaluate(policy, config or saved["config"], protocol or PAPER,
-                      arbitration=arbitration or saved.get("arbitration", "fullest"))
-    if write:
-        (Path(run) / f"evaluation_{which}.json").write_text(result.to_json())
-    return result
+def read_run_summary(run: str | Path) -> dict[str, Any] | None:
+    """``run.json`` (written when training ends), or None (unfinished run, or one trained before
+    run.json existed)."""
+    path = Path(run) / "run.json"
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError:
+        warnings.warn(f"{path} is unreadable; ignored", RunWarning, stacklevel=2)
+        return None
 
 
-def train_and_evaluate(algo: str, script_args: Any) -> dict[str, Any]:
-    """What every learning baseline script does: train (or resume) a run from the script's ``Args``
-    dataclass, then evaluate its best and final policies with the paper's protocol."""
-    from containergym_marl.evaluation import EvalProtocol
+def run_status(run: str | Path) -> str:
+    """"absent" (nothing there), "finished" (a final model), or "interrupted" (started, not
+    finished: rerunning with ``resume=True`` continues it)."""
+    run = Path(run)
+    if not _contents(run):
+        return "absent"
+    return "finished" if (run / "final_model.zip").is_file() else "interrupted"
 
-    fields = dataclasses.asdict(script_args)
-    episodes = fields.pop("episodes", 15)
-    fields["out"] = fields.get("out") or None
-    fields["timesteps"] = fields.get("timesteps") or None  # 0: the paper's budget
-    run = train(TrainArgs(algo=algo, **fields))
-    protocol = EvalProtocol(episodes=episodes)
-    results = {which: evaluate_run(run, which=which, protocol=protocol) for which in ("best", "final")}
-    for which, result in results.items():
-        s = result.summary()
-        print(f"{which} policy: {s['return_mean']:.2f} ± {s['return_std']:.2f} over {s['episodes']} episodes "
-              f"(overflow rate {s['overflow_rate']:.2f}, denied requests/episode {s['denied_requests_mean']:.1f})")
-    return results
+
+def prepare_run_dir(args: TrainArgs, plant) -> tuple[Path, RunLock]:
+    """Create (or check, for ``args.resume``) the run directory and take its lock; returns both.
+    Never overwrites results."""
+    run = args.run_dir()
+    if args.resume and not _contents(run):
+        raise RunError(f"--resume: run directory {str(run)!r} does not exist or is empty; nothing to resume")
+    lock = RunLock(run).acquire()
+    try:
+        existing = _contents(run)
+        if args.resume:
+            saved = run_args(run)
+            for key in ("algo", "config", "seed", "vec", "reward_mode", "arbitration", "overrides"):
+                if saved.get(key) != _jsonable(getattr(args, key)):
+                    raise RunError(f"--resume: {key}={getattr(args, key)!r} differs from the run's {saved.get(key)!r}")
+            return run, lock
+        if existing:
+            raise RunError(
+                f"run directory {str(run)!r} already holds results ({', '.join(existing[:5])}); refusing to "
+                f"overwrite them: pass --resume to continue that run or choose another --out"
+            )
+        atomic_write_text(run / "config.toml", plant.to_toml())
+        atomic_write_text(run / "args.json", json.dumps(_jsonable(dataclasses.asdict(args)), indent=2))
+        return run, lock
+    except BaseException:
+        lock.release()
+        raise
+
+
+# ---- metrics --------------------------------------------------------------------------------------
+METRIC_FIELDS = ("timesteps", "episodes", "train_return_mean100", "train_episode_length_mean100",
+                 "best_train_return", "saved_best", "wall_time_s")
+
+
+def append_metrics(run: Path, row: dict) -> None:
+    """Append one row to metrics.csv, flushed to disk before returning."""
+    path = Path(run) / "metrics.csv"
+    new = not path.exists() or path.stat().st_size == 0
+    with path.open("a", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=METRIC_FIELDS)
+        if new:
+            w.writeheader()
+        w.writerow(row)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def truncate_metrics(run: Path, max_timesteps: int) -> int:
+    """Keep the rows of metrics.csv up to ``max_timesteps`` samples (crash-safe rewrite, the kept
+    rows byte for byte); returns how many rows were dropped (later ones, and a partial last row)."""
+    path = Path(run) / "metrics.csv"
+    if not path.is_file():
+        return 0
+    lines = path.read_bytes().decode(errors="replace").splitlines(keepends=True)
+    kept, dropped = [",".join(METRIC_FIELDS) + "\r\n"], 0
+    for line in lines[1:]:
+        if _row_steps(line) <= max_timesteps:
+            kept.append(line)
+        else:
+            dropped += 1
+    if dropped or not lines or lines[0].strip() != kept[0].strip():
+        atomic_write(path, lambda tmp: tmp.write_bytes("".join(kept).encode()))
+    return dropped
+
+
+def _row_steps(line: str) -> float:
+    """The timesteps of a complete metrics line; inf for a partial or unreadable one."""
+    cells = next(csv.reader([line]), [])
+    if not line.endswith("\n") or len(cells) != len(METRIC_FIELDS):
+        return math.inf
+    try:
+        return float(cells[0])
+    except ValueError:
+        return math.inf
+
+
+def read_metrics(run: str | Path) -> list[dict[str, float]]:
+    """The rows of metrics.csv as floats. A row that cannot be read (a partial last row, cut by a
+    crash while it was written) is skipped with a :class:`RunWarning`."""
+    path = Path(run) / "metrics.csv"
+    if not path.exists():
+        return []
+    text = path.read_bytes().decode(errors="replace")
+    lines = text.splitlines(keepends=True)
+    rows = []
+    for number, row in enumerate(csv.DictReader(lines), start=2):
+        try:
+            if None in row or any(v is None or v == "" for v in row.values()) or set(row) != set(METRIC_FIELDS):
+                raise ValueError("wrong number of fields")
+            if number - 1 == len(lines) - 1 and not lines[-1].endswith("\n"):
+                raise ValueError("the row was cut short")
+            rows.append({k: float(row[k]) for k in METRIC_FIELDS})
+        except (TypeError, ValueError) as exc:
+            warnings.warn(f"{path}: row {number} is incomplete or unreadable ({exc}); ignored",
+                          RunWarning, stacklevel=2)
+    return rows
+
+
+# ---- training progress: what a checkpoint must carry besides the model ----------------------------
+WINDOW = 100  # training episodes in the best-model criterion (as SB3's episode buffer)
+
+
+@dataclass
+class TrainingProgress:
+    """The state of the best-model tracker: training episodes finished so far, the returns and
+    lengths of the last :data:`WINDOW` of them, the best window mean and when it was reached."""
+
+    episodes: int = 0
+    returns: list[float] = field(default_factory=list)
+    lengths: list[int] = field(default_factory=list)
+    best_train_return: float = -math.inf
+    best_timesteps: int | None = None
+    wall_time_s: float = 0.0
+
+    def add_episode(self, ret: float, length: int) -> None:
+        self.episodes += 1
+        self.returns = (self.returns + [float(ret)])[-WINDOW:]
+        self.lengths = (self.lengths + [int(length)])[-WINDOW:]
+
+    def to_json(self) -> str:
+        data = dataclasses.asdict(self)
+        data["best_train_return"] = None if math.isinf(self.best_train_return) else self.best_train_return
+        return json.dumps(data)
+
+    @classmethod
+    def from_json(cls, text: str) -> "TrainingProgress":
+        data = json.loads(text)
+        best = data.get("best_train_return")
+        return cls(episodes=int(data["episodes"]), returns=[float(x) for x in data["returns"]][-WINDOW:],
+                   lengths=[int(x) for x in data["lengths"]][-WINDOW:],
+                   best_train_return=-math.inf if best is None else float(best),
+                   best_timesteps=data.get("best_timesteps"), wall_time_s=float(data.get("wall_time_s", 0.0)))
+
+
+# ---- checkpoints ----------------------------------------------------------------------------------
+_CKPT = re.compile(r"^ckpt_(\d+)_steps\.zip$")
+
+
+def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -> int:
+    """Samples between checkpoints: ``every`` if given, else min(200k, budget / 10), in whole
+    vector steps (``num_slots`` samples each) and at least one, so a run of any budget leaves
+    checkpoints before its end (once its first rollout is done) and an interruption loses at most
+    a tenth of it."""
+    samples = every if every is not None else min(200_000, budget // 10)
+    return max(samples // num_slots, 1) * num_slots
+
+
+def checkpoint_files(run: str | Path, steps: int) -> dict[str, Path]:
+    d = Path(run) / "checkpoints"
+    return {"model": d / f"ckpt_{steps}_steps.zip", "progress": d / f"ckpt_{steps}_steps.json",
+            "best": d / f"best_model_{steps}_steps.zip", "replay_buffer": d / f"ckpt_replay_buffer_{steps}_steps.pkl"}
+
+
+def checkpoints(run: str | Path) -> list[tuple[int, Path]]:
+    """(samples, model file) of every checkpoint, newest first."""
+    found = []
+    for p in (Path(run) / "checkpoints").glob("ckpt_*_steps.zip"):
+        m = _CKPT.match(p.name)
+        if m:
+            found.append((int(m.group(1)), p))
+    return sorted(found, reverse=True)
+
+
+def latest_checkpoint(run: str | Path) -> tuple[Path, int] | None:
+    """The newest checkpoint by name (intact or not): (model file, samples), or None."""
+    found = checkpoints(run)
+    return (found[0][1], found[0][0]) if found else None
+
+
+def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_buffer: bool = False) -> int:
+    """Save a checkpoint at ``model.num_timesteps``: the best model so far (a hard link, or a copy),
+    the model, the replay buffer, then the progress sidecar, each crash-safe. The sidecar comes last:
+    a checkpoint without it is used as one from before sidecars existed."""
+    steps = int(model.num_timesteps)
+    files = checkpoint_files(run, steps)
+    best = Path(run) / "best_model.zip"
+    if best.is_file():
+        _link_or_copy(best, files["best"])
+    atomic_save_model(model, files["model"])
+    if replay_buffer:
+        atomic_write(files["replay_buffer"], lambda tmp: _save_via_file(model.save_replay_buffer, tmp))
+    atomic_write_text(files["progress"], progress.to_json())
+    return steps
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    def write(tmp: Path) -> None:
+        tmp.unlink()
+        try:
+            os.link(src, tmp)  # best_model.zip is replaced by rename, never rewritten: a link is a snapshot
+        except OSError:
+            tmp.write_bytes(src.read_bytes())
+
+    atomic_write(dst, write)
+
+
+def read_progress(run: str | Path, steps: int) -> TrainingProgress | None:
+    """The progress sidecar of the checkpoint at ``steps``, or None (absent or unreadable)."""
+    path = checkpoint_files(run, steps)["progress"]
+    if not path.is_file():
+        return None
+    try:
+        return TrainingProgress.from_json(path.read_text())
+    except (ValueError, KeyError, TypeError) as exc:
+        warnings.warn(f"{path} is unreadable ({exc}); the episode window restarts", RunWarning, stacklevel=2)
+        return None
+
+
+# ---- models ---------------------------------------------------------------------------------------
+_MODEL_MEMBERS = ("data", "policy.pth")
+
+
+def check_model_file(path: str | Path) -> None:
+    """Raise a ValueError saying the file is broken unless ``path`` is a complete SB3 model zip."""
+    path = Path(path)
+    try:
+        with zipfile.ZipFile(path) as z:
+            missing = [m for m in _MODEL_MEMBERS if m not in z.namelist()]
+            if missing:
+                raise ValueError(f"it lacks {', '.join(missing)}")
+            bad = z.testzip()
+            if bad is not None:
+                raise ValueError(f"member {bad!r} is corrupt")
+    except (zipfile.BadZipFile, ValueError, EOFError, OSError) as exc:
+        raise ValueError(f"cannot read model file {str(path)!r}: the file is broken (cut short or "
+                         f"corrupt: {exc})") from exc
+
+
+def load_model(path: str | Path, algo: str, env=None):
+    """Load an SB3 model file with a clear error when it is missing, broken or not a model of ``algo``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"model file {str(path)!r} does not exist")
+    cls = get_algorithm(algo).load_class()
+    check_model_file(path)
+    try:
+        return cls.load(path, env=env, device="cpu")
+    except (zipfile.BadZipFile, KeyError, ValueError, RuntimeError, EOFError, OSError, AssertionError) as exc:
+        raise ValueError(f"cannot read model file {str(path)!r} as a {algo} model: {exc}") from exc
+
+
+def intact_checkpoints(run: Path) -> Iterator[tuple[int, Path]]:
+    """Checkpoints newest first, skipping (with a warning, and renaming to ``*.broken``) the
+    broken ones."""
+    for steps, path in checkpoints(run):
+        try:
+            check_model_file(path)
+        except ValueError as exc:
+            warnings.warn(f"{exc}; set aside as {path.name}.broken, trying the previous checkpoint",
+                          RunWarning, stacklevel=2)
+            os.replace(path, path.with_name(path.name + ".broken"))
+            continue
+        yield steps, path
+
+
+__all__ = [
+    "LOCK_NAME", "METRIC_FIELDS", "RunError", "RunLock", "RunWarning", "TrainArgs",
+    "TrainingProgress", "append_metrics", "atomic_save_model", "atomic_write", "atomic_write_text",
+    "check_model_file", "checkpoint_files", "checkpoint_interval", "checkpoints", "intact_checkpoints",
+    "latest_checkpoint", "load_model", "prepare_run_dir", "read_metrics", "read_progress",
+    "read_run_summary", "run_args", "run_status", "save_checkpoint", "truncate_metrics",
+]
+
+
+def __getattr__(name: str):
+    """Names that moved: compare.py and benchmarks/throughput.py still import them from here."""
+    if name in ("train", "_no_distribution_validation"):
+        from containergym_marl.training import loop
+
+        return getattr(loop, name)
+    if name in ("policy_from_run", "evaluate_run"):
+        from containergym_marl.evaluation import runs
+
+        return getattr(runs, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

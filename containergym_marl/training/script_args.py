@@ -9,9 +9,10 @@ import typing
 
 def parse_args(args_type, argv: list[str] | None = None):
     """Build an ``argparse`` parser from a dataclass: one ``--field-name`` option per field, the
-    field's default as default, the class docstring as description."""
+    field's default as default, ``metadata["choices"]`` as choices, the class docstring as
+    description."""
     parser = argparse.ArgumentParser(description=args_type.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     hints = typing.get_type_hints(args_type)
     for f in dataclasses.fields(args_type):
         flag = "--" + f.name.replace("_", "-")
@@ -20,5 +21,6 @@ def parse_args(args_type, argv: list[str] | None = None):
             parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default)
         else:
             base = next((t for t in typing.get_args(kind) if t is not type(None)), kind)
-            parser.add_argument(flag, type=base if base in (int, float, str) else str, default=f.default)
+            parser.add_argument(flag, type=base if base in (int, float, str) else str, default=f.default,
+                                choices=f.metadata.get("choices"))
     return args_type(**vars(parser.parse_args(argv)))

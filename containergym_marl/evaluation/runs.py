@@ -1,0 +1,46 @@
+"""Evaluating run directories: the policy of a run's best or final model, under the test protocol."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+from containergym_marl.training.algorithms import get_algorithm
+from containergym_marl.training.runs import RunWarning, atomic_write_text, load_model, read_run_summary, run_args
+
+
+def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = True):
+    """The evaluation policy of a run directory (``which`` = "best" or "final").
+
+    A run in which no training episode finished has no best model (its run.json says so): asking
+    for "best" then gives the final model, named so, with a :class:`RunWarning`.
+    """
+    if which not in ("best", "final"):
+        raise ValueError(f"which: expected 'best' or 'final', got {which!r}")
+    run = Path(run)
+    saved = run_args(run)
+    spec = get_algorithm(saved["algo"])
+    path, label = run / f"{which}_model.zip", which
+    if which == "best" and not path.is_file():
+        summary = read_run_summary(run)
+        if summary is not None and summary.get("best_model") is None:
+            warnings.warn(f"{run}: {summary.get('note') or 'no best model; evaluating final_model.zip'}",
+                          RunWarning, stacklevel=2)
+            path, label = run / "final_model.zip", "final: no training episode finished"
+    model = load_model(path, algo=saved["algo"])
+    return spec.policy(model, name=f"{saved['algo']}[s{saved['seed']},{label}]", deterministic=deterministic)
+
+
+def evaluate_run(run: str | Path, config: str | None = None, which: str = "best", protocol=None,
+                 arbitration: str | None = None, write: bool = True):
+    """Evaluate a run's model with the paper's test protocol (on its own config by default);
+    writes ``RUN/evaluation_<which>.json`` (crash-safe) unless ``write`` is False."""
+    from containergym_marl.evaluation import PAPER, evaluate
+
+    saved = run_args(run)
+    policy = policy_from_run(run, which)
+    result = evaluate(policy, config or saved["config"], protocol or PAPER,
+                      arbitration=arbitration or saved.get("arbitration", "fullest"))
+    if write:
+        atomic_write_text(Path(run) / f"evaluation_{which}.json", result.to_json())
+    return result

@@ -1,0 +1,197 @@
+"""The training algorithms: one registry entry per algorithm, read by training, evaluation and the CLI.
+
+Each :class:`AlgorithmSpec` says which SB3 / sb3-contrib class trains it (imported only when
+needed), which view of the plant it acts on, how many simulations it steps by default, whether it
+learns from rollouts (``n_steps`` samples per update) or from a replay buffer, and which policy
+adapter evaluates its models. Adding an algorithm = one entry in :data:`REGISTRY`.
+
+The non-learned controllers that are evaluated next to the algorithms (the paper's rule) are in
+:data:`RULE_BASED`; :data:`METHODS` lists everything a comparison can hold.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from containergym_marl.policies import (
+    CentralisedModelPolicy,
+    RuleBasedAgents,
+    RuleBasedController,
+    SharedModelPolicy,
+)
+
+#: Samples per policy update of the rollout algorithms (the paper's n_steps with one environment).
+ROLLOUT_SAMPLES = 6144
+#: The command that installs the training dependencies.
+TRAIN_EXTRA = "pip install 'containergym-marl[train]'"
+
+
+class MissingExtraError(ImportError):
+    """An optional dependency of training / model evaluation (torch, SB3…) is not installed."""
+
+
+def paper_budget(n_containers: int) -> int:
+    """The paper's training budget: 2M samples for n = 5, 5M for n = 11 (section 6.1)."""
+    return 2_000_000 if n_containers <= 5 else 5_000_000
+
+
+def rollout_steps(num_slots: int, minibatch: int = 64, samples: int = ROLLOUT_SAMPLES) -> int:
+    """``n_steps`` of a rollout algorithm: about ``samples`` (6144) samples per update, spread over
+    ``num_slots`` vectorised slots, with a rollout buffer (``n_steps × num_slots``) that the
+    minibatch divides.
+
+    The buffer is divisible by the minibatch exactly when ``n_steps`` is a multiple of
+    ``k = minibatch / gcd(num_slots, minibatch)``; of those multiples the one nearest to
+    ``samples / num_slots`` is taken (the lower one on a tie, at least ``k`` and at least 2). For
+    the centralised algorithms with 8 simulations this is 6144 / 8 = 768, the paper's 6144 samples
+    exactly; shared PPO with 8 simulations of n = 5 containers (40 slots) gets 152 (6080 samples
+    per update) and of n = 11 (88 slots) 72 (6336), instead of a buffer that SB3 warns about
+    (153 × 40 = 6120) and whose last, short minibatch it would train on.
+    """
+    if num_slots < 1 or minibatch < 1:
+        raise ValueError(f"rollout_steps: num_slots and minibatch must be >= 1, got {num_slots}, {minibatch}")
+    k = minibatch // math.gcd(num_slots, minibatch)
+    target = samples / num_slots
+    below = int(target // k) * k
+    above = below + k
+    n_steps = below if target - below <= above - target else above
+    return max(n_steps, k, 2)
+
+
+@dataclass(frozen=True)
+class AlgorithmSpec:
+    """One training algorithm.
+
+    Attributes:
+        name: the registry key (CLI ``--algo``, run directory names, table rows).
+        class_path: ``"module:Class"`` of the SB3 / sb3-contrib algorithm (imported by :meth:`load_class`).
+        policy_adapter: the class that evaluates its models; its ``view`` ("centralised" or
+            "decentralised") is the algorithm's view.
+        description: one line for help texts and the baseline script.
+        default_n_envs: simulations stepped together when the caller gives none.
+        rollout: True for on-policy algorithms (``n_steps`` samples per update, see
+            :func:`rollout_steps`); False for a replay buffer, which checkpoints then also save.
+        minibatch: the minibatch size of a rollout algorithm (passed as ``batch_size``), or None.
+        adam_eps: Adam's eps restated in ``optimizer_kwargs`` (SB3's actor-critic policies use 1e-5
+            only when given no optimizer arguments); None keeps torch's default.
+        reward_modes: the agent reward modes a decentralised algorithm can train with (the first
+            is the default); () for centralised ones, which train on the plant reward.
+        extra_modules: modules it needs beyond torch and stable_baselines3 (for error messages).
+    """
+
+    name: str
+    class_path: str
+    policy_adapter: type
+    description: str
+    default_n_envs: int = 8
+    rollout: bool = True
+    minibatch: int | None = 64
+    adam_eps: float | None = 1e-5
+    reward_modes: tuple[str, ...] = ()
+    extra_modules: tuple[str, ...] = ()
+
+    @property
+    def view(self) -> str:
+        return self.policy_adapter.view
+
+    @property
+    def replay_buffer(self) -> bool:
+        return not self.rollout
+
+    def load_class(self):
+        """The SB3 algorithm class, with an error naming the ``train`` extra when it is missing."""
+        require_training_extra(self.extra_modules)
+        module, cls = self.class_path.split(":")
+        return getattr(importlib.import_module(module), cls)
+
+    def num_slots(self, n_containers: int, num_sims: int) -> int:
+        """Vectorised slots (samples per vector step): one per simulation, or one per container
+        agent of every simulation for a decentralised algorithm."""
+        return num_sims * (n_containers if self.view == "decentralised" else 1)
+
+    def kwargs(self, num_slots: int, gamma: float = 0.99, hyperparams: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Keyword arguments of the SB3 class: the paper's settings, then ``hyperparams`` (which win;
+        ``policy_kwargs`` key by key)."""
+        hyperparams = dict(hyperparams or {})
+        kwargs: dict[str, Any] = {"gamma": gamma}
+        if self.rollout:
+            minibatch = int(hyperparams.get("batch_size", self.minibatch or 64))
+            kwargs["n_steps"] = rollout_steps(num_slots, minibatch)
+            if self.minibatch is not None:
+                kwargs["batch_size"] = self.minibatch
+        # Adam's fused CPU kernel: the same update rule as SB3's default Adam, one kernel per step
+        # instead of a dozen small ops per parameter tensor; with these small MLPs that makes a
+        # PPO run ~25 % faster. (Rounding differs in the last bits, as between any two Adam kernels.)
+        optimizer_kwargs: dict[str, Any] = {"fused": True}
+        if self.adam_eps is not None:
+            optimizer_kwargs["eps"] = self.adam_eps
+        kwargs["policy_kwargs"] = {"optimizer_kwargs": optimizer_kwargs}
+        for key, value in hyperparams.items():
+            if key == "policy_kwargs":
+                kwargs["policy_kwargs"] = {**kwargs["policy_kwargs"], **value}
+            else:
+                kwargs[key] = value
+        return kwargs
+
+    def policy(self, model: Any, name: str, deterministic: bool = True):
+        """The evaluation policy of one of its models."""
+        return self.policy_adapter(model, name=name, deterministic=deterministic)
+
+
+REGISTRY: dict[str, AlgorithmSpec] = {
+    spec.name: spec
+    for spec in (
+        AlgorithmSpec("ppo", "stable_baselines3:PPO", CentralisedModelPolicy,
+                      "centralised PPO: one controller picks which container to empty"),
+        AlgorithmSpec("trpo", "sb3_contrib:TRPO", CentralisedModelPolicy,
+                      "centralised TRPO (sb3-contrib)", minibatch=128, extra_modules=("sb3_contrib",)),
+        AlgorithmSpec("dqn", "stable_baselines3:DQN", CentralisedModelPolicy,
+                      "centralised DQN with SB3's defaults (one environment, replay buffer of 1M)",
+                      default_n_envs=1, rollout=False, minibatch=None, adam_eps=None),
+        AlgorithmSpec("maskable_ppo", "sb3_contrib:MaskablePPO", CentralisedModelPolicy,
+                      "centralised PPO that never empties while no PU is free (action masks)",
+                      extra_modules=("sb3_contrib",)),
+        AlgorithmSpec("shared_ppo", "stable_baselines3:PPO", SharedModelPolicy,
+                      "decentralised PPO: one policy shared by every container agent",
+                      reward_modes=("individual", "team")),
+    )
+}
+#: The algorithms' names, in registry order.
+ALGORITHMS: tuple[str, ...] = tuple(REGISTRY)
+#: The paper's rule-based controllers, by name (no training; evaluated with the algorithms).
+RULE_BASED: dict[str, type] = {cls.name: cls for cls in (RuleBasedController, RuleBasedAgents)}
+#: Every method a comparison can hold: the rule-based controllers, then the algorithms.
+METHODS: tuple[str, ...] = (*RULE_BASED, *ALGORITHMS)
+
+
+def get_algorithm(name: str) -> AlgorithmSpec:
+    """The registry entry of ``name``; a ValueError naming the choices for an unknown one."""
+    try:
+        return REGISTRY[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"algo: unknown algorithm {name!r}; choose one of {ALGORITHMS}") from None
+
+
+def view_of(method: str) -> str:
+    """"centralised" or "decentralised" for an algorithm or a rule-based controller."""
+    if method in RULE_BASED:
+        return RULE_BASED[method].view
+    if method in REGISTRY:
+        return REGISTRY[method].view
+    raise ValueError(f"method: unknown method {method!r}; choose one of {METHODS}")
+
+
+def require_training_extra(modules: tuple[str, ...] = ()) -> None:
+    """Import torch, stable_baselines3 and ``modules``; a :class:`MissingExtraError` naming the
+    ``train`` extra when one is missing."""
+    for module in ("torch", "stable_baselines3", *modules):
+        try:
+            importlib.import_module(module)
+        except ImportError as exc:
+            raise MissingExtraError(
+                f"{module} is not installed; training and evaluating trained models need the "
+                f"training extra: {TRAIN_EXTRA} ({exc})"
+            ) from exc

@@ -1,0 +1,341 @@
+"""The training loop: :func:`train` turns :class:`~containergym_marl.training.runs.TrainArgs` into a
+run directory (see :mod:`containergym_marl.training.runs` for its layout).
+
+One callback follows the plant's return of every training episode, keeps the model with the best
+mean return over the last 100 training episodes (``best_model.zip``), appends a metrics row at the
+end of every rollout, takes checkpoints (model, best model, replay buffer, progress) at rollout ends
+once the checkpoint interval has passed, and shows a progress bar that stops at the budget.
+
+``--resume`` continues from the newest intact checkpoint: metrics rows after it are dropped, the
+episode counter, the 100-episode window and the best model are those of the checkpoint, the
+simulations get fresh seeds (``seed + samples``). A run with no intact checkpoint starts again
+from the beginning, exactly as the uninterrupted run would have.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import math
+import os
+import shutil
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from containergym_marl.config import PlantConfig, load_config
+from containergym_marl.training.algorithms import (
+    ROLLOUT_SAMPLES,
+    AlgorithmSpec,
+    get_algorithm,
+    paper_budget,
+)
+from containergym_marl.training.runs import (
+    RunWarning,
+    TrainArgs,
+    TrainingProgress,
+    append_metrics,
+    atomic_save_model,
+    atomic_write,
+    atomic_write_text,
+    checkpoint_files,
+    checkpoint_interval,
+    checkpoints,
+    intact_checkpoints,
+    load_model,
+    prepare_run_dir,
+    read_metrics,
+    read_progress,
+    read_run_summary,
+    run_args,
+    save_checkpoint,
+    truncate_metrics,
+)
+
+#: run.json's note for a run in which no training episode ended.
+NO_EPISODE_NOTE = ("no training episode finished within the budget, so there is no best model "
+                   "(best_model.zip is not written); evaluation uses the final model")
+
+
+def make_training_env(spec: AlgorithmSpec, args: TrainArgs, plant: PlantConfig, n_envs: int):
+    """The vectorised training env of ``spec`` (native by default)."""
+    if spec.view == "decentralised":
+        if args.vec == "supersuit":
+            from containergym_marl.training.supersuit_adapter import SuperSuitVecEnv
+
+            return SuperSuitVecEnv(num_copies=n_envs, num_cpus=args.num_cpus, seed=args.seed, config=plant,
+                                   arbitration=args.arbitration, reward_mode=args.reward_mode)
+        from containergym_marl.envs.vector import ContainerAgentsVecEnv
+
+        return ContainerAgentsVecEnv(plant, n_envs, arbitration=args.arbitration, reward_mode=args.reward_mode)
+    from containergym_marl.envs.vector import ContainerGymVecEnv
+
+    return ContainerGymVecEnv(plant, n_envs)
+
+
+def algorithm_kwargs(args: TrainArgs, num_slots: int) -> dict[str, Any]:
+    """The SB3 keyword arguments of a run (the registry's settings, then ``args.hyperparams``)."""
+    return get_algorithm(args.algo).kwargs(num_slots, args.gamma, args.hyperparams)
+
+
+@contextlib.contextmanager
+def _no_distribution_validation():
+    """Skip torch.distributions' argument checks while training (SB3 builds a distribution for
+    every rollout step and minibatch; the policy's own outputs need no validation). The previous
+    setting is restored afterwards."""
+    from torch.distributions import Distribution
+
+    previous = Distribution._validate_args
+    Distribution.set_default_validate_args(False)
+    try:
+        yield
+    finally:
+        Distribution.set_default_validate_args(previous)
+
+
+# ---- the callback ---------------------------------------------------------------------------------
+def _plant_step(env) -> tuple[np.ndarray, np.ndarray]:
+    """(B,) plant rewards and episode ends of the last vector step."""
+    if hasattr(env, "last_plant_step"):
+        return env.last_plant_step()
+    out = env.simulator.last_outcome
+    return out.plant_reward, out.terminated | out.truncated
+
+
+def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: TrainingProgress, n_envs: int,
+                   interval: int, start: int):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    budget = int(args.timesteps)
+    # Rollout algorithms log (and may save the best model and a checkpoint) at every rollout end;
+    # replay-buffer ones end a "rollout" every few steps, so they do it every ROLLOUT_SAMPLES.
+    log_every = 0 if spec.rollout else ROLLOUT_SAMPLES
+
+    class RunCallback(BaseCallback):
+        def __init__(self):
+            super().__init__()
+            self.progress = progress
+            self.last_row = start
+            self.last_checkpoint = start
+            self._acc = np.zeros(n_envs)
+            self._len = np.zeros(n_envs, dtype=np.int64)
+            self._t0 = time.perf_counter()
+            self._wall0 = progress.wall_time_s
+            self.bar = None
+
+        def _wall(self) -> float:
+            return round(self._wall0 + time.perf_counter() - self._t0, 2)
+
+        def _on_training_start(self) -> None:
+            if args.progress_bar:
+                from tqdm.auto import tqdm
+
+                self.bar = tqdm(total=budget, initial=min(start, budget), unit=" samples", unit_scale=True,
+                                dynamic_ncols=True, desc=f"{args.algo} s{args.seed}")
+
+        def _on_step(self) -> bool:
+            rewards, dones = _plant_step(self.training_env)
+            self._acc += rewards
+            self._len += 1
+            for b in np.flatnonzero(dones):
+                self.progress.add_episode(float(self._acc[b]), int(self._len[b]))
+                self._acc[b], self._len[b] = 0.0, 0
+            if self.bar is not None:
+                self.bar.update(min(self.num_timesteps, budget) - self.bar.n)
+            return True
+
+        def _on_rollout_end(self) -> None:
+            steps = self.num_timesteps
+            if steps - self.last_row >= log_every:
+                self.last_row = steps
+                self._log(steps)
+            if steps - self.last_checkpoint >= interval and steps < budget:
+                self.progress.wall_time_s = self._wall()
+                self.last_checkpoint = save_checkpoint(run, self.model, self.progress,
+                                                       replay_buffer=spec.replay_buffer)
+
+        def _log(self, steps: int) -> None:
+            """A metrics row, and the best model when the 100-episode mean improved."""
+            p = self.progress
+            if not p.returns:
+                return
+            recent = float(np.mean(p.returns))
+            length = float(np.mean(p.lengths))
+            self.logger.record("plant/train_return_mean100", recent)
+            self.logger.record("plant/train_episode_length_mean100", length)
+            improved = recent > p.best_train_return
+            if improved:
+                p.best_train_return, p.best_timesteps = recent, steps
+                atomic_save_model(self.model, run / "best_model.zip")
+            append_metrics(run, {
+                "timesteps": steps,
+                "episodes": p.episodes,
+                "train_return_mean100": recent,
+                "train_episode_length_mean100": length,
+                "best_train_return": p.best_train_return,
+                "saved_best": int(improved),
+                "wall_time_s": self._wall(),
+            })
+            if self.bar is not None:
+                self.bar.set_postfix_str(f"training return {recent:.2f}", refresh=False)
+
+        def _on_training_end(self) -> None:
+            if self.num_timesteps > self.last_row:  # replay-buffer algorithms: a last row at the end
+                self.last_row = self.num_timesteps
+                self._log(self.num_timesteps)
+            self.progress.wall_time_s = self._wall()
+            if self.bar is not None:
+                self.bar.close()
+
+    return RunCallback()
+
+
+def _logger(run: Path, resume: bool):
+    """SB3's logger writing TensorBoard files to ``RUN/tb/run_<k>`` (a resumed run continues the
+    latest k), and nowhere else: no ``SB3-<date>`` folder in the temp directory."""
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.utils import get_latest_run_id
+
+    latest = get_latest_run_id(str(run / "tb"), "run")
+    k = max(latest, 1) if resume else latest + 1
+    return configure(str(run / "tb" / f"run_{k}"), ["tensorboard"])
+
+
+# ---- resume ---------------------------------------------------------------------------------------
+def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env):
+    """(model, samples, progress) from the newest intact checkpoint, the run directory made
+    consistent with it; None when there is no intact checkpoint (the run directory is then cleared
+    for a fresh start)."""
+    # Progress files are written last: a checkpoint without one, newer than one with one, was cut
+    # short (older ones without are from before progress files existed).
+    first_with_progress = min((s for s, _ in checkpoints(run) if checkpoint_files(run, s)["progress"].is_file()),
+                              default=math.inf)
+    for steps, path in intact_checkpoints(run):
+        if steps > first_with_progress and not checkpoint_files(run, steps)["progress"].is_file():
+            warnings.warn(f"checkpoint {path.name} is incomplete (no progress file); trying the previous one",
+                          RunWarning, stacklevel=3)
+            continue
+        try:
+            model = load_model(path, algo=args.algo, env=env)
+        except ValueError as exc:
+            warnings.warn(f"{exc}; set aside as {path.name}.broken, trying the previous checkpoint",
+                          RunWarning, stacklevel=3)
+            os.replace(path, path.with_name(path.name + ".broken"))
+            continue
+        break
+    else:
+        warnings.warn(f"{run}: no intact checkpoint to resume from; the run starts again from the beginning",
+                      RunWarning, stacklevel=3)
+        for name in ("metrics.csv", "best_model.zip", "run.json"):
+            (run / name).unlink(missing_ok=True)
+        shutil.rmtree(run / "tb", ignore_errors=True)
+        return None
+    files = checkpoint_files(run, steps)
+    if spec.replay_buffer:
+        if files["replay_buffer"].is_file():
+            try:
+                model.load_replay_buffer(files["replay_buffer"])
+            except Exception as exc:  # noqa: BLE001 - an unreadable buffer: continue with an empty one
+                warnings.warn(f"replay buffer {files['replay_buffer']} is unreadable ({exc}); "
+                              f"continuing with an empty one", RunWarning, stacklevel=3)
+        else:
+            warnings.warn(f"no replay buffer saved with {path.name}; continuing with an empty one",
+                          RunWarning, stacklevel=3)
+    rows_before = read_metrics(run)
+    dropped = truncate_metrics(run, steps)
+    if dropped:
+        warnings.warn(f"{run}/metrics.csv: dropped {dropped} row(s) after the checkpoint at {steps} samples "
+                      f"(training continues from there)", RunWarning, stacklevel=3)
+    progress = read_progress(run, steps)
+    if progress is None:  # a checkpoint from before progress files: what metrics.csv tells
+        kept = read_metrics(run)
+        best = max((r["best_train_return"] for r in rows_before), default=-math.inf)
+        progress = TrainingProgress(
+            episodes=int(kept[-1]["episodes"]) if kept else 0, best_train_return=best,
+            wall_time_s=kept[-1]["wall_time_s"] if kept else 0.0,
+            best_timesteps=max((int(r["timesteps"]) for r in rows_before if r["saved_best"]), default=None))
+    elif files["best"].is_file():  # the best model as it was at the checkpoint
+        atomic_write(run / "best_model.zip", lambda tmp: tmp.write_bytes(files["best"].read_bytes()))
+    elif progress.best_timesteps is None:  # no best model yet at the checkpoint
+        (run / "best_model.zip").unlink(missing_ok=True)
+    (run / "run.json").unlink(missing_ok=True)
+    # Fresh simulation seeds after a resume (an uninterrupted run's streams are not replayed).
+    env.seed(args.seed + steps)
+    return model, steps, progress
+
+
+# ---- train ----------------------------------------------------------------------------------------
+def train(args: TrainArgs) -> Path:
+    """Train one run; returns its directory. Resumable, crash-safe, never overwrites results,
+    one writer per directory."""
+    spec = get_algorithm(args.algo)
+    args.validate()
+    algo_cls = spec.load_class()  # a MissingExtraError naming the extra, before anything is written
+    import torch
+
+    plant = load_config(args.config, **args.overrides)  # raises ConfigError for unknown configs
+    if args.timesteps is None:
+        args = dataclasses.replace(args, timesteps=paper_budget(plant.n_containers))
+    if args.resume and (args.run_dir() / "args.json").is_file():
+        args = dataclasses.replace(args, n_envs=run_args(args.run_dir()).get("n_envs"))  # the model's shape
+    n_envs = spec.default_n_envs if args.n_envs is None else int(args.n_envs)
+    interval = checkpoint_interval(args.timesteps, spec.num_slots(plant.n_containers, n_envs), args.checkpoint_every)
+    args = dataclasses.replace(args, n_envs=n_envs, checkpoint_every=interval)
+    run, lock = prepare_run_dir(args, plant)
+    try:
+        torch.set_num_threads(max(int(args.torch_threads), 1))
+        env = make_training_env(spec, args, plant, n_envs)
+        try:
+            _train(run, spec, algo_cls, args, plant, env, interval)
+        finally:
+            env.close()
+    finally:
+        lock.release()
+    return run
+
+
+def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, plant: PlantConfig, env, interval: int):
+    if args.resume and (run / "final_model.zip").is_file():
+        done = read_run_summary(run)
+        if done is not None and done["timesteps"] >= args.timesteps:
+            print(f"{run} finished already ({done['timesteps']:,} samples); nothing to resume")
+            return
+    resumed = _resume(run, spec, args, env) if args.resume else None
+    if resumed is None:
+        env.seed(args.seed)
+        model = algo_cls("MlpPolicy", env, seed=args.seed, verbose=0, tensorboard_log=str(run / "tb"),
+                         device="cpu", **spec.kwargs(env.num_envs, args.gamma, args.hyperparams))
+        start, progress = 0, TrainingProgress()
+    else:
+        model, start, progress = resumed
+    remaining = args.timesteps - model.num_timesteps
+    if remaining > 0:
+        model.set_logger(_logger(run, resume=resumed is not None))
+        callback = _make_callback(run, spec, args, progress, args.n_envs, interval, start)
+        with _no_distribution_validation():
+            model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=resumed is None,
+                        progress_bar=False, tb_log_name="run")
+    if progress.episodes == 0 and not progress.returns:
+        (run / "best_model.zip").unlink(missing_ok=True)
+    best = (run / "best_model.zip").is_file()
+    summary = {
+        "status": "finished",
+        "algo": args.algo,
+        "timesteps": int(model.num_timesteps),
+        "budget": int(args.timesteps),
+        "episodes": progress.episodes,
+        "train_return_mean100": float(np.mean(progress.returns)) if progress.returns else None,
+        "best_train_return": None if math.isinf(progress.best_train_return) else progress.best_train_return,
+        "best_timesteps": progress.best_timesteps,
+        "best_model": "best_model.zip" if best else None,
+        "resumed_from": start if resumed is not None else None,
+        "wall_time_s": progress.wall_time_s,
+        "note": NO_EPISODE_NOTE if progress.episodes == 0 and not best else None,
+    }
+    # run.json first: final_model.zip is the mark of a finished run (compare reuses such runs).
+    atomic_write_text(run / "run.json", json.dumps(summary, indent=2))
+    atomic_save_model(model, run / "final_model.zip")

@@ -1,0 +1,88 @@
+"""The algorithm registry: one entry per algorithm, read by training, evaluation and the CLI."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import pytest
+
+from containergym_marl import load_config
+from containergym_marl.cli import build_parser
+from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
+from containergym_marl.training import ALGORITHMS, METHODS, REGISTRY, get_algorithm, view_of
+from containergym_marl.training.algorithms import rollout_steps
+
+
+def test_registry_entries_load_their_classes_and_views():
+    from sb3_contrib import TRPO, MaskablePPO
+    from stable_baselines3 import DQN, PPO
+
+    classes = {"ppo": PPO, "trpo": TRPO, "dqn": DQN, "maskable_ppo": MaskablePPO, "shared_ppo": PPO}
+    assert set(ALGORITHMS) == set(classes)
+    for name, cls in classes.items():
+        assert get_algorithm(name).load_class() is cls
+    assert get_algorithm("shared_ppo").policy_adapter is SharedModelPolicy
+    assert all(REGISTRY[a].policy_adapter is CentralisedModelPolicy for a in ("ppo", "trpo", "dqn", "maskable_ppo"))
+    assert [view_of(m) for m in METHODS] == ["centralised", "decentralised", "centralised", "centralised",
+                                             "centralised", "centralised", "decentralised"]
+    assert get_algorithm("dqn").replay_buffer and not get_algorithm("ppo").replay_buffer
+    assert get_algorithm("dqn").default_n_envs == 1 and get_algorithm("ppo").default_n_envs == 8
+    with pytest.raises(ValueError, match="unknown algorithm 'a2c'"):
+        get_algorithm("a2c")
+    with pytest.raises(ValueError, match="unknown method"):
+        view_of("a2c")
+
+
+def test_cli_choices_come_from_the_registry():
+    train = build_parser()._subparsers._group_actions[0].choices["train"]
+    algo = next(a for a in train._actions if a.dest == "algo")
+    assert tuple(algo.choices) == ALGORITHMS
+
+
+def test_centralised_rollouts_keep_the_papers_6144_samples():
+    """The settings of the published runs: n_steps = 6144 / n_envs, minibatch 64, fused Adam."""
+    kwargs = get_algorithm("ppo").kwargs(8)
+    assert kwargs == {"gamma": 0.99, "n_steps": 768, "batch_size": 64,
+                      "policy_kwargs": {"optimizer_kwargs": {"fused": True, "eps": 1e-5}}}
+    for slots in (1, 2, 4, 8, 16, 32, 64):
+        assert rollout_steps(slots) == 6144 // slots
+    assert "n_steps" not in get_algorithm("dqn").kwargs(1)
+
+
+def test_rollout_buffer_is_the_divisible_size_nearest_to_6144():
+    for slots in range(1, 400):
+        n = rollout_steps(slots)
+        assert (n * slots) % 64 == 0, slots
+        # no other multiple of k (the n_steps with a divisible buffer) is nearer to 6144 samples
+        k = 64 // math.gcd(slots, 64)
+        assert n % k == 0 and n >= 2, slots
+        if n > k:
+            assert abs(n * slots - 6144) <= abs((n - k) * slots - 6144), slots
+        assert abs(n * slots - 6144) <= abs((n + k) * slots - 6144), slots
+
+
+def test_shared_ppo_rollout_sizes_and_no_sb3_minibatch_warning():
+    """Shared PPO, 8 simulations: n=5 gives 40 slots, n_steps 152 (6080 samples); n=11 gives 88
+    slots, 72 (6336). SB3 warns when the minibatch does not divide the buffer (153 x 40 = 6120 did)."""
+    from stable_baselines3 import PPO
+
+    from containergym_marl.envs.vector import ContainerAgentsVecEnv
+
+    spec = get_algorithm("shared_ppo")
+    for config, n_steps in (("n5_m2_dt120", 152), ("n11_m2_dt120", 72)):
+        slots = spec.num_slots(load_config(config).n_containers, 8)
+        kwargs = spec.kwargs(slots)
+        assert kwargs["n_steps"] == n_steps
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            PPO("MlpPolicy", ContainerAgentsVecEnv(config, 8), device="cpu", **kwargs)
+        assert not [w for w in caught if "mini-batch" in str(w.message)], [str(w.message) for w in caught]
+
+
+def test_hyperparams_override_the_registry_settings():
+    spec = get_algorithm("ppo")
+    kwargs = spec.kwargs(40, hyperparams={"batch_size": 128, "learning_rate": 1e-4})
+    assert kwargs["batch_size"] == 128 and kwargs["learning_rate"] == 1e-4
+    assert (kwargs["n_steps"] * 40) % 128 == 0  # the rollout fits the caller's minibatch
+    assert spec.kwargs(8, hyperparams={"n_steps": 100})["n_steps"] == 100
