@@ -73,9 +73,12 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
     ## Info (per agent)
     ``requested``, ``granted``, ``denied`` (bool), ``pu_index`` (int, -1 if not emptied),
-    ``emptied_volume``, ``emptying_reward`` (this agent's reward before overflow replacement),
-    ``overflowed`` (bool), ``plant_reward`` (the step's plant reward, as in "team" mode),
-    ``free_pus`` (before the step), ``step``; and ``action_mask`` if asked.
+    ``emptied_volume`` (float, 0.0 if not emptied), ``emptying_reward`` (float, this agent's
+    reward before overflow replacement), ``overflowed`` (bool), ``plant_reward`` (float, the
+    step's plant reward, as in "team" mode), ``free_pus`` (int, before the step), ``step`` (int);
+    and ``action_mask`` (int8 array of shape (2,)) if asked. ``reset`` returns the same keys with
+    the same types (False, -1, 0.0; ``free_pus`` = free PUs now, ``step`` = 0), never None: TorchRL
+    and BenchMARL build their info specs from the reset infos.
 
     ## Arguments
     ``config``, ``protocol`` and plant-level overrides as for the centralised view;
@@ -173,9 +176,21 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self.agents = self.possible_agents[:]
         observations = self._observations()
         free = int(self._sim.free_pu_count()[0])
-        infos = {a: {"step": 0, "free_pus": free} for a in self.agents}
-        if self.action_masking:
-            for a in self.agents:
+        infos = {}
+        for a in self.agents:
+            infos[a] = {
+                "requested": False,
+                "granted": False,
+                "denied": False,
+                "pu_index": -1,
+                "emptied_volume": 0.0,
+                "emptying_reward": 0.0,
+                "overflowed": False,
+                "plant_reward": 0.0,
+                "free_pus": free,
+                "step": 0,
+            }
+            if self.action_masking:
                 infos[a]["action_mask"] = self._mask(free)
         if self.render_mode == "human":
             self.render()

@@ -281,6 +281,16 @@ class ContainerGymVectorEnv(VectorEnv):
 
     Created by ``gym.make_vec("containergym_marl/ContainerGym-v0", num_envs=B,
     vectorization_mode="vector_entry_point", config=...)``.
+
+    Infos are those that ``gym.make_vec(..., vectorization_mode="sync")`` in ``SAME_STEP`` mode
+    builds from the single environments' infos, computed for all B simulations at once: at reset
+    and at every step, each key of :class:`~containergym_marl.envs.ContainerGymEnv`'s info as a
+    (B,) array (int64, float64, bool, or object for the names) with its ``_key`` mask (all True).
+    A simulation that ended this step shows its new episode's reset info there, and, as in
+    Gymnasium, ``final_obs`` / ``_final_obs`` and ``final_info`` (a dict of such arrays, holding the
+    last step's info where ``_final_info`` is True) appear in the steps where some simulation ended.
+    ``final_obs`` is a (B, n + m) float32 array (rows of unfinished simulations are 0) rather than
+    Gymnasium's object array; ``infos["final_obs"][b]`` reads the same in both.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
@@ -301,6 +311,8 @@ class ContainerGymVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.render_mode = None
         self._started = False
+        # container names by index, with "" at index -1 (nothing emptied)
+        self._names = np.array(list(self.config.container_names) + [""], dtype=object)
 
     @property
     def simulator(self) -> PlantSimulator:
@@ -318,7 +330,7 @@ class ContainerGymVectorEnv(VectorEnv):
         else:
             self._batch.reset_all(seeds)
         self._started = True
-        return self._batch.sim.global_state(), {}
+        return self._batch.sim.global_state(), _with_masks(self._reset_info(np.arange(self.num_envs)))
 
     def step(self, actions):
         if not self._started:
@@ -327,13 +339,78 @@ class ContainerGymVectorEnv(VectorEnv):
         requests = _centralised_requests(actions, self.num_envs, n)
         out, done_mask, done, (final_state, _) = self._batch.step(requests)
         obs = self._batch.sim.global_state()
-        infos: dict[str, Any] = {}
-        if done.size:
-            final = np.zeros_like(obs)
-            final[done] = self._batch.sim.global_state(final_state)
-            final_info = np.full(self.num_envs, None, dtype=object)
-            for b in done.tolist():
-                final_info[b] = {}
-            infos = {"final_obs": final, "_final_obs": done_mask.copy(),
-                     "final_info": final_info, "_final_info": done_mask.copy()}
+        info = self._step_info(out, done, final_state)
+        if not done.size:
+            return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), _with_masks(info)
+        final = np.zeros_like(obs)
+        final[done] = self._batch.sim.global_state(final_state)
+        # the finished step's infos of the ended simulations, blank elsewhere (as Gymnasium's
+        # _add_info leaves them: 0, False, or None for object entries)
+        final_info = {}
+        for key, value in info.items():
+            blank = np.full(self.num_envs, None, dtype=object) if value.dtype == object else np.zeros_like(value)
+            blank[done] = value[done]
+            final_info[key] = blank
+            final_info[f"_{key}"] = done_mask.copy()
+        # the ended simulations start a new episode: their info is the reset info
+        for key, value in self._reset_info(done).items():
+            info[key][done] = value
+        infos = _with_masks(info)
+        infos.update({"final_obs": final, "_final_obs": done_mask.copy(),
+                      "final_info": final_info, "_final_info": done_mask.copy()})
         return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), infos
+
+    def _reset_info(self, sims: np.ndarray) -> dict[str, np.ndarray]:
+        """The single environment's reset info for ``sims``, one array per key."""
+        k = len(sims)
+        overflowed = np.empty(k, dtype=object)
+        overflowed.fill(())
+        return {
+            "step": np.zeros(k, dtype=np.int64),
+            "emptied_container": np.full(k, "", dtype=object),
+            "emptied_index": np.full(k, -1, dtype=np.int64),
+            "emptied_volume": np.zeros(k),
+            "emptying_reward": np.zeros(k),
+            "pu_index": np.full(k, -1, dtype=np.int64),
+            "no_free_pu": np.zeros(k, dtype=bool),
+            "overflowed_containers": overflowed,
+            "free_pus": self._batch.sim.free_pu_count()[sims].astype(np.int64),
+        }
+
+    def _step_info(self, out: StepOutcome, done: np.ndarray, final_state) -> dict[str, np.ndarray]:
+        """The single environment's step info of every simulation, one (B,) array per key.
+
+        The centralised action makes at most one request per simulation, so each row of the
+        outcome has at most one granted (or denied) container."""
+        emptied = out.granted.any(axis=1)
+        index = np.where(emptied, out.granted.argmax(axis=1), -1)
+        rows = np.arange(self.num_envs)
+        safe = np.maximum(index, 0)
+        step = self._batch.sim.state.step_count.astype(np.int64)  # copy
+        if done.size:
+            step[done] = final_state.step_count
+        overflowed = np.empty(self.num_envs, dtype=object)
+        overflowed.fill(())
+        for b in np.flatnonzero(out.terminated).tolist():
+            overflowed[b] = tuple(self._names[np.flatnonzero(out.overflowed[b])].tolist())
+        return {
+            "step": step,
+            "emptied_container": self._names[index],
+            "emptied_index": index,
+            "emptied_volume": np.where(emptied, out.emptied_volume[rows, safe], 0.0),
+            # at most one non-zero entry per row: the sum is that entry exactly
+            "emptying_reward": out.container_reward.sum(axis=1),
+            "pu_index": np.where(emptied, out.pu_index[rows, safe], -1).astype(np.int64),
+            "no_free_pu": out.denied.any(axis=1),
+            "overflowed_containers": overflowed,
+            "free_pus": out.free_pus_before.astype(np.int64),
+        }
+
+
+def _with_masks(info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Gymnasium's batched info layout: every key with its all-True ``_key`` mask."""
+    out: dict[str, np.ndarray] = {}
+    for key, value in info.items():
+        out[key] = value
+        out[f"_{key}"] = np.ones(len(value), dtype=bool)
+    return out
