@@ -19,6 +19,9 @@ last observation of the finished episode is in ``infos[k]["terminal_observation"
 ``infos["final_obs"]`` (Gymnasium, ``SAME_STEP`` mode), and SB3's ``infos[k]["TimeLimit.truncated"]``
 tells a time-limit cut (bootstrap) from an overflow (terminal).
 
+The two SB3 VecEnvs need stable-baselines3 (the ``train`` extra); without it this module still
+imports, and constructing them raises an ImportError that names the extra to install.
+
 Every constructor takes ``backend`` (``"auto"``, ``"numpy"`` or ``"numba"``), passed to
 :class:`~containergym_marl.core.simulator.PlantSimulator`.
 
@@ -48,10 +51,27 @@ from containergym_marl.core.observations import (
 )
 from containergym_marl.core.simulator import PlantSimulator
 
+#: How to get the SB3 VecEnvs' optional dependency; named by the error raised without it.
+TRAIN_EXTRA_HINT = "pip install 'containergym-marl[train]'"
+
 try:  # SB3 is an optional (training) dependency
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv
-except ImportError:  # pragma: no cover - exercised only without the training extra
-    VecEnv = object  # type: ignore[misc,assignment]
+except ImportError as _sb3_error:  # exercised in a subprocess by the tests
+    _SB3_IMPORT_ERROR: ImportError | None = _sb3_error
+
+    class VecEnv:  # type: ignore[no-redef]
+        """Stand-in base class, so that this module (and its Gymnasium vector env) imports
+        without SB3; the SB3 VecEnvs refuse to be constructed."""
+else:
+    _SB3_IMPORT_ERROR = None
+
+
+def _require_sb3(cls_name: str) -> None:
+    if _SB3_IMPORT_ERROR is not None:
+        raise ImportError(
+            f"{cls_name} is a stable-baselines3 VecEnv and needs stable-baselines3, which is not "
+            f"installed ({_SB3_IMPORT_ERROR}); install the training extra: {TRAIN_EXTRA_HINT}"
+        ) from _SB3_IMPORT_ERROR
 
 
 class _ReadOnlyEmptyInfo(dict):
@@ -198,6 +218,7 @@ class ContainerGymVecEnv(_SB3Base):
 
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_envs: int = 8, *,
                  protocol: str | None = None, backend: str = "auto", **overrides: Any):
+        _require_sb3(type(self).__name__)
         cfg = load_config(config, protocol=protocol, **overrides)
         low, high = global_state_bounds(cfg.params())
         self._init_sb3(cfg, int(num_envs), "fullest", backend, int(num_envs),
@@ -238,6 +259,7 @@ class ContainerAgentsVecEnv(_SB3Base):
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_sims: int = 8, *,
                  arbitration: str = "fullest", reward_mode: str = "individual",
                  protocol: str | None = None, backend: str = "auto", **overrides: Any):
+        _require_sb3(type(self).__name__)
         if reward_mode not in ("individual", "team"):
             raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose 'individual' or 'team'")
         cfg = load_config(config, protocol=protocol, **overrides)
