@@ -76,9 +76,9 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
     ``"dict"``: ``Dict({"action_mask": Box(0, 1, (2,), int8), "observation": <the Box above>})``,
     the layout of PettingZoo's classic environments, which Tianshou's ``PettingZooEnv`` and
-    TorchRL's ``PettingZooWrapper`` read as action masks and RLlib's action-masking modules
-    expect (RLlib's examples name the features ``"observations"``; rename the key in a wrapper or
-    the module). SB3 and SuperSuit want the ``"box"`` mode (masks via ``action_masks``).
+    TorchRL's ``PettingZooWrapper`` read as action masks (TorchRL also reads ``action_mask``
+    from the infos), and which RLlib's action-masking modules take after a rename (its examples
+    call the features ``"observations"``). SB3 and SuperSuit want the ``"box"`` mode.
 
     ## State (``state_mode=``)
     ``state()`` returns the global state ``[v_1..v_n, p_1..p_m]`` as float32, with ``state_space``
@@ -99,9 +99,9 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ``"individual"`` (default): each agent gets its own emptying reward, r_pen if denied, 0 if it
     waited; overflowing containers get r_min. ``"team"``: every agent gets the plant reward (sum of
     the step's emptying rewards and penalties, replaced by r_min on overflow), exactly the
-    centralised view's reward. Libraries that report the sum of all agents' returns (RLlib's
-    ``episode_return_mean``, BenchMARL's and TorchRL's summed rewards) show n × the plant return
-    in team mode; the plant return is one agent's return (or the sum of ``plant_reward`` infos).
+    centralised view's reward. A library that reports the sum of all agents' returns (RLlib's
+    ``episode_return_mean``) shows n × the plant return in team mode; the plant return is one
+    agent's return (or the sum of the ``plant_reward`` infos).
 
     ## Info (per agent)
     ``requested``, ``granted``, ``denied`` (bool), ``pu_index`` (int, -1 if not emptied),
