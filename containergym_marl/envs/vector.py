@@ -307,7 +307,8 @@ class ContainerGymVectorEnv(VectorEnv):
     Infos are those that ``gym.make_vec(..., vectorization_mode="sync")`` in ``SAME_STEP`` mode
     builds from the single environments' infos, computed for all B simulations at once: at reset
     and at every step, each key of :class:`~containergym_marl.envs.ContainerGymEnv`'s info as a
-    (B,) array (int64, float64, bool, or object for the names) with its ``_key`` mask (all True).
+    (B,) array (int64, float64, bool, or object for the names) with its ``_key`` mask (all True;
+    one shared read-only array).
     A simulation that ended this step shows its new episode's reset info there, and, as in
     Gymnasium, ``final_obs`` / ``_final_obs`` and ``final_info`` (a dict of such arrays, holding the
     last step's info where ``_final_info`` is True) appear in the steps where some simulation ended.
@@ -335,6 +336,9 @@ class ContainerGymVectorEnv(VectorEnv):
         self._started = False
         # container names by index, with "" at index -1 (nothing emptied)
         self._names = np.array(list(self.config.container_names) + [""], dtype=object)
+        self._rows = np.arange(self.num_envs)
+        self._all_true = np.ones(self.num_envs, dtype=bool)
+        self._all_true.setflags(write=False)
 
     @property
     def simulator(self) -> PlantSimulator:
@@ -352,7 +356,7 @@ class ContainerGymVectorEnv(VectorEnv):
         else:
             self._batch.reset_all(seeds)
         self._started = True
-        return self._batch.sim.global_state(), _with_masks(self._reset_info(np.arange(self.num_envs)))
+        return self._batch.sim.global_state(), self._with_masks(self._reset_info(self._rows))
 
     def step(self, actions):
         if not self._started:
@@ -361,9 +365,9 @@ class ContainerGymVectorEnv(VectorEnv):
         requests = _centralised_requests(actions, self.num_envs, n)
         out, done_mask, done, (final_state, _) = self._batch.step(requests)
         obs = self._batch.sim.global_state()
-        info = self._step_info(out, done, final_state)
+        info = self._step_info(np.asarray(actions).reshape(-1), out, done, final_state)
         if not done.size:
-            return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), _with_masks(info)
+            return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), self._with_masks(info)
         final = np.zeros_like(obs)
         final[done] = self._batch.sim.global_state(final_state)
         # the finished step's infos of the ended simulations, blank elsewhere (as Gymnasium's
@@ -377,7 +381,7 @@ class ContainerGymVectorEnv(VectorEnv):
         # the ended simulations start a new episode: their info is the reset info
         for key, value in self._reset_info(done).items():
             info[key][done] = value
-        infos = _with_masks(info)
+        infos = self._with_masks(info)
         infos.update({"final_obs": final, "_final_obs": done_mask.copy(),
                       "final_info": final_info, "_final_info": done_mask.copy()})
         return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), infos
@@ -399,40 +403,40 @@ class ContainerGymVectorEnv(VectorEnv):
             "free_pus": self._batch.sim.free_pu_count()[sims].astype(np.int64),
         }
 
-    def _step_info(self, out: StepOutcome, done: np.ndarray, final_state) -> dict[str, np.ndarray]:
-        """The single environment's step info of every simulation, one (B,) array per key.
+    def _step_info(self, actions: np.ndarray, out: StepOutcome, done: np.ndarray,
+                   final_state) -> dict[str, np.ndarray]:
+        """The single environment's step info of every simulation, one fresh (B,) array per key.
 
-        The centralised action makes at most one request per simulation, so each row of the
-        outcome has at most one granted (or denied) container."""
-        emptied = out.granted.any(axis=1)
-        index = np.where(emptied, out.granted.argmax(axis=1), -1)
-        rows = np.arange(self.num_envs)
-        safe = np.maximum(index, 0)
-        step = self._batch.sim.state.step_count.astype(np.int64)  # copy
-        if done.size:
-            step[done] = final_state.step_count
+        Simulation b requested container ``actions[b] - 1`` only, so its entries are read at that
+        column; a waiting simulation (action 0) reads column -1, whose entries are the "nothing
+        happened" values (-1, 0.0, False) since nothing was requested in its row."""
+        rows, col = self._rows, actions - 1
+        pu_index = out.pu_index[rows, col].astype(np.int64)
+        step = self._batch.sim.state.step_count.astype(np.int64)  # a copy
         overflowed = np.empty(self.num_envs, dtype=object)
         overflowed.fill(())
-        for b in np.flatnonzero(out.terminated).tolist():
-            overflowed[b] = tuple(self._names[np.flatnonzero(out.overflowed[b])].tolist())
+        if done.size:
+            step[done] = final_state.step_count
+            for b in done[out.terminated[done]].tolist():
+                overflowed[b] = tuple(self._names[np.flatnonzero(out.overflowed[b])].tolist())
+        emptied_index = np.where(pu_index >= 0, col, -1)
         return {
             "step": step,
-            "emptied_container": self._names[index],
-            "emptied_index": index,
-            "emptied_volume": np.where(emptied, out.emptied_volume[rows, safe], 0.0),
-            # at most one non-zero entry per row: the sum is that entry exactly
-            "emptying_reward": out.container_reward.sum(axis=1),
-            "pu_index": np.where(emptied, out.pu_index[rows, safe], -1).astype(np.int64),
-            "no_free_pu": out.denied.any(axis=1),
+            "emptied_container": self._names[emptied_index],
+            "emptied_index": emptied_index,
+            "emptied_volume": out.emptied_volume[rows, col],
+            "emptying_reward": out.container_reward[rows, col],
+            "pu_index": pu_index,
+            "no_free_pu": out.denied[rows, col],
             "overflowed_containers": overflowed,
             "free_pus": out.free_pus_before.astype(np.int64),
         }
 
-
-def _with_masks(info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Gymnasium's batched info layout: every key with its all-True ``_key`` mask."""
-    out: dict[str, np.ndarray] = {}
-    for key, value in info.items():
-        out[key] = value
-        out[f"_{key}"] = np.ones(len(value), dtype=bool)
-    return out
+    def _with_masks(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Gymnasium's batched info layout: every key with its ``_key`` mask (all True: every
+        simulation reports every key). The masks are one shared read-only array."""
+        out: dict[str, np.ndarray] = {}
+        for key, value in info.items():
+            out[key] = value
+            out[f"_{key}"] = self._all_true
+        return out
