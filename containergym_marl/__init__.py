@@ -6,7 +6,7 @@ Quick start::
     import containergym_marl  # registers the Gymnasium id
 
     env = gym.make("containergym_marl/ContainerGym-v0", config="n5_m2_dt120")
-    par = containergym_marl.container_agents_v0.parallel_env(config="n5_m2_dt120")
+    par = containergym_marl.container_agents_v0.parallel_env("n5_m2_dt120")
 """
 
 from gymnasium.envs.registration import register, registry
@@ -19,7 +19,8 @@ from containergym_marl.config import (
     list_configs,
     load_config,
 )
-from containergym_marl.envs import ContainerAgentsParallelEnv, ContainerGymEnv, container_agents_v0
+from containergym_marl import container_agents_v0  # the PettingZoo-style module: env, parallel_env, raw_env
+from containergym_marl.envs import ContainerAgentsParallelEnv, ContainerGymEnv
 
 __version__ = "0.1.0"
 

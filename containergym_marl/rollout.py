@@ -40,7 +40,7 @@ def run_centralised(config: str, seed: int) -> EpisodeStats:
     while not done:
         obs, reward, terminated, truncated, info = env.step(policy.act(obs))
         total += reward
-        if info["emptied_container"] is not None:
+        if info["emptied_index"] >= 0:  # a container was emptied (-1: none)
             emptying_rewards.append(info["emptying_reward"])
         denied += int(info["no_free_pu"])
         done = terminated or truncated

@@ -280,6 +280,7 @@ def test_emptying_info_reward_and_pu_timer_follow_paper_formulas(i):
     obs, reward, terminated, truncated, info = env.step(i + 1)
     assert not terminated and not truncated
     assert info["emptied_container"] == spec.name
+    assert info["emptied_index"] == i
     assert np.float32(info["emptied_volume"]) == prev[i]
     assert info["emptied_volume"] == pytest.approx(v, rel=1e-12)
     expected_r = paper_reward(spec, v, cfg.penalty_reward)
@@ -338,9 +339,10 @@ def test_doing_nothing_gives_zero_reward_and_no_emptying():
     prev, _ = env.reset(seed=2)
     obs, reward, _, _, info = env.step(0)
     assert reward == 0.0
-    assert info["emptied_container"] is None
-    assert info["emptied_volume"] is None
-    assert info["pu_index"] is None
+    assert info["emptied_container"] == ""
+    assert info["emptied_index"] == -1
+    assert info["emptied_volume"] == 0.0
+    assert info["pu_index"] == -1
     assert info["no_free_pu"] is False
     assert info["emptying_reward"] == 0.0
 
@@ -371,8 +373,9 @@ def test_action_masks_with_one_pu_and_penalty_when_busy():
     assert r_pen == cfg.penalty_reward
     assert r_wait == 0.0
     assert info["no_free_pu"] is True
-    assert info["emptied_container"] is None
-    assert info["pu_index"] is None
+    assert info["emptied_container"] == ""
+    assert info["emptied_index"] == -1
+    assert info["pu_index"] == -1
     assert info["free_pus"] == 0
     assert info["emptying_reward"] == cfg.penalty_reward
     np.testing.assert_array_equal(obs_pen, obs_wait)

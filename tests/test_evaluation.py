@@ -39,7 +39,7 @@ def test_metrics_match_a_manual_replay_including_the_final_reward():
                 actions += 1
                 good += info["emptying_reward"] >= 0.75
                 negative += info["emptying_reward"] < 0
-            emptied += info["emptied_container"] is not None
+            emptied += info["emptied_index"] >= 0
             denied += info["no_free_pu"]
             rewards.append(r)
             if term or trunc:

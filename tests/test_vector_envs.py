@@ -10,7 +10,12 @@
 
 from __future__ import annotations
 
+import os
 import pickle
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -28,6 +33,7 @@ from containergym_marl.envs.vector import (
     ContainerGymVectorEnv,
 )
 
+ROOT = Path(__file__).resolve().parents[1]
 CFG = "n5_m2_dt120"
 SHORT = dict(episode_length_steps=25)  # many time-limit ends in few steps
 # both kinds of ends within a few dozen steps: time limits and overflows (full starting volumes)
@@ -265,6 +271,36 @@ def test_gymnasium_vector_env_requires_reset_and_rejects_bad_actions():
     venv.reset(seed=0)
     with pytest.raises(ValueError, match="env 0 has action 9"):
         venv.step(np.array([9, 0]))
+
+
+# ---- without the training extra ------------------------------------------------------------------
+def test_sb3_vec_envs_without_sb3_raise_an_import_error_naming_the_extra():
+    """With stable-baselines3 missing, the module imports, the Gymnasium vector env works, and the
+    SB3 VecEnvs raise an ImportError naming the extra (not a TypeError from object.__init__)."""
+    code = textwrap.dedent("""
+        import sys
+        sys.modules["stable_baselines3"] = None  # makes `import stable_baselines3...` fail
+        import numpy as np
+        from containergym_marl.envs.vector import (
+            ContainerAgentsVecEnv, ContainerGymVecEnv, ContainerGymVectorEnv)
+        venv = ContainerGymVectorEnv(num_envs=2, config="n5_m2_dt120")
+        venv.reset(seed=0)
+        venv.step(np.zeros(2, dtype=np.int64))
+        for cls, kwargs in ((ContainerAgentsVecEnv, {"num_sims": 2}), (ContainerGymVecEnv, {"num_envs": 2})):
+            try:
+                cls("n5_m2_dt120", **kwargs)
+            except ImportError as e:
+                print(cls.__name__, "|", e)
+            else:
+                print(cls.__name__, "| no error")
+    """)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert [line.split(" | ")[0] for line in lines] == ["ContainerAgentsVecEnv", "ContainerGymVecEnv"]
+    for line in lines:
+        assert "pip install 'containergym-marl[train]'" in line and "stable-baselines3" in line, line
 
 
 # ---- learning on the native vec envs -------------------------------------------------------------

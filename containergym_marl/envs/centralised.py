@@ -63,16 +63,31 @@ class ContainerGymEnv(gym.Env):
     :mod:`containergym_marl.render`.
 
     ## Info
-    ``emptied_container`` (name or None), ``emptied_volume``, ``emptying_reward`` (reward of this
-    step's emptying decision, before any overflow replacement), ``pu_index`` (PU used or None),
-    ``no_free_pu`` (an emptying action found every PU busy), ``overflowed_containers`` (names),
-    ``free_pus`` (free PUs before the step), ``step``.
+    The same keys, with values of the same types, at ``reset`` and at every ``step``, never None
+    (Gymnasium's vector envs and TorchRL build their info arrays and specs from the first info
+    they see):
+
+    | key                     | type  | meaning; value when nothing happened (and at reset)        |
+    |-------------------------|-------|------------------------------------------------------------|
+    | ``step``                | int   | steps taken in this episode (0 at reset)                   |
+    | ``emptied_container``   | str   | name of the container emptied this step; ``""``            |
+    | ``emptied_index``       | int   | its index 0 … n-1 (action − 1); -1                         |
+    | ``emptied_volume``      | float | its volume before emptying; 0.0                            |
+    | ``emptying_reward``     | float | reward of this step's emptying decision before any         |
+    |                         |       | overflow replacement (r_pen if no PU was free); 0.0        |
+    | ``pu_index``            | int   | PU that took the container; -1                             |
+    | ``no_free_pu``          | bool  | an emptying action found every PU busy; False              |
+    | ``overflowed_containers`` | tuple | names of the containers that reached v_max; ``()``       |
+    | ``free_pus``            | int   | free PUs before the step (at reset: free PUs now, m)       |
 
     ## Version history
     * v0: first release. Differences from the earlier reference implementation: the PU timer is
       g(v) at t+1 (the reference also subtracted δ in the emptying step), one normal draw per
       container and step instead of δ per-second draws (same distribution), all randomness from
       the seed given to ``reset``, and time-limit ends are ``truncated`` rather than ``done``.
+      Infos have the same keys and value types at reset and every step: an empty step reports
+      ``emptied_container=""``, ``emptied_index=-1``, ``pu_index=-1``, ``emptied_volume=0.0``
+      (earlier builds of v0 gave None and a reset info with two keys only).
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": RENDER_FPS}
@@ -110,7 +125,7 @@ class ContainerGymEnv(gym.Env):
         self._sim.reset(generators=[self.np_random])
         if self.render_mode == "human":
             self.render()
-        return self._observation(), {"step": 0, "free_pus": self.n_pus}
+        return self._observation(), self._neutral_info(self.n_pus)
 
     def step(self, action):
         a = discrete_action(action, self.n_containers + 1, "action")
@@ -123,22 +138,15 @@ class ContainerGymEnv(gym.Env):
         i = a - 1
         emptied = a > 0 and out.granted.item(i)
         terminated = out.terminated.item(0)
-        info = {
-            "step": self._sim.state.step_count.item(0),
-            "emptied_container": None,
-            "emptied_volume": None,
-            "emptying_reward": 0.0,
-            "pu_index": None,
-            "no_free_pu": False,
-            "overflowed_containers": (),
-            "free_pus": out.free_pus_before.item(0),
-        }
+        info = self._neutral_info(out.free_pus_before.item(0))
+        info["step"] = self._sim.state.step_count.item(0)
         if a > 0:
-            info["emptying_reward"] = out.container_reward.item(i)
+            info["emptying_reward"] = float(out.container_reward.item(i))
             if emptied:
                 info["emptied_container"] = self._names[i]
-                info["emptied_volume"] = out.emptied_volume.item(i)
-                info["pu_index"] = out.pu_index.item(i)
+                info["emptied_index"] = i
+                info["emptied_volume"] = float(out.emptied_volume.item(i))
+                info["pu_index"] = int(out.pu_index.item(i))
             else:
                 info["no_free_pu"] = True
         if terminated:
@@ -159,6 +167,21 @@ class ContainerGymEnv(gym.Env):
     def close(self):
         """Close the rendering figure (and its window, if any)."""
         self._renderer.close()
+
+    @staticmethod
+    def _neutral_info(free_pus: int) -> dict[str, Any]:
+        """The info of a step that emptied nothing (and of a reset): every key, no None."""
+        return {
+            "step": 0,
+            "emptied_container": "",
+            "emptied_index": -1,
+            "emptied_volume": 0.0,
+            "emptying_reward": 0.0,
+            "pu_index": -1,
+            "no_free_pu": False,
+            "overflowed_containers": (),
+            "free_pus": int(free_pus),
+        }
 
     def _observation(self) -> np.ndarray:
         return self._sim.global_state()[0]

@@ -23,10 +23,20 @@ from containergym_marl.core.observations import (
     global_state_bounds,
 )
 from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
-from containergym_marl.envs._common import discrete_action
+from containergym_marl.envs._common import (
+    discrete_action,
+    normalised_state,
+    normalised_state_bounds,
+    normalised_state_scale,
+)
 from containergym_marl.render import RENDER_FPS, RENDER_MODES, EnvRenderer
 
 REWARD_MODES = ("individual", "team")
+OBSERVATION_MODES = ("box", "dict")
+STATE_MODES = ("physical", "normalised")
+AGENT_NAMES = ("containers", "indexed")
+#: The prefix of the ``agent_names="indexed"`` agents: ``container_0`` … ``container_{n-1}``.
+INDEXED_AGENT_PREFIX = "container"
 
 
 class ContainerAgentsParallelEnv(ParallelEnv):
@@ -34,29 +44,49 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
     ## Description
     The same plant and physics as :class:`~containergym_marl.envs.centralised.ContainerGymEnv`
-    (one shared core), seen by n agents, one per container, named after their container. Every
-    step each agent may request emptying; when k requests compete for f < k free PUs an
-    arbitration rule inside the environment grants f of them and denies the rest.
+    (one shared core), seen by n agents, one per container. Every step each agent may request
+    emptying; when k requests compete for f < k free PUs an arbitration rule inside the
+    environment grants f of them and denies the rest.
 
-    ## Agents
-    ``possible_agents = config.container_names`` (fixed at construction). All agents act every
-    step; all terminate together on overflow and truncate together at T, after which ``agents``
-    is empty.
+    ## Agents (``agent_names=``)
+    ``possible_agents`` is fixed at construction, agent i acting for container i
+    (``container_names[i]``, i.e. ``config.container_names[i]``). ``"containers"`` (default): the
+    agents are named after their containers (``"C1-20"``, …). ``"indexed"``: ``"container_0"`` …
+    ``"container_{n-1}"``, the ``<descriptor>_<number>`` form that PettingZoo's ``api_test``
+    recommends and by which TorchRL's ``PettingZooWrapper`` (parallel API) groups agents: all
+    agents fall into one group ``"container"``, so one policy is shared and the group's tensors
+    are stacked, as parameter sharing needs; with container names every agent is its own group
+    unless a ``group_map`` is passed (``MarlGroupMapType.ALL_IN_ONE_GROUP`` does the same for
+    any names, also for the AEC API, where TorchRL's default is one group per agent).
+    RLlib, Tianshou and SuperSuit do not read names. All agents act every step; all terminate
+    together on overflow and truncate together at T, after which ``agents`` is empty.
 
     ## Action space (per agent)
-    ``Discrete(2)``: 0 waits, 1 requests emptying. With ``action_masking=True`` each agent's info
-    holds ``action_mask`` (int8, request masked while no PU is free).
+    ``Discrete(2)``: 0 waits, 1 requests emptying. The action mask is ``[1, 1]`` while a PU is
+    free and ``[1, 0]`` while none is (int8): a request then is legal but always denied (r_pen).
+    With ``action_masking=True`` each agent's info holds it as ``action_mask``; with
+    ``observation_mode="dict"`` it is part of the observation (below).
 
-    ## Observation space (per agent, identical for all agents)
-    ``Box(float32, shape=(12 + m + n,))`` of normalised, bounded features: own volume, target,
-    gap to target, v_max, fill rate and noise, product size, reward if emptied now, free-PU share,
-    competing demand (others' requests last step, others ready to be emptied, others fuller), the
-    PU timers and a one-hot container index. The table with every entry and bound is in
-    :mod:`containergym_marl.core.observations`; names via :meth:`feature_names`.
+    ## Observation space (per agent, identical for all agents; ``observation_mode=``)
+    ``"box"`` (default): ``Box(float32, shape=(12 + m + n,))`` of normalised, bounded features:
+    own volume, target, gap to target, v_max, fill rate and noise, product size, reward if emptied
+    now, free-PU share, competing demand (others' requests last step, others ready to be emptied,
+    others fuller), the PU timers and a one-hot container index. The table with every entry and
+    bound is in :mod:`containergym_marl.core.observations`; names via :meth:`feature_names`.
 
-    ## State
-    ``state()`` returns the global state ``[v_1..v_n, p_1..p_m]`` (float32, physical units), equal
-    to the centralised view's observation; ``state_space`` is its Box.
+    ``"dict"``: ``Dict({"action_mask": Box(0, 1, (2,), int8), "observation": <the Box above>})``,
+    the layout of PettingZoo's classic environments, which Tianshou's ``PettingZooEnv`` and
+    TorchRL's ``PettingZooWrapper`` read as action masks (TorchRL also reads ``action_mask``
+    from the infos), and which RLlib's action-masking modules take after a rename (its examples
+    call the features ``"observations"``). SB3 and SuperSuit want the ``"box"`` mode.
+
+    ## State (``state_mode=``)
+    ``state()`` returns the global state ``[v_1..v_n, p_1..p_m]`` as float32, with ``state_space``
+    its Box (the same object every call). ``"physical"`` (default): volumes in volume units
+    (bounds [0, 2·v_max,i]) and PU timers in seconds (bounds [0, max_i g_i(v_max,i)]), equal to
+    the centralised view's observation. ``"normalised"``: volumes / v_max,i in [0, 2] (above 1
+    only in the terminal state of an overflow) and timers / the largest possible PU time in
+    [0, 1], the scales of the agents' observations, for a centralised critic (MAPPO, QMIX).
 
     ## Arbitration (``arbitration=``)
     ``"fullest"`` (default): highest v / v_max first. ``"random"``: uniformly random order drawn
@@ -69,24 +99,33 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ``"individual"`` (default): each agent gets its own emptying reward, r_pen if denied, 0 if it
     waited; overflowing containers get r_min. ``"team"``: every agent gets the plant reward (sum of
     the step's emptying rewards and penalties, replaced by r_min on overflow), exactly the
-    centralised view's reward.
+    centralised view's reward. A library that reports the sum of all agents' returns (RLlib's
+    ``episode_return_mean``) shows n × the plant return in team mode; the plant return is one
+    agent's return (or the sum of the ``plant_reward`` infos).
 
     ## Info (per agent)
     ``requested``, ``granted``, ``denied`` (bool), ``pu_index`` (int, -1 if not emptied),
-    ``emptied_volume``, ``emptying_reward`` (this agent's reward before overflow replacement),
-    ``overflowed`` (bool), ``plant_reward`` (the step's plant reward, as in "team" mode),
-    ``free_pus`` (before the step), ``step``; and ``action_mask`` if asked.
+    ``emptied_volume`` (float, 0.0 if not emptied), ``emptying_reward`` (float, this agent's
+    reward before overflow replacement), ``overflowed`` (bool), ``plant_reward`` (float, the
+    step's plant reward, as in "team" mode), ``free_pus`` (int, before the step), ``step`` (int);
+    and ``action_mask`` (int8 array of shape (2,)) if asked. ``reset`` returns the same keys with
+    the same types (False, -1, 0.0; ``free_pus`` = free PUs now, ``step`` = 0), never None: TorchRL
+    and BenchMARL build their info specs from the reset infos.
 
     ## Arguments
-    ``config``, ``protocol`` and plant-level overrides as for the centralised view;
-    ``arbitration``, ``reward_mode``, ``action_masking`` as above; ``render_mode``: None,
+    ``config`` (also positional: ``parallel_env("n5_m2_dt120")``), ``protocol`` and plant-level
+    overrides as for the centralised view; ``arbitration``, ``reward_mode``, ``action_masking``,
+    ``observation_mode`` (``"box"``/``"dict"``), ``state_mode`` (``"physical"``/``"normalised"``),
+    ``agent_names`` (``"containers"``/``"indexed"``) as above; ``render_mode``: None,
     ``"human"`` (a live diagram drawn at every reset and step, in a window only when a display is
     available, otherwise off-screen without blocking), ``"rgb_array"`` (that diagram as an
     ``(H, W, 3)`` uint8 frame, with the last step's granted and denied requests marked per
     container) or ``"ansi"`` (text); see :mod:`containergym_marl.render`.
 
     ## Version history
-    * v0: first release.
+    * v0: first release. Later additions, with defaults that keep the first behaviour:
+      ``observation_mode``, ``state_mode``, ``agent_names``, positional ``config``, reset infos
+      with every step key.
     """
 
     metadata = {
@@ -103,6 +142,9 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         arbitration: str = "fullest",
         reward_mode: str = "individual",
         action_masking: bool = False,
+        observation_mode: str = "box",
+        state_mode: str = "physical",
+        agent_names: str = "containers",
         render_mode: str | None = None,
         protocol: str | None = None,
         **overrides: Any,
@@ -110,6 +152,11 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         get_rule(arbitration)  # a clear error for an unknown rule, before anything is built
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose one of {REWARD_MODES}")
+        for name, value, allowed in (("observation_mode", observation_mode, OBSERVATION_MODES),
+                                     ("state_mode", state_mode, STATE_MODES),
+                                     ("agent_names", agent_names, AGENT_NAMES)):
+            if not isinstance(value, str) or value not in allowed:
+                raise ValueError(f"{name}: unknown value {value!r}; choose one of {allowed}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode: {render_mode!r} not supported; choose from {self.metadata['render_modes']}"
@@ -118,22 +165,39 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self.arbitration = arbitration
         self.reward_mode = reward_mode
         self.action_masking = bool(action_masking)
+        self.observation_mode = observation_mode
+        self.state_mode = state_mode
+        self.agent_names = agent_names
         self.render_mode = render_mode
         self._sim = PlantSimulator(self.config, batch_size=1, arbitration=arbitration)
         self._renderer = EnvRenderer(self._sim, render_mode, view="decentralised")
         params = self._sim.params
 
-        self.possible_agents = list(self.config.container_names)
+        #: container i's name, for agent i (``possible_agents[i]``)
+        self.container_names: tuple[str, ...] = tuple(self.config.container_names)
+        if agent_names == "indexed":
+            self.possible_agents = [f"{INDEXED_AGENT_PREFIX}_{i}" for i in range(len(self.container_names))]
+        else:
+            self.possible_agents = list(self.container_names)
         self._agent_index = {a: i for i, a in enumerate(self.possible_agents)}
         self.agents: list[str] = []
         low, high = agent_observation_bounds(params)
         # One (equal) space object per agent, each returned every time: SuperSuit needs equal
         # spaces, PettingZoo's seeding tests need a cached object per agent.
-        self.observation_spaces = {a: spaces.Box(low, high, dtype=np.float32) for a in self.possible_agents}
+        self.observation_spaces = {a: self._agent_observation_space(low, high) for a in self.possible_agents}
         self.action_spaces = {a: spaces.Discrete(2) for a in self.possible_agents}
         s_low, s_high = global_state_bounds(params)
+        if state_mode == "normalised":
+            self._state_scale = normalised_state_scale(params)
+            s_low, s_high = normalised_state_bounds(params)
         self.state_space = spaces.Box(s_low, s_high, dtype=np.float32)
         self._np_random: np.random.Generator | None = None
+
+    def _agent_observation_space(self, low: np.ndarray, high: np.ndarray) -> spaces.Space:
+        box = spaces.Box(low, high, dtype=np.float32)
+        if self.observation_mode == "box":
+            return box
+        return spaces.Dict({"observation": box, "action_mask": spaces.Box(0, 1, shape=(2,), dtype=np.int8)})
 
     # ---- spaces ------------------------------------------------------------------------------
     def _check_agent(self, agent: str) -> str:
@@ -141,7 +205,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
             raise KeyError(f"unknown agent {agent!r}; agents are {self.possible_agents}")
         return agent
 
-    def observation_space(self, agent: str) -> spaces.Box:
+    def observation_space(self, agent: str) -> spaces.Space:
         return self.observation_spaces[self._check_agent(agent)]
 
     def action_space(self, agent: str) -> spaces.Discrete:
@@ -169,9 +233,21 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self.agents = self.possible_agents[:]
         observations = self._observations()
         free = int(self._sim.free_pu_count()[0])
-        infos = {a: {"step": 0, "free_pus": free} for a in self.agents}
-        if self.action_masking:
-            for a in self.agents:
+        infos = {}
+        for a in self.agents:
+            infos[a] = {
+                "requested": False,
+                "granted": False,
+                "denied": False,
+                "pu_index": -1,
+                "emptied_volume": 0.0,
+                "emptying_reward": 0.0,
+                "overflowed": False,
+                "plant_reward": 0.0,
+                "free_pus": free,
+                "step": 0,
+            }
+            if self.action_masking:
                 infos[a]["action_mask"] = self._mask(free)
         if self.render_mode == "human":
             self.render()
@@ -230,7 +306,11 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         return observations, rewards, terminations, truncations, infos
 
     def state(self) -> np.ndarray:
-        return self._sim.global_state()[0]
+        """The global state in ``state_mode`` (see the class docstring), float32, in ``state_space``."""
+        state = self._sim.global_state()[0]
+        if self.state_mode == "normalised":
+            state = normalised_state(state, self._state_scale, self.state_space)
+        return state
 
     def render(self):
         """The current state in ``render_mode``: text ("ansi"), a frame ("rgb_array") or None."""
@@ -241,25 +321,31 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self._renderer.close()
 
     # ---- helpers -----------------------------------------------------------------------------
-    def _observations(self) -> dict[str, np.ndarray]:
+    def _observations(self) -> dict[str, Any]:
         obs = agent_observations(self._sim.state, self._sim.params, self._sim.previous_requests)[0]
-        return {a: obs[i] for i, a in enumerate(self.possible_agents)}
+        if self.observation_mode == "box":
+            return {a: obs[i] for i, a in enumerate(self.possible_agents)}
+        free = int(self._sim.free_pu_count()[0])
+        # keys in the order of the Dict space (which sorts them)
+        return {a: {"action_mask": self._mask(free), "observation": obs[i]}
+                for i, a in enumerate(self.possible_agents)}
 
     @staticmethod
     def _mask(free_pus: int) -> np.ndarray:
         return np.array([1, 1 if free_pus > 0 else 0], dtype=np.int8)
 
 
-def parallel_env(**kwargs: Any) -> ContainerAgentsParallelEnv:
-    """The parallel-API environment (what SuperSuit and the training code use)."""
-    return ContainerAgentsParallelEnv(**kwargs)
+def parallel_env(config: str | PlantConfig = "n5_m2_dt120", **kwargs: Any) -> ContainerAgentsParallelEnv:
+    """The parallel-API environment (what SuperSuit and the training code use); ``config`` may be
+    given by position, ``parallel_env("n11_m2_dt120")``."""
+    return ContainerAgentsParallelEnv(config, **kwargs)
 
 
-def raw_env(**kwargs: Any):
+def raw_env(config: str | PlantConfig = "n5_m2_dt120", **kwargs: Any):
     """The AEC-API environment without wrappers (``parallel_to_aec`` of the parallel env)."""
-    return conversions.parallel_to_aec(parallel_env(**kwargs))
+    return conversions.parallel_to_aec(parallel_env(config, **kwargs))
 
 
-def env(**kwargs: Any):
+def env(config: str | PlantConfig = "n5_m2_dt120", **kwargs: Any):
     """The AEC-API environment with PettingZoo's order-enforcing wrapper."""
-    return wrappers.OrderEnforcingWrapper(raw_env(**kwargs))
+    return wrappers.OrderEnforcingWrapper(raw_env(config, **kwargs))

@@ -19,6 +19,9 @@ last observation of the finished episode is in ``infos[k]["terminal_observation"
 ``infos["final_obs"]`` (Gymnasium, ``SAME_STEP`` mode), and SB3's ``infos[k]["TimeLimit.truncated"]``
 tells a time-limit cut (bootstrap) from an overflow (terminal).
 
+The two SB3 VecEnvs need stable-baselines3 (the ``train`` extra); without it this module still
+imports, and constructing them raises an ImportError that names the extra to install.
+
 Cost: one step is one core call for all B simulations plus work proportional to the number of
 episode ends; there is no Python loop over simulations or slots. In the SB3 envs, the info of a
 slot with nothing to report is one shared, read-only empty dict (:data:`NO_INFO`; writing to it
@@ -46,10 +49,27 @@ from containergym_marl.core.observations import (
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.simulator import PlantSimulator
 
+#: How to get the SB3 VecEnvs' optional dependency; named by the error raised without it.
+TRAIN_EXTRA_HINT = "pip install 'containergym-marl[train]'"
+
 try:  # SB3 is an optional (training) dependency
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv
-except ImportError:  # pragma: no cover - exercised only without the training extra
-    VecEnv = object  # type: ignore[misc,assignment]
+except ImportError as _sb3_error:  # exercised in a subprocess by the tests
+    _SB3_IMPORT_ERROR: ImportError | None = _sb3_error
+
+    class VecEnv:  # type: ignore[no-redef]
+        """Stand-in base class, so that this module (and its Gymnasium vector env) imports
+        without SB3; the SB3 VecEnvs refuse to be constructed."""
+else:
+    _SB3_IMPORT_ERROR = None
+
+
+def _require_sb3(cls_name: str) -> None:
+    if _SB3_IMPORT_ERROR is not None:
+        raise ImportError(
+            f"{cls_name} is a stable-baselines3 VecEnv and needs stable-baselines3, which is not "
+            f"installed ({_SB3_IMPORT_ERROR}); install the training extra: {TRAIN_EXTRA_HINT}"
+        ) from _SB3_IMPORT_ERROR
 
 
 class _ReadOnlyEmptyInfo(dict):
@@ -196,6 +216,7 @@ class ContainerGymVecEnv(_SB3Base):
 
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_envs: int = 8, *,
                  protocol: str | None = None, **overrides: Any):
+        _require_sb3(type(self).__name__)
         cfg = load_config(config, protocol=protocol, **overrides)
         low, high = global_state_bounds(PlantParams.from_config(cfg))
         self._init_sb3(cfg, int(num_envs), "fullest", int(num_envs),
@@ -236,6 +257,7 @@ class ContainerAgentsVecEnv(_SB3Base):
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_sims: int = 8, *,
                  arbitration: str = "fullest", reward_mode: str = "individual",
                  protocol: str | None = None, **overrides: Any):
+        _require_sb3(type(self).__name__)
         if reward_mode not in ("individual", "team"):
             raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose 'individual' or 'team'")
         cfg = load_config(config, protocol=protocol, **overrides)
@@ -279,6 +301,17 @@ class ContainerGymVectorEnv(VectorEnv):
 
     Created by ``gym.make_vec("containergym_marl/ContainerGym-v0", num_envs=B,
     vectorization_mode="vector_entry_point", config=...)``.
+
+    Infos are those that ``gym.make_vec(..., vectorization_mode="sync")`` in ``SAME_STEP`` mode
+    builds from the single environments' infos, computed for all B simulations at once: at reset
+    and at every step, each key of :class:`~containergym_marl.envs.ContainerGymEnv`'s info as a
+    (B,) array (int64, float64, bool, or object for the names) with its ``_key`` mask (all True;
+    one shared read-only array).
+    A simulation that ended this step shows its new episode's reset info there, and, as in
+    Gymnasium, ``final_obs`` / ``_final_obs`` and ``final_info`` (a dict of such arrays, holding the
+    last step's info where ``_final_info`` is True) appear in the steps where some simulation ended.
+    ``final_obs`` is a (B, n + m) float32 array (rows of unfinished simulations are 0) rather than
+    Gymnasium's object array; ``infos["final_obs"][b]`` reads the same in both.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
@@ -299,6 +332,11 @@ class ContainerGymVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.render_mode = None
         self._started = False
+        # container names by index, with "" at index -1 (nothing emptied)
+        self._names = np.array(list(self.config.container_names) + [""], dtype=object)
+        self._rows = np.arange(self.num_envs)
+        self._all_true = np.ones(self.num_envs, dtype=bool)
+        self._all_true.setflags(write=False)
 
     @property
     def simulator(self) -> PlantSimulator:
@@ -316,7 +354,7 @@ class ContainerGymVectorEnv(VectorEnv):
         else:
             self._batch.reset_all(seeds)
         self._started = True
-        return self._batch.sim.global_state(), {}
+        return self._batch.sim.global_state(), self._with_masks(self._reset_info(self._rows))
 
     def step(self, actions):
         if not self._started:
@@ -325,13 +363,78 @@ class ContainerGymVectorEnv(VectorEnv):
         requests = _centralised_requests(actions, self.num_envs, n)
         out, done_mask, done, (final_state, _) = self._batch.step(requests)
         obs = self._batch.sim.global_state()
-        infos: dict[str, Any] = {}
-        if done.size:
-            final = np.zeros_like(obs)
-            final[done] = self._batch.sim.global_state(final_state)
-            final_info = np.full(self.num_envs, None, dtype=object)
-            for b in done.tolist():
-                final_info[b] = {}
-            infos = {"final_obs": final, "_final_obs": done_mask.copy(),
-                     "final_info": final_info, "_final_info": done_mask.copy()}
+        info = self._step_info(np.asarray(actions).reshape(-1), out, done, final_state)
+        if not done.size:
+            return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), self._with_masks(info)
+        final = np.zeros_like(obs)
+        final[done] = self._batch.sim.global_state(final_state)
+        # the finished step's infos of the ended simulations, blank elsewhere (as Gymnasium's
+        # _add_info leaves them: 0, False, or None for object entries)
+        final_info = {}
+        for key, value in info.items():
+            blank = np.full(self.num_envs, None, dtype=object) if value.dtype == object else np.zeros_like(value)
+            blank[done] = value[done]
+            final_info[key] = blank
+            final_info[f"_{key}"] = done_mask.copy()
+        # the ended simulations start a new episode: their info is the reset info
+        for key, value in self._reset_info(done).items():
+            info[key][done] = value
+        infos = self._with_masks(info)
+        infos.update({"final_obs": final, "_final_obs": done_mask.copy(),
+                      "final_info": final_info, "_final_info": done_mask.copy()})
         return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), infos
+
+    def _reset_info(self, sims: np.ndarray) -> dict[str, np.ndarray]:
+        """The single environment's reset info for ``sims``, one array per key."""
+        k = len(sims)
+        overflowed = np.empty(k, dtype=object)
+        overflowed.fill(())
+        return {
+            "step": np.zeros(k, dtype=np.int64),
+            "emptied_container": np.full(k, "", dtype=object),
+            "emptied_index": np.full(k, -1, dtype=np.int64),
+            "emptied_volume": np.zeros(k),
+            "emptying_reward": np.zeros(k),
+            "pu_index": np.full(k, -1, dtype=np.int64),
+            "no_free_pu": np.zeros(k, dtype=bool),
+            "overflowed_containers": overflowed,
+            "free_pus": self._batch.sim.free_pu_count()[sims].astype(np.int64),
+        }
+
+    def _step_info(self, actions: np.ndarray, out: StepOutcome, done: np.ndarray,
+                   final_state) -> dict[str, np.ndarray]:
+        """The single environment's step info of every simulation, one fresh (B,) array per key.
+
+        Simulation b requested container ``actions[b] - 1`` only, so its entries are read at that
+        column; a waiting simulation (action 0) reads column -1, whose entries are the "nothing
+        happened" values (-1, 0.0, False) since nothing was requested in its row."""
+        rows, col = self._rows, actions - 1
+        pu_index = out.pu_index[rows, col].astype(np.int64)
+        step = self._batch.sim.state.step_count.astype(np.int64)  # a copy
+        overflowed = np.empty(self.num_envs, dtype=object)
+        overflowed.fill(())
+        if done.size:
+            step[done] = final_state.step_count
+            for b in done[out.terminated[done]].tolist():
+                overflowed[b] = tuple(self._names[np.flatnonzero(out.overflowed[b])].tolist())
+        emptied_index = np.where(pu_index >= 0, col, -1)
+        return {
+            "step": step,
+            "emptied_container": self._names[emptied_index],
+            "emptied_index": emptied_index,
+            "emptied_volume": out.emptied_volume[rows, col],
+            "emptying_reward": out.container_reward[rows, col],
+            "pu_index": pu_index,
+            "no_free_pu": out.denied[rows, col],
+            "overflowed_containers": overflowed,
+            "free_pus": out.free_pus_before.astype(np.int64),
+        }
+
+    def _with_masks(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Gymnasium's batched info layout: every key with its ``_key`` mask (all True: every
+        simulation reports every key). The masks are one shared read-only array."""
+        out: dict[str, np.ndarray] = {}
+        for key, value in info.items():
+            out[key] = value
+            out[f"_{key}"] = self._all_true
+        return out
