@@ -99,8 +99,8 @@ class MethodEvaluations:
 
     @property
     def median(self) -> int:
-        order = self.ranked()
-        return order[(len(order) - 1) // 2]  # the lower median for an even count
+        order = self.ranked()  # best first: for an even count the lower (worse) of the two middle policies
+        return order[len(order) // 2]
 
     def improvement_scores(self) -> np.ndarray:
         """What a probability of improvement compares: per-seed mean returns, or the per-episode
@@ -128,30 +128,39 @@ def sort_groups(groups: Iterable[MethodEvaluations]) -> list[MethodEvaluations]:
 
 
 # ---- reading evaluation files ---------------------------------------------------------------------
-def _config_dirs(path: Path) -> list[Path]:
-    if (path / "evaluations").is_dir():
-        path = path / "evaluations"
-    if any(path.glob("*.json")):
-        return [path]
-    dirs = [d for d in sorted(path.iterdir()) if d.is_dir() and any(d.glob("*.json"))] if path.is_dir() else []
-    if not dirs:
-        raise FileNotFoundError(f"{str(path)!r} holds no evaluation files (<method>_s<seed>.json or <method>.json), "
-                                f"neither directly nor in evaluations/<config>/")
-    return dirs
+def _evaluation_files(directory: Path) -> list[tuple[Path, dict]]:
+    """The evaluation files of a folder (JSON with per-episode results; table.json and the like are not)."""
+    found = []
+    for file in sorted(directory.glob("*.json")) if directory.is_dir() else []:
+        try:
+            data = json.loads(file.read_text())
+        except ValueError:
+            continue
+        if isinstance(data, dict) and isinstance(data.get("episodes"), list):
+            found.append((file, data))
+    return found
 
 
 def load_evaluations(path: str | Path) -> list[MethodEvaluations]:
     """Every (config, method) found under ``path`` (a compare output folder, its ``evaluations/``
     folder or one config's folder), in table order. The config is the folder's name."""
+    path = Path(path)
+    if (path / "evaluations").is_dir():
+        path = path / "evaluations"
+    folders = [(path, files)] if (files := _evaluation_files(path)) else [
+        (d, f) for d in (sorted(path.iterdir()) if path.is_dir() else []) if d.is_dir() and (f := _evaluation_files(d))]
+    if not folders:
+        raise FileNotFoundError(f"{str(path)!r} holds no evaluation files (<method>_s<seed>.json or <method>.json), "
+                                f"neither directly nor in evaluations/<config>/")
     groups = []
-    for directory in _config_dirs(Path(path)):
+    for directory, files in folders:
         by_method: dict[str, list[tuple[int | None, dict]]] = {}
-        for file in sorted(directory.glob("*.json")):
+        for file, data in files:
             m = _FILE.match(file.stem)
             seed = int(m["seed"]) if m["seed"] is not None else None
-            by_method.setdefault(m["method"], []).append((seed, json.loads(file.read_text())))
+            by_method.setdefault(m["method"], []).append((seed, data))
         for method, found in by_method.items():
-            seeded = sorted((s, d) for s, d in found if s is not None)
+            seeded = sorted(((s, d) for s, d in found if s is not None), key=lambda sd: sd[0])
             if seeded and len(seeded) != len(found):
                 raise ValueError(f"{directory}: {method} has both per-seed files and a seedless {method}.json")
             if not seeded and len(found) != 1:
