@@ -35,14 +35,18 @@ and never retrains or overwrites a finished run. Ctrl-C stops the sweep and leav
 resumable. Evaluations are reused too when the model (sha256), the plant and the protocol are
 unchanged; ``--reevaluate`` redoes them (after a change to the simulator, say).
 
-A cluster in two commands (every node needs this package with the ``train`` and ``sweep`` extras,
-the same versions as the driver; Ray >= 2.59 authenticates with a token, so set the same
-``RAY_AUTH_MODE=token`` and ``RAY_AUTH_TOKEN`` on every node and on the driver, or copy
-``~/.ray/auth_token`` from the head, see ``ray get-auth-token``)::
+A cluster in two commands. Every machine needs this package with its ``train`` and ``sweep``
+extras, the versions of the driver's (``pip install -c constraints.txt -e '.[train,sweep]'``); Ray
+>= 2.59 checks a token between nodes, so export the same ``RAY_AUTH_MODE=token`` and
+``RAY_AUTH_TOKEN=<secret>`` (e.g. from ``ray get-auth-token --generate``) on every machine first::
 
-    ray start --head --port 6379 --num-cpus 16                 # on the head; other nodes join with
-    ray start --address HEAD:6379 --num-cpus 16                # (one per extra machine)
-    containergym-marl compare --address HEAD:6379 --runs /shared/runs --timesteps paper ...
+    ray start --head --port 6379 --include-dashboard=false       # 1. on the head; on each other machine:
+                                                                 #    ray start --address HEAD_IP:6379
+    containergym-marl compare --address HEAD_IP:6379 --runs /shared/runs --timesteps paper \
+        --configs ... --methods ... --seeds 1 2 3                # 2. on the head (the driver)
+
+``ray status --address HEAD_IP:6379`` lists the nodes and their CPUs; ``ray stop`` on each machine
+ends the cluster (it stops every Ray process of that machine).
 
 Storage: ``--runs`` (default ``<out>/runs``) is resolved to an absolute path, and each training
 task writes its run directory at that path on the node that runs it. Best is a path every node
@@ -226,12 +230,78 @@ def _figures(records: dict[str, dict[str, list]], out: Path) -> list[Path]:
     return written
 
 
+@dataclass
+class _Plan:
+    """What a compare call has to do, found from the files alone (no Ray)."""
+
+    specs: list  # every training run (RunSpec)
+    finished: set[str]  # runs finished with the same budget: reused
+    to_train: list  # RunSpecs to start or resume
+    evaluations: dict[tuple[str, str], dict]  # (config, file stem) -> reused evaluation JSON
+    to_evaluate: list  # (EvalSpec, source): source a RunSpec to wait for, a finished run's files, or None
+
+
+def _eval_spec(args: CompareArgs, config: str, name: str, seed: int | None):
+    from containergym_marl.sweep import EvalSpec
+
+    method = METHODS[name]
+    return EvalSpec(name if seed is None else f"{name}_s{seed}", name, config, args.episodes, policy=method.policy,
+                    seed=seed, arbitration=dict(method.train).get("arbitration", "fullest"))
+
+
+def _run_files(run_dir: str | Path) -> dict[str, dict[str, bytes]]:
+    run = Path(run_dir)
+    return {"files": {f: (run / f).read_bytes() for f in ("args.json", "best_model.zip")}}
+
+
+def _plan(args: CompareArgs, out: Path, runs: Path) -> _Plan:
+    from containergym_marl.evaluation import EvalProtocol
+    from containergym_marl.sweep import check_budget, sha256
+
+    protocol = asdict(EvalProtocol(episodes=args.episodes))
+    specs = run_specs(args, runs)
+    finished = {s.name for s in specs if check_budget(s)}  # raises for a finished run with another budget
+    by_run = {s.name: s for s in specs}
+    plan = _Plan(specs, finished, [s for s in specs if s.name not in finished], {}, [])
+    for config in args.configs:
+        for name in args.methods:
+            method = METHODS[name]
+            for seed in args.seeds if method.learned else [None]:
+                spec = _eval_spec(args, config, name, seed)
+                if seed is None:
+                    fingerprint, source = _fingerprint(args, config, method, None, None), None
+                elif (run := by_run[f"{name}_{_stem(config)}_s{seed}"]).name in finished:
+                    source = _run_files(run.run_dir)
+                    model_sha = sha256(source["files"]["best_model.zip"])
+                    fingerprint = _fingerprint(args, config, method, run.name, model_sha)
+                else:
+                    fingerprint, source = None, run  # trained in this sweep: evaluated after
+                path = out / "evaluations" / _stem(config) / f"{spec.key}.json"
+                cached = None if args.reevaluate or fingerprint is None else _cached(path, fingerprint, protocol)
+                if cached is not None:
+                    plan.evaluations[(config, spec.key)] = cached
+                else:
+                    plan.to_evaluate.append((spec, source))
+    return plan
+
+
+def _save_evaluation(args: CompareArgs, out: Path, spec, result, model_sha: str | None) -> dict:
+    """The evaluation as JSON (EvaluationResult.to_json plus compare's fingerprint), written to
+    ``<out>/evaluations/<config>/<key>.json``."""
+    run = None if spec.seed is None else f"{spec.method}_{_stem(spec.config)}_s{spec.seed}"
+    data = json.loads(result.to_json())
+    data["compare"] = _fingerprint(args, spec.config, METHODS[spec.method], run, model_sha)
+    path = out / "evaluations" / _stem(spec.config) / f"{spec.key}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2) + "\n")
+    return data
+
+
 def compare(args: CompareArgs, stream=None) -> dict:
     """Run the comparison; returns the table rows, the improvements and what the sweep did (also
-    written to ``args.out``). Raises SweepError when runs failed (after Ray's retries)."""
-    from containergym_marl.evaluation import EvalProtocol
-    from containergym_marl.sweep import (Cluster, EvalSpec, SweepError, check_budget, estimate_rate, execute,
-                                         format_duration, sha256, write_files)
+    written to ``args.out``: table.*, sweep.json, evaluations/, figures/). Raises SweepError when
+    tasks failed after Ray's retries; KeyboardInterrupt leaves every run resumable."""
+    from containergym_marl.sweep import Cluster, SweepError, estimate_rate, execute, format_duration, write_files
 
     stream = stream or sys.stdout
 
@@ -242,90 +312,47 @@ def compare(args: CompareArgs, stream=None) -> dict:
     start = time.perf_counter()
     out = Path(args.out).resolve()
     runs = Path(args.runs).resolve() if args.runs else out / "runs"
+    plan = _plan(args, out, runs)  # 1. from the files alone
+    evaluations = dict(plan.evaluations)
+    started = sum(Path(s.run_dir).is_dir() for s in plan.to_train)
+    say(f"compare: {len(args.configs)} config(s) × {len(args.methods)} method(s); {len(plan.specs)} training "
+        f"run(s): {len(plan.finished)} finished, {len(plan.to_train)} to train ({started} of them started before); "
+        f"{len(plan.to_evaluate) + len(evaluations)} evaluation(s), {len(evaluations)} reused")
     out.mkdir(parents=True, exist_ok=True)
-    protocol = asdict(EvalProtocol(episodes=args.episodes))
-
-    # 1. The plan, from the files alone (no Ray): finished runs, cached evaluations.
-    specs = run_specs(args, runs)
-    finished = {s.name for s in specs if check_budget(s)}
-    to_train = [s for s in specs if s.name not in finished]
-    by_run = {s.name: s for s in specs}
-    evaluations: dict[tuple[str, str], dict] = {}  # (config, file stem) -> evaluation JSON object
-    to_evaluate = []  # (EvalSpec, source, fingerprint or None when the model is not trained yet)
-    for config in args.configs:
-        for name in args.methods:
-            method = METHODS[name]
-            seeds = args.seeds if method.learned else [None]
-            for seed in seeds:
-                key = name if seed is None else f"{name}_s{seed}"
-                spec = EvalSpec(key, name, config, args.episodes, policy=method.policy, seed=seed,
-                                arbitration=dict(method.train).get("arbitration", "fullest"))
-                path = out / "evaluations" / _stem(config) / f"{key}.json"
-                if seed is None:
-                    fp, source = _fingerprint(args, config, method, None, None), None
-                else:
-                    run = by_run[f"{name}_{_stem(config)}_s{seed}"]
-                    if run.name in finished:
-                        model = (Path(run.run_dir) / "best_model.zip").read_bytes()
-                        fp = _fingerprint(args, config, method, run.name, sha256(model))
-                        source = {"files": {"args.json": (Path(run.run_dir) / "args.json").read_bytes(),
-                                            "best_model.zip": model}}
-                    else:
-                        fp, source = None, run
-                cached = None if args.reevaluate or fp is None else _cached(path, fp, protocol)
-                if cached is not None:
-                    evaluations[(config, key)] = cached
-                else:
-                    to_evaluate.append((spec, source))
-    resumable = [s for s in to_train if Path(s.run_dir).is_dir()]
-    say(f"compare: {len(args.configs)} config(s) × {len(args.methods)} method(s); {len(specs)} training run(s): "
-        f"{len(finished)} finished, {len(to_train)} to train ({len(resumable)} of them started before); "
-        f"{len(to_evaluate) + len(evaluations)} evaluation(s), {len(evaluations)} reused")
-
-    # 2. The job graph on Ray: trainings, then their evaluations (and the figures' records).
-    report: dict[str, Any] = {"trained": [], "reused": sorted(finished), "evaluated": [], "evaluations_reused":
-                              sorted(f"{c}/{k}" for c, k in evaluations), "ray": None}
+    report: dict[str, Any] = {"ray": None, "trained": [], "reused": sorted(plan.finished), "evaluated": [],
+                              "evaluations_reused": sorted(f"{_stem(c)}/{k}" for c, k in evaluations)}
     records: dict[str, dict[str, list]] = {}
+
     cluster = Cluster(args.address, args.num_cpus, args.max_retries)
-    try:
-        if to_train or to_evaluate:
+    try:  # 2. the job graph on Ray: trainings, their evaluations, then the figures' records
+        if plan.to_train or plan.to_evaluate:
             report["ray"] = cluster.describe()
             say(f"Ray: {report['ray']}")
-            if to_train:
-                samples = sum(s.timesteps - _resume_point(s) for s in to_train)
-                rate = estimate_rate(runs)
-                slots = min(cluster.cpus(), len(to_train))
-                say(f"training: {samples:,} samples in {len(to_train)} run(s), about "
+            if plan.to_train:
+                samples = sum(s.timesteps - _resume_point(s) for s in plan.to_train)
+                rate, slots = estimate_rate(runs), min(cluster.cpus(), len(plan.to_train))
+                say(f"training: {samples:,} samples in {len(plan.to_train)} run(s), about "
                     f"{format_duration(samples / (rate * slots))} at ~{rate:,.0f} samples/s per run, {slots} at a time")
-            try:
-                done = execute(cluster, to_train, to_evaluate, stream=stream,
-                               on_run_done=lambda spec, result: write_files(spec.run_dir, result["files"]))
-            except KeyboardInterrupt:
-                say(f"\ninterrupted: finished runs are kept and the others resume from their last checkpoint "
-                    f"when the same command runs again (runs: {runs}/)")
-                raise
+            done = execute(cluster, plan.to_train, plan.to_evaluate, stream=stream,
+                           on_run_done=lambda spec, result: write_files(spec.run_dir, result["files"]))
             for name, result in done.runs.items():
                 report["trained"].append({**{k: v for k, v in result.items() if k != "files"},
                                           "attempts": done.attempts.get(name, 1)})
-            eval_specs = {(s.config, s.key): s for s, _ in to_evaluate}
+            specs = {(s.config, s.key): s for s, _ in plan.to_evaluate}
             for (config, key), (result, model_sha) in done.evaluations.items():
-                spec = eval_specs[(config, key)]
-                method = METHODS[spec.method]
-                run = None if spec.seed is None else f"{spec.method}_{_stem(config)}_s{spec.seed}"
-                data = json.loads(result.to_json())
-                data["compare"] = _fingerprint(args, config, method, run, model_sha)
-                path = out / "evaluations" / _stem(config) / f"{key}.json"
-                path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_text(json.dumps(data, indent=2) + "\n")
-                evaluations[(config, key)] = data
-                report["evaluated"].append(f"{config}/{key}")
+                evaluations[(config, key)] = _save_evaluation(args, out, specs[(config, key)], result, model_sha)
+                report["evaluated"].append(f"{_stem(config)}/{key}")
             if done.failures:
                 raise SweepError(f"{len(done.failures)} task(s) failed: "
                                  + "; ".join(f"{k}: {v}" for k, v in done.failures.items())
-                                 + ". Finished runs are kept; rerun the same command to retry the others.")
+                                 + ". Finished runs and evaluations are kept; rerun the same command to retry.")
         groups = _groups(args, evaluations)
         if args.figures:
             records = _figure_records(args, groups, runs, cluster, stream)
+    except KeyboardInterrupt:
+        say(f"\ninterrupted: finished runs are kept, the others resume from their last checkpoint when the "
+            f"same command runs again (runs: {runs}/)")
+        raise
     finally:
         cluster.close()
 
@@ -342,8 +369,8 @@ def compare(args: CompareArgs, stream=None) -> dict:
         f"evaluations: {out / 'evaluations'}/"
         + (f"; figures: {out / 'figures'}/ ({len(figures)} figures, PNG and SVG)" if figures else "")
         + f"; runs: {runs}/")
-    say(f"compare took {format_duration(time.perf_counter() - start)}: {len(report['trained'])} run(s) trained or resumed, "
-        f"{len(finished)} reused, {len(report['evaluated'])} evaluation(s) run, "
+    say(f"compare took {format_duration(report['wall_s'])}: {len(report['trained'])} run(s) trained or resumed, "
+        f"{len(plan.finished)} reused, {len(report['evaluated'])} evaluation(s) run, "
         f"{len(report['evaluations_reused'])} reused")
     return {**meta, "rows": table.rows, "improvements": table.improvements, "seed_means": table.seed_means,
             "figures": figures, "sweep": report}
@@ -375,27 +402,18 @@ def _groups(args: CompareArgs, evaluations: dict[tuple[str, str], dict]) -> list
 
 def _figure_records(args: CompareArgs, groups, runs: Path, cluster, stream) -> dict[str, dict[str, list]]:
     """Episode records of the best policy of each (config, method), evaluated again on Ray with records kept."""
-    from containergym_marl.sweep import EvalSpec, execute
+    from containergym_marl.sweep import SweepError, execute
 
-    jobs = []
     config_of = {_stem(c): c for c in args.configs}
+    jobs = []
     for g in groups:
-        method = METHODS[g.method]
         seed = g.seeds[g.best] if g.seeds else None
-        key = g.method if seed is None else f"{g.method}_s{seed}"
-        spec = EvalSpec(key, g.method, config_of[g.config], args.episodes, policy=method.policy, seed=seed,
-                        arbitration=dict(method.train).get("arbitration", "fullest"))
-        source = None
-        if seed is not None:
-            run = runs / f"{g.method}_{g.config}_s{seed}"
-            source = {"files": {f: (run / f).read_bytes() for f in ("args.json", "best_model.zip")}}
-        jobs.append((spec, source))
-    print(f"figures: evaluating the best policy of {len(jobs)} (config, method) pair(s) again, with records",
+        source = None if seed is None else _run_files(runs / f"{g.method}_{g.config}_s{seed}")
+        jobs.append((_eval_spec(args, config_of[g.config], g.method, seed), source))
+    print(f"figures: evaluating the best policy of {len(jobs)} (config, method) pair(s) again, keeping the records",
           file=stream, flush=True)
     done = execute(cluster, [], jobs, keep_records=True, stream=stream)
     if done.failures:
-        from containergym_marl.sweep import SweepError
-
         raise SweepError("figure evaluations failed: " + "; ".join(f"{k}: {v}" for k, v in done.failures.items()))
     records: dict[str, dict[str, list]] = {}
     for spec, _ in jobs:

@@ -207,25 +207,26 @@ def measured_rate(run: str | Path) -> float | None:
     return (last["timesteps"] - first["timesteps"]) / dt if dt > 0 else None
 
 
-class _MetricsReporter(threading.Thread):
+class MetricsReporter(threading.Thread):
     """Sends ("progress", run, samples, samples/s) whenever the run's metrics.csv grows."""
 
-    def __init__(self, run: Path, name: str, events, start_samples: int, every_s: float = 5.0):
-        super().__init__(daemon=True)
-        self.run, self.name, self.events, self.start_samples, self.every_s = run, name, events, start_samples, every_s
-        self.skip = len(_metrics_rows(run))  # rows of earlier attempts
+    def __init__(self, run_dir: Path, name: str, events, start_samples: int, every_s: float = 5.0):
+        super().__init__(daemon=True, name=f"metrics-{name}")
+        self.run_dir, self.run_name, self.events = run_dir, name, events
+        self.start_samples, self.every_s = start_samples, every_s
+        self.skip = len(_metrics_rows(run_dir))  # rows of earlier attempts
         self.stopped = threading.Event()
 
-    def run(self) -> None:  # noqa: D401 (threading API)
+    def run(self) -> None:  # the thread's body
         seen = self.skip
         while not self.stopped.wait(self.every_s):
-            rows = _metrics_rows(self.run)
+            rows = _metrics_rows(self.run_dir)
             if len(rows) > seen:
                 seen = len(rows)
                 last = rows[-1]
                 wall = last.get("wall_time_s", 0.0)
                 rate = (last["timesteps"] - self.start_samples) / wall if wall > 0 else None
-                _emit(self.events, ("progress", self.name, int(last["timesteps"]), rate))
+                _emit(self.events, ("progress", self.run_name, int(last["timesteps"]), rate))
 
     def stop(self) -> None:
         self.stopped.set()
@@ -261,7 +262,7 @@ def train_run(spec: RunSpec, events=None) -> dict[str, Any]:
     _emit(events, ("start", spec.name, host, os.getpid(), state, start))
     t0 = time.perf_counter()
     if state != "finished":
-        reporter = _MetricsReporter(run, spec.name, events, start)
+        reporter = MetricsReporter(run, spec.name, events, start)
         reporter.start()
         try:
             train(spec.train_args(resume=state == "resume"))

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import json
+import time
 import zipfile
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 from containergym_marl.cli import build_parser, main
 from containergym_marl.compare import METHODS, PAIRS, CompareArgs, compare, run_specs
 from containergym_marl.evaluation import table as tables
-from containergym_marl.sweep import Progress, RunSpec, measured_rate, prepare_run
+from containergym_marl.sweep import MetricsReporter, Progress, RunSpec, measured_rate, prepare_run
 
 
 # ---- methods, runs, budgets ---------------------------------------------------------------------
@@ -123,6 +124,26 @@ def test_samples_per_second_of_the_last_uninterrupted_stretch(tmp_path):
     (tmp_path / "metrics.csv").write_text("timesteps,wall_time_s\n" + "".join(f"{t},{w}\n" for t, w in rows))
     assert measured_rate(tmp_path) == pytest.approx(2000.0)
     assert measured_rate(tmp_path / "missing") is None
+
+
+def test_a_training_task_reports_samples_and_rate_from_its_metrics(tmp_path):
+    class Events(list):
+        put_nowait = list.append
+
+    header = "timesteps,wall_time_s\n"
+    (tmp_path / "metrics.csv").write_text(header + "1000,9.0\n")  # a row of an earlier attempt
+    events = Events()
+    reporter = MetricsReporter(tmp_path, "run", events, start_samples=1000, every_s=0.02)
+    reporter.start()
+    time.sleep(0.2)
+    assert events == []
+    (tmp_path / "metrics.csv").write_text(header + "1000,9.0\n1500,1.0\n2000,2.0\n")
+    deadline = time.monotonic() + 10
+    while not events and time.monotonic() < deadline:
+        time.sleep(0.02)
+    reporter.stop()
+    reporter.join(5)
+    assert events[-1] == ("progress", "run", 2000, pytest.approx(500.0))
 
 
 def test_progress_line_counts_runs_and_estimates_the_time_left():
