@@ -49,7 +49,8 @@ extras, the versions of the driver's (``pip install -c constraints.txt -e '.[tra
 ends the cluster (it stops every Ray process of that machine).
 
 Storage: ``--runs`` (default ``<out>/runs``) is resolved to an absolute path, and each training
-task writes its run directory at that path on the node that runs it. Best is a path every node
+task writes its run directory at that path on the node that runs it (so it must be writable on
+every node). Best is a path every node
 reaches (NFS or similar): then checkpoints are shared too and an interrupted run resumes on any
 node. Without shared storage the sweep still completes: every training task returns its run's
 small files (args, metrics, best and final model; no checkpoints or TensorBoard logs) to the

@@ -24,12 +24,15 @@ still gets every file the table, the figures and a later rerun need, while check
 node that trained (a run interrupted there resumes only if Ray schedules it on that node again,
 otherwise it starts over).
 
-Each training task also writes ``<runs>/.sweep/<run>.pid`` (its worker's process id, removed when
-the run ends) and appends one line per attempt to ``<runs>/.sweep/<run>.log``.
+Each training task also holds ``<runs>/.sweep/<run>.pid`` (its worker's process id, locked while it
+trains and removed when it ends, so two sweeps never train one run at once) and appends one line
+per attempt to ``<runs>/.sweep/<run>.log``. Runs trained by other means (``containergym-marl train``,
+scripts) take no lock: do not point a sweep at their directories while they train.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import json
@@ -46,6 +49,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, TextIO
 
+try:
+    import fcntl
+except ImportError:  # not POSIX: no lock between sweeps
+    fcntl = None
+
 #: Folders of a run directory that stay on the node that trained it.
 NODE_LOCAL = ("checkpoints", "tb")
 #: Samples per second per CPU assumed for an ETA before any run has reported (PPO, n = 5 or 11, here).
@@ -53,7 +61,7 @@ DEFAULT_RATE = 2_000.0
 
 
 class SweepError(RuntimeError):
-    """Some tasks of the sweep failed (after Ray's retries); finished runs are kept."""
+    """The sweep cannot run (no Ray) or some of its tasks failed after Ray's retries; finished runs are kept."""
 
 
 def ray_missing_message() -> str:
@@ -252,8 +260,36 @@ def train_run(spec: RunSpec, events=None) -> dict[str, Any]:
 
     run = Path(spec.run_dir)
     spec.sweep_dir.mkdir(parents=True, exist_ok=True)
-    pid_file = spec.sweep_dir / f"{spec.name}.pid"
-    pid_file.write_text(f"{os.getpid()}\n")
+    pid_file = _claim(spec.sweep_dir / f"{spec.name}.pid", spec.name)
+    try:
+        return _train_claimed(spec, run, events, train)
+    finally:
+        with contextlib.suppress(OSError):
+            Path(pid_file.name).unlink()
+        pid_file.close()  # releases the lock
+
+
+def _claim(path: Path, name: str):
+    """Open and lock ``<runs>/.sweep/<run>.pid`` and write this process's id into it; the lock (held
+    until the task ends or its process dies) keeps two sweeps from training one run at once."""
+    f = path.open("a+")
+    if fcntl is not None:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            other = f.read().strip()
+            f.close()
+            raise RuntimeError(f"{name} is being trained by another process (pid {other or '?'}, see {path}); "
+                               f"one sweep at a time per runs directory") from None
+    f.seek(0)
+    f.truncate()
+    f.write(f"{os.getpid()}\n")
+    f.flush()
+    return f
+
+
+def _train_claimed(spec: RunSpec, run: Path, events, train) -> dict[str, Any]:
     state, start = prepare_run(spec)
     host = socket.gethostname()
     action = {"finished": "finished already", "resume": f"resume from {start} samples", "new": "start"}[state]
@@ -275,7 +311,6 @@ def train_run(spec: RunSpec, events=None) -> dict[str, Any]:
     result = {"name": spec.name, "state": state, "resumed_from": start if state == "resume" else 0,
               "samples": trained, "wall_s": wall, "samples_per_s": rate,
               "host": host, "node": _node_id(), "pid": os.getpid(), "files": small_files(run)}
-    pid_file.unlink(missing_ok=True)
     return result
 
 
@@ -355,7 +390,7 @@ class Cluster:
         try:
             import ray
         except ImportError as exc:
-            raise RuntimeError(ray_missing_message()) from exc
+            raise SweepError(ray_missing_message()) from exc
         if not ray.is_initialized():
             opts = dict(include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False)
             if self.address:

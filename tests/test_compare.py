@@ -16,7 +16,7 @@ import pytest
 from containergym_marl.cli import build_parser, main
 from containergym_marl.compare import METHODS, PAIRS, CompareArgs, compare, run_specs
 from containergym_marl.evaluation import table as tables
-from containergym_marl.sweep import MetricsReporter, Progress, RunSpec, measured_rate, prepare_run
+from containergym_marl.sweep import MetricsReporter, Progress, RunSpec, measured_rate, prepare_run, small_files
 
 
 # ---- methods, runs, budgets ---------------------------------------------------------------------
@@ -114,6 +114,50 @@ def test_a_training_task_resumes_from_the_latest_readable_checkpoint(tmp_path):
     assert prepare_run(_spec(run, 4096)) == ("new", 0)
     assert not run.exists()
     assert prepare_run(_spec(run, 4096)) == ("new", 0)
+
+
+def test_a_training_task_returns_what_a_driver_without_shared_storage_needs(tmp_path):
+    """The task body without Ray: it trains, returns the run's small files (no checkpoints, no
+    TensorBoard logs) from which another machine's copy is a finished run that evaluates the same;
+    run again, it trains nothing."""
+    from containergym_marl.sweep import EvalSpec, evaluate_policy, finished_budget, sha256, train_run, write_files
+
+    spec = RunSpec("ppo_n5_m2_dt120_s1", "ppo", "ppo", "n5_m2_dt120", 1, 256, str(tmp_path / "node" / "run"),
+                   {"n_envs": 1, "checkpoint_every": 128, "hyperparams": {"n_steps": 128, "batch_size": 64}})
+    result = train_run(spec)
+    assert (result["state"], result["samples"], result["resumed_from"]) == ("new", 256, 0)
+    assert any((tmp_path / "node" / "run" / "checkpoints").iterdir())
+    assert {"args.json", "config.toml", "best_model.zip", "final_model.zip"} <= set(result["files"])
+    assert not any(f.startswith(("checkpoints/", "tb/")) for f in result["files"])
+    assert sorted(p.name for p in (tmp_path / "node" / ".sweep").iterdir()) == ["ppo_n5_m2_dt120_s1.log"]
+
+    driver = tmp_path / "driver" / "run"
+    assert write_files(driver, result["files"]) == len(result["files"])
+    assert write_files(driver, result["files"]) == 0  # same content: nothing rewritten
+    assert finished_budget(driver) == 256
+    spec_eval = EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", episodes=1, seed=1)
+    here, sha = evaluate_policy(spec_eval, {"files": small_files(driver)})
+    there, _ = evaluate_policy(spec_eval, result)
+    assert sha == sha256(result["files"]["best_model.zip"]) and here.returns.tolist() == there.returns.tolist()
+    assert here.records == []  # records only when the figures ask for them
+
+    again = train_run(spec)
+    assert (again["state"], again["samples"]) == ("finished", 0) and again["files"] == result["files"]
+
+
+def test_two_sweeps_never_train_one_run_at_once(tmp_path):
+    fcntl = pytest.importorskip("fcntl")
+    from containergym_marl.sweep import train_run
+
+    spec = _spec(tmp_path / "runs" / "ppo_n5_m2_dt120_s1")
+    spec.sweep_dir.mkdir(parents=True)
+    with (spec.sweep_dir / f"{spec.name}.pid").open("a+") as other:  # another sweep's task holds the run
+        other.write("4242\n")
+        other.flush()
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(RuntimeError, match=r"being trained by another process \(pid 4242"):
+            train_run(spec)
+    assert not (tmp_path / "runs" / "ppo_n5_m2_dt120_s1").exists()
 
 
 def test_samples_per_second_of_the_last_uninterrupted_stretch(tmp_path):
