@@ -387,7 +387,7 @@ def measure_ppo(sizes: Sizes, log=print) -> list[dict]:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from containergym_marl.training.runs import _no_distribution_validation
+    from containergym_marl.training.loop import _no_distribution_validation
 
     torch.set_num_threads(1)
     n = load_config(PPO_CONFIG).n_containers

@@ -1,71 +1,304 @@
-"""`containergym-marl compare` end to end on a tiny budget; reruns reuse finished runs."""
+"""compare without Ray: the method registry, budgets, argument checks, what a training task does with
+a run directory, progress, and the one table builder (bootstrap streams independent of other rows).
+
+The sweeps themselves (local Ray, a two-node cluster, a killed worker) are in test_sweep*.py."""
 
 from __future__ import annotations
 
-import csv
+import io
 import json
-import xml.etree.ElementTree as ET
+import time
+import zipfile
 
+import numpy as np
 import pytest
 
-from containergym_marl.compare import CompareArgs, compare
-
-TINY = dict(configs=["n5_m2_dt120"], methods=["rule_based", "rule_based_agents", "ppo", "shared_ppo"],
-            seeds=[1, 2], timesteps=256, episodes=2, n_envs=1, bootstrap_reps=100,
-            hyperparams={"n_steps": 128, "batch_size": 64})
-
-
-def test_compare_end_to_end_then_reuse(tmp_path, capsys):
-    out = tmp_path / "cmp"
-    report = compare(CompareArgs(out=str(out), **TINY))
-    methods = [r["method"] for r in report["rows"]]
-    assert methods == TINY["methods"]
-    for row in report["rows"]:
-        assert row["best_mean"] >= row["median_mean"]
-        assert row["iqm_low"] <= row["iqm_high"]
-        assert row["seeds"] == (2 if row["method"] in ("ppo", "shared_ppo") else 0)
-    pairs = {(i["decentralised"], i["centralised"]) for i in report["improvements"]}
-    assert pairs == {("shared_ppo", "ppo"), ("rule_based_agents", "rule_based")}
-    assert all(0.0 <= i["low"] <= i["high"] <= 1.0 for i in report["improvements"])
-
-    table = (out / "table.md").read_text()
-    for m in TINY["methods"]:
-        assert f"| n5_m2_dt120 | {m} |" in table
-    assert "paper PPO" in table and "P(shared_ppo > ppo)" in table
-    with (out / "table.csv").open() as f:
-        rows = list(csv.DictReader(f))
-    assert [r["method"] for r in rows] == TINY["methods"]
-    evaluations = sorted(p.name for p in (out / "evaluations" / "n5_m2_dt120").iterdir())
-    assert evaluations == ["ppo_s1.json", "ppo_s2.json", "rule_based.json", "rule_based_agents.json",
-                           "shared_ppo_s1.json", "shared_ppo_s2.json"]
-    saved = json.loads((out / "table.json").read_text())
-    assert len(saved["seed_means"]["n5_m2_dt120/ppo"]) == 2
-    figures = sorted(p.name for p in (out / "figures").iterdir())
-    assert "n5_m2_dt120_emptying_volume_ecdfs.png" in figures and "n5_m2_dt120_reward_ecdf.svg" in figures
-    assert sum(name.startswith("n5_m2_dt120_episode_") for name in figures) == 2 * len(TINY["methods"])
-    ET.parse(out / "figures" / "n5_m2_dt120_reward_ecdf.svg")
-
-    # A rerun reuses the finished runs: no training, same numbers.
-    stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/final_model.zip")}
-    assert len(stamps) == 4
-    capsys.readouterr()
-    again = compare(CompareArgs(out=str(out), **{**TINY, "methods": ["ppo", "shared_ppo"]}))
-    assert "train " not in capsys.readouterr().out
-    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
-    assert again["rows"][0]["best_mean"] == report["rows"][2]["best_mean"]
+from containergym_marl.cli import build_parser, main
+from containergym_marl.compare import METHODS, PAIRS, CompareArgs, compare, run_specs
+from containergym_marl.evaluation import table as tables
+from containergym_marl.sweep import MetricsReporter, Progress, RunSpec, measured_rate, prepare_run, small_files
 
 
-def test_compare_refuses_a_finished_run_with_another_budget(tmp_path):
-    args = dict(TINY, methods=["ppo"], seeds=[1], figures=False)
-    compare(CompareArgs(out=str(tmp_path), **args))
-    with pytest.raises(ValueError, match="budget of 256 samples, not 512"):
-        compare(CompareArgs(out=str(tmp_path), **{**args, "timesteps": 512}))
+# ---- methods, runs, budgets ---------------------------------------------------------------------
+def test_method_registry_names_runs_and_gives_the_paper_budget(tmp_path):
+    args = CompareArgs(configs=["n5_m2_dt120", "n11_m2_dt60"], methods=["rule_based", "ppo", "shared_ppo_team"],
+                       seeds=[1, 2], timesteps=None)
+    specs = {s.name: s for s in run_specs(args, tmp_path)}
+    assert sorted(specs) == sorted(f"{m}_{c}_s{s}" for m in ("ppo", "shared_ppo_team")
+                                   for c in ("n5_m2_dt120", "n11_m2_dt60") for s in (1, 2))
+    assert specs["ppo_n5_m2_dt120_s1"].timesteps == 2_000_000  # the paper's budgets
+    assert specs["ppo_n11_m2_dt60_s2"].timesteps == 5_000_000
+    assert [s.timesteps for s in run_specs(args, tmp_path)][:4] == [5_000_000] * 4  # longest first
+    team = specs["shared_ppo_team_n11_m2_dt60_s1"]
+    assert team.run_dir == str(tmp_path / "shared_ppo_team_n11_m2_dt60_s1")
+    ta = team.train_args(resume=True)
+    # the δ = 60 row trains on its own config (δ = 60 s); team rewards; one torch thread
+    assert (ta.algo, ta.config, ta.seed, ta.reward_mode, ta.resume, ta.torch_threads, ta.progress_bar) == (
+        "shared_ppo", "n11_m2_dt60", 1, "team", True, 1, False)
+    assert specs["ppo_n5_m2_dt120_s1"].train_args(False).reward_mode == "individual"
+    assert METHODS["shared_ppo_team"].view == METHODS["shared_ppo"].view == "decentralised"
+    assert {("shared_ppo", "ppo"), ("shared_ppo_team", "ppo"), ("rule_based_agents", "rule_based")} <= set(PAIRS)
+    explicit = run_specs(CompareArgs(methods=["ppo"], seeds=[3], timesteps=4096), tmp_path)
+    assert [(s.name, s.timesteps) for s in explicit] == [("ppo_n5_m2_dt120_s3", 4096)]
 
 
-def test_compare_rejects_unknown_methods_and_configs(tmp_path):
+def test_duplicate_seeds_unknown_methods_and_configs_are_rejected_before_any_work(tmp_path, capsys):
     from containergym_marl import ConfigError
 
+    out = tmp_path / "never"
+    with pytest.raises(ValueError, match="seeds: 1 given more than once"):
+        compare(CompareArgs(out=str(out), seeds=[1, 1]))
+    with pytest.raises(ValueError, match="methods: ppo given more than once"):
+        compare(CompareArgs(out=str(out), methods=["ppo", "ppo"]))
     with pytest.raises(ValueError, match="unknown method"):
-        compare(CompareArgs(out=str(tmp_path), methods=["a2c"]))
+        compare(CompareArgs(out=str(out), methods=["a2c"]))
     with pytest.raises(ConfigError):
-        compare(CompareArgs(out=str(tmp_path), configs=["n9"]))
+        compare(CompareArgs(out=str(out), configs=["n9"]))
+    assert not out.exists()
+    assert main(["compare", "--seeds", "1", "1", "--out", str(out)]) == 2
+    assert "seeds: 1 given more than once" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["compare", "--methods", "a2c"])
+    assert not out.exists()
+
+
+def test_compare_help_shows_the_defaults(capsys):
+    with pytest.raises(SystemExit):
+        main(["compare", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for expected in ("--timesteps N|paper", "the default, 30000, is a quick look", "(default: [1, 2, 3])",
+                     "(default: 15)", "(default: results/compare)", "(default: ['n5_m2_dt120'])",
+                     "(default: 200000)", "(default: 3)", "(default: 2000)", "$RAY_ADDRESS", "shared_ppo_team"):
+        assert expected in text, expected
+    parse = build_parser().parse_args
+    assert parse(["compare"]).timesteps == 30_000
+    assert parse(["compare", "--timesteps", "paper"]).timesteps is None
+    assert parse(["compare", "--timesteps", "2e6"]).timesteps == 2_000_000
+
+
+def _zip(path, payload=b"x"):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("data", payload)
+
+
+def _spec(run_dir, timesteps=256) -> RunSpec:
+    return RunSpec("ppo_n5_m2_dt120_s1", "ppo", "ppo", "n5_m2_dt120", 1, timesteps, str(run_dir))
+
+
+def test_a_finished_run_with_another_budget_is_refused_without_ray(tmp_path):
+    run = tmp_path / "runs" / "ppo_n5_m2_dt120_s1"
+    _zip(run / "final_model.zip")
+    (run / "args.json").write_text(json.dumps({"algo": "ppo", "timesteps": 256}))
+    args = dict(out=str(tmp_path), methods=["ppo"], seeds=[1], figures=False)
+    with pytest.raises(ValueError, match="budget of 256 samples, not 512"):
+        compare(CompareArgs(timesteps=512, **args))
+    assert prepare_run(_spec(run, 256)) == ("finished", 256)
+    with pytest.raises(ValueError, match="budget of 256 samples, not 512"):
+        prepare_run(_spec(run, 512))
+
+
+def test_a_training_task_resumes_from_the_latest_readable_checkpoint(tmp_path):
+    run = tmp_path / "ppo_n5_m2_dt120_s1"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "args.json").write_text(json.dumps({"algo": "ppo", "timesteps": 4096}))
+    _zip(run / "checkpoints" / "ckpt_1024_steps.zip")
+    (run / "checkpoints" / "ckpt_2048_steps.zip").write_bytes(b"PK\x03\x04 cut short by a kill")
+    (run / "best_model.zip").write_bytes(b"PK\x03\x04 cut short")
+    (run / "final_model.zip").write_bytes(b"PK\x03\x04 cut short")  # not a finished run
+    assert prepare_run(_spec(run, 4096)) == ("resume", 1024)
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["ckpt_1024_steps.zip"]
+    assert not (run / "best_model.zip").exists()
+    # died before its first checkpoint: start over
+    (run / "checkpoints" / "ckpt_1024_steps.zip").unlink()
+    assert prepare_run(_spec(run, 4096)) == ("new", 0)
+    assert not run.exists()
+    assert prepare_run(_spec(run, 4096)) == ("new", 0)
+
+
+def test_a_training_task_returns_what_a_driver_without_shared_storage_needs(tmp_path):
+    """The task body without Ray: it trains, returns the run's small files (no checkpoints, no
+    TensorBoard logs) from which another machine's copy is a finished run that evaluates the same;
+    run again, it trains nothing."""
+    from containergym_marl.sweep import EvalSpec, evaluate_policy, finished_budget, sha256, train_run, write_files
+
+    spec = RunSpec("ppo_n5_m2_dt120_s1", "ppo", "ppo", "n5_m2_dt120", 1, 256, str(tmp_path / "node" / "run"),
+                   {"n_envs": 1, "checkpoint_every": 128, "hyperparams": {"n_steps": 128, "batch_size": 64}})
+    result = train_run(spec)
+    assert (result["state"], result["samples"], result["resumed_from"]) == ("new", 256, 0)
+    assert any((tmp_path / "node" / "run" / "checkpoints").iterdir())
+    assert {"args.json", "config.toml", "best_model.zip", "final_model.zip"} <= set(result["files"])
+    assert not any(f.startswith(("checkpoints/", "tb/")) for f in result["files"])
+    assert sorted(p.name for p in (tmp_path / "node" / ".sweep").iterdir()) == ["ppo_n5_m2_dt120_s1.log"]
+
+    driver = tmp_path / "driver" / "run"
+    assert write_files(driver, result["files"]) == len(result["files"])
+    assert write_files(driver, result["files"]) == 0  # same content: nothing rewritten
+    assert finished_budget(driver) == 256
+    spec_eval = EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", episodes=1, seed=1)
+    here, sha = evaluate_policy(spec_eval, {"files": small_files(driver)})
+    there, _ = evaluate_policy(spec_eval, result)
+    assert sha == sha256(result["files"]["best_model.zip"]) and here.returns.tolist() == there.returns.tolist()
+    assert here.records == []  # records only when the figures ask for them
+
+    again = train_run(spec)
+    assert (again["state"], again["samples"]) == ("finished", 0) and again["files"] == result["files"]
+
+
+def test_two_sweeps_never_train_one_run_at_once(tmp_path):
+    fcntl = pytest.importorskip("fcntl")
+    from containergym_marl.sweep import train_run
+
+    spec = _spec(tmp_path / "runs" / "ppo_n5_m2_dt120_s1")
+    spec.sweep_dir.mkdir(parents=True)
+    with (spec.sweep_dir / f"{spec.name}.pid").open("a+") as other:  # another sweep's task holds the run
+        other.write("4242\n")
+        other.flush()
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(RuntimeError, match=r"being trained by another process \(pid 4242"):
+            train_run(spec)
+    assert not (tmp_path / "runs" / "ppo_n5_m2_dt120_s1").exists()
+
+
+def test_samples_per_second_of_the_last_uninterrupted_stretch(tmp_path):
+    rows = [(1000, 1.0), (2000, 2.0), (3000, 3.0)]
+    (tmp_path / "metrics.csv").write_text("timesteps,wall_time_s\n" + "".join(f"{t},{w}\n" for t, w in rows))
+    assert measured_rate(tmp_path) == pytest.approx(1000.0)
+    rows += [(4000, 0.5), (6000, 1.5)]  # resumed: wall time starts again
+    (tmp_path / "metrics.csv").write_text("timesteps,wall_time_s\n" + "".join(f"{t},{w}\n" for t, w in rows))
+    assert measured_rate(tmp_path) == pytest.approx(2000.0)
+    assert measured_rate(tmp_path / "missing") is None
+
+
+def test_a_training_task_reports_samples_and_rate_from_its_metrics(tmp_path):
+    class Events(list):
+        put_nowait = list.append
+
+    header = "timesteps,wall_time_s\n"
+    (tmp_path / "metrics.csv").write_text(header + "1000,9.0\n")  # a row of an earlier attempt
+    events = Events()
+    reporter = MetricsReporter(tmp_path, "run", events, start_samples=1000, every_s=0.02)
+    reporter.start()
+    time.sleep(0.2)
+    assert events == []
+    (tmp_path / "metrics.csv").write_text(header + "1000,9.0\n1500,1.0\n2000,2.0\n")
+    deadline = time.monotonic() + 10
+    while not events and time.monotonic() < deadline:
+        time.sleep(0.02)
+    reporter.stop()
+    reporter.join(5)
+    assert events[-1] == ("progress", "run", 2000, pytest.approx(500.0))
+
+
+def test_progress_line_counts_runs_and_estimates_the_time_left():
+    stream = io.StringIO()
+    p = Progress({"a": 1000, "b": 1000, "c": 1000}, evaluations=3, cpus=2, stream=stream)
+    p.started("a", "host1", 11, "new", 0)
+    p.started("b", "host2", 12, "resume", 400)
+    p.sampled("a", 500, 100.0)
+    p.sampled("b", 600, 100.0)
+    line = p.line()
+    assert "runs 0/3 done, 2 running, 1 queued" in line and "evaluations 0/3" in line
+    assert "a 50% 100/s" in line and "b 60% 100/s" in line
+    assert p.eta_s() == pytest.approx((500 + 400 + 1000) / (100.0 * 2))
+    p.run_done("a", {"state": "new", "resumed_from": 0, "samples": 1000, "wall_s": 10.0, "samples_per_s": 100.0,
+                     "host": "host1"})
+    p.started("b", "host1", 13, "resume", 600)  # its worker died; Ray runs it again
+    p.eval_done()
+    assert "runs 1/3 done, 1 running, 1 queued" in p.line() and "evaluations 1/3" in p.line()
+    text = stream.getvalue()
+    assert "resume b from its checkpoint at 400 samples" in text
+    assert "done a: trained, 1,000 samples in 10s (100 samples/s) on host1" in text
+    assert "retry b (attempt 2, resume from 600 samples) on host1" in text
+    p.tick(force=True)
+    assert stream.getvalue().splitlines()[-1].startswith("[")
+
+
+# ---- the table ----------------------------------------------------------------------------------
+def _evaluation(returns, view="centralised", overflow=0.0, timesteps=None) -> dict:
+    data = {"view": view, "protocol": {"timestep_s": 120.0, "episode_length_steps": 600, "episodes": len(returns)},
+            "summary": {"overflow_rate": overflow, "emptyings_mean": 60.0, "good_emptying_share": 0.9,
+                        "denied_requests_mean": 1.0, "pu_utilisation": 0.2},
+            "episodes": [{"cumulative_reward": float(r)} for r in returns]}
+    if timesteps:
+        data["compare"] = {"timesteps": timesteps}
+    return data
+
+
+def _write(directory, name, data):
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / f"{name}.json").write_text(json.dumps(data))
+
+
+def _results(root, rng):
+    """An output folder with two configs, rule-based controllers and 5 seeds of two learned methods."""
+    for config in ("n5_m2_dt120", "n11_m2_dt120"):
+        d = root / "evaluations" / config
+        _write(d, "rule_based", _evaluation(rng.normal(50, 3, 15)))
+        _write(d, "rule_based_agents", _evaluation(rng.normal(52, 3, 15), "decentralised"))
+        for seed in range(1, 6):
+            _write(d, f"ppo_s{seed}", _evaluation(rng.normal(40 + 3 * seed, 2, 15), timesteps=2_000_000))
+            _write(d, f"shared_ppo_s{seed}", _evaluation(rng.normal(45 + seed, 2, 15), "decentralised",
+                                                         timesteps=2_000_000))
+
+
+def test_table_rows_best_median_order_and_improvements(tmp_path):
+    _results(tmp_path, np.random.default_rng(1))
+    groups = tables.load_evaluations(tmp_path)
+    assert [(g.config, g.method) for g in groups][:4] == [
+        ("n5_m2_dt120", "rule_based"), ("n5_m2_dt120", "rule_based_agents"), ("n5_m2_dt120", "ppo"),
+        ("n5_m2_dt120", "shared_ppo")]  # paper order of configs, rule-based first
+    table = tables.build_table(groups, reps=500)
+    row = next(r for r in table.rows if (r["config"], r["method"]) == ("n5_m2_dt120", "ppo"))
+    ppo = next(g for g in groups if (g.config, g.method) == ("n5_m2_dt120", "ppo"))
+    means = ppo.seed_means
+    assert row["best_mean"] == pytest.approx(means.max()) and row["best_seed"] == int(np.argmax(means)) + 1
+    assert row["median_mean"] == pytest.approx(np.sort(means)[2])
+    even = tables.MethodEvaluations("c", "m", [1, 2, 3, 4], [_evaluation([v]) for v in (3.0, 1.0, 4.0, 2.0)])
+    assert (even.best, even.median) == (2, 3)  # 4.0 best; of the middle 3.0 and 2.0, the lower
+    assert row["iqm_low"] <= row["iqm"] <= row["iqm_high"] and row["seeds"] == 5 and row["samples"] == 2_000_000
+    assert "| n5_m2_dt120 | ppo | centralised | 5 |" in table.markdown and "| 2M |" in table.markdown
+    assert "| n11_m2_dt120 | paper DQN (15 seeds) | centralised | 15 | 72.19 ± 16.20 |" in table.markdown
+    pairs = {(i["config"], i["decentralised"], i["centralised"]): i for i in table.improvements}
+    assert set(pairs) == {(c, d, e) for c in ("n5_m2_dt120", "n11_m2_dt120")
+                          for d, e in (("shared_ppo", "ppo"), ("rule_based_agents", "rule_based"))}
+    assert pairs[("n5_m2_dt120", "rule_based_agents", "rule_based")]["unit"] == "test episodes"
+    assert table.markdown.index("n5_m2_dt120 | rule_based") < table.markdown.index("n11_m2_dt120 | rule_based")
+
+
+def test_bootstrap_intervals_do_not_depend_on_the_other_rows(tmp_path):
+    """Each interval has its own stream (TABLE_SEED and its names): the same data give the same
+    interval alone, with other methods and configs, and in any order."""
+    _results(tmp_path, np.random.default_rng(2))
+    groups = tables.load_evaluations(tmp_path)
+    full = tables.build_table(groups, reps=400)
+    key = ("n11_m2_dt120", "ppo")
+    alone = tables.build_table([g for g in groups if (g.config, g.method) == key], reps=400)
+    row = next(r for r in full.rows if (r["config"], r["method"]) == key)
+    assert row["iqm_low"] < row["iqm_high"]  # a real interval, not a degenerate one
+    assert (alone.rows[0]["iqm_low"], alone.rows[0]["iqm_high"]) == (row["iqm_low"], row["iqm_high"])
+
+    pair = [g for g in groups if g.config == "n11_m2_dt120" and g.method in ("ppo", "shared_ppo")]
+    only_pair = tables.build_table(pair[::-1], reps=400).improvements
+    in_full = [i for i in full.improvements if i["config"] == "n11_m2_dt120" and i["decentralised"] == "shared_ppo"]
+    assert only_pair == in_full and in_full[0]["low"] < in_full[0]["high"]
+    # one stream per interval, named by what it is about
+    draw = lambda *names: tables.bootstrap_rng(*names).integers(2**62, size=4).tolist()  # noqa: E731
+    assert draw("iqm", "n11_m2_dt120", "ppo") == draw("iqm", "n11_m2_dt120", "ppo")
+    assert draw("iqm", "n11_m2_dt120", "ppo") != draw("iqm", "n11_m2_dt120", "shared_ppo")
+    assert draw("iqm", "n11_m2_dt120", "ppo") != draw("iqm", "n5_m2_dt120", "ppo")
+
+
+def test_the_table_is_regenerated_from_the_evaluation_files(tmp_path, capsys):
+    _results(tmp_path, np.random.default_rng(3))
+    assert tables.main([str(tmp_path), "--out", str(tmp_path / "again"), "--bootstrap-reps", "300"]) == 0
+    printed = capsys.readouterr().out
+    expected = tables.build_table(tables.load_evaluations(tmp_path / "evaluations"), reps=300)
+    assert (tmp_path / "again" / "table.md").read_text() == expected.markdown
+    assert printed.startswith(expected.markdown)
+    saved = json.loads((tmp_path / "again" / "table.json").read_text())
+    assert saved["rows"] == json.loads(json.dumps(expected.rows))
+    one_config = tables.markdown_table(tmp_path / "evaluations" / "n5_m2_dt120", reps=300)
+    assert "n11_m2_dt120" not in one_config and "| n5_m2_dt120 | shared_ppo | decentralised | 5 |" in one_config
+    with pytest.raises(FileNotFoundError, match="no evaluation files"):
+        tables.load_evaluations(tmp_path / "again")

@@ -1,22 +1,46 @@
-"""The paper-style results table (Table 1) regenerated from small evaluation files.
+"""The comparison table, built from evaluation files: one builder for ``compare`` and for regenerating.
 
-    python -m containergym_marl.evaluation.table results/n5_m2_dt120/evaluations/n5_m2_dt120
+    python -m containergym_marl.evaluation.table results/compare                 # an output folder of compare
+    python -m containergym_marl.evaluation.table results/compare --out results/compare   # also rewrite table.*
+    python -m containergym_marl.evaluation.table results/n5_m2_dt120/evaluations/n5_m2_dt120   # one config
 
-reads the evaluation files that ``containergym-marl compare`` writes (``<method>_s<seed>.json`` for
-each training seed of a learned method, ``<method>.json`` for the rule-based controllers) and prints,
-per method, the best and the median policy over seeds (ranked by mean test return), each as
-mean ± std over the test episodes, next to the paper's Table 1 row for the same configuration.
+Input: the evaluation files ``containergym-marl compare`` writes, ``evaluations/<config>/<method>_s<seed>.json``
+for each training seed of a learned method and ``evaluations/<config>/<method>.json`` for a policy without
+training seeds (the rule-based controllers). The argument is a compare output folder, its ``evaluations/``
+folder or one config's folder. Regenerating from committed files needs no training, no models and no
+Ray; it takes seconds.
+
+Output, per (config, method), in the paper's Table 1 shape: the best and the median policy over
+training seeds (ranked by mean test return; the lower median for an even count), each as mean ± std
+over the test episodes; the interquartile mean (IQM) of the per-seed mean returns with a 95 %
+stratified-bootstrap interval; the best policy's overflow rate, emptyings, share of emptyings with
+reward >= 0.75, denied requests and PU utilisation; the training budget per run. The paper's own
+PPO/TRPO/DQN rows follow each config. Below the table: for each (decentralised, centralised) pair,
+the probability that a run of the first beats a run of the second, with its interval (over training
+seeds; over test episodes for the rule-based controllers, which have no seeds).
+
+Bootstrap intervals are reproducible and independent of each other: every interval draws from its
+own generator seeded with :data:`TABLE_SEED` and the names it is about ((config, method) for an IQM,
+(config, decentralised, centralised) for a probability of improvement), so adding, removing or
+reordering methods or configs never changes another row's interval.
 """
 
 from __future__ import annotations
 
+import argparse
+import csv
 import json
+import math
 import re
 import sys
-from dataclasses import dataclass
+import zlib
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Iterable, Sequence
 
 import numpy as np
+
+from containergym_marl.evaluation import stats as st
 
 #: The paper's Table 1 (PPO, TRPO, DQN; best and median of 15 seeds; mean ± std over 15 episodes).
 PAPER_TABLE_1 = {
@@ -30,81 +54,318 @@ PAPER_TABLE_1 = {
     "n11_m11_dt120": {"ppo": ((47.75, 10.78), (42.37, 13.25)), "trpo": ((50.55, 11.08), (34.29, 16.00)), "dqn": ((29.06, 13.10), (13.16, 8.32))},
 }
 
+#: Root seed of every bootstrap stream of the table (see the module docstring).
+TABLE_SEED = 0
+
+#: Columns of table.csv (and keys of the rows in table.json), in order.
+COLUMNS = ("config", "method", "view", "seeds", "best_mean", "best_std", "median_mean", "median_std", "iqm",
+           "iqm_low", "iqm_high", "overflow_rate", "emptyings", "good_share", "denied", "pu_utilisation",
+           "best_seed", "samples")
+
+_FILE = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")
+_CONFIG = re.compile(r"^n(\d+)_m(\d+)_dt(\d+)")
+
+
+@dataclass
+class MethodEvaluations:
+    """The evaluations of one method on one config: one per training seed, or a single one for a
+    policy without training seeds (``seeds == []``). ``evaluations`` are the evaluation files'
+    JSON objects (as :meth:`EvaluationResult.to_json` writes them, plus compare's ``"compare"``
+    entry with the run's budget)."""
+
+    config: str
+    method: str
+    seeds: list[int]
+    evaluations: list[dict] = field(repr=False)
+
+    @property
+    def view(self) -> str:
+        return self.evaluations[0].get("view") or "centralised"
+
+    def returns(self, i: int) -> np.ndarray:
+        return np.array([e["cumulative_reward"] for e in self.evaluations[i]["episodes"]], dtype=float)
+
+    @property
+    def seed_means(self) -> np.ndarray:
+        return np.array([self.returns(i).mean() for i in range(len(self.evaluations))])
+
+    def ranked(self) -> list[int]:
+        """Indices of the evaluations from the best to the worst mean test return (stable)."""
+        return [int(i) for i in np.argsort(-self.seed_means, kind="stable")]
+
+    @property
+    def best(self) -> int:
+        return self.ranked()[0]
+
+    @property
+    def median(self) -> int:
+        order = self.ranked()  # best first: for an even count the lower (worse) of the two middle policies
+        return order[len(order) // 2]
+
+    def improvement_scores(self) -> np.ndarray:
+        """What a probability of improvement compares: per-seed mean returns, or the per-episode
+        returns of a policy without training seeds."""
+        return self.seed_means if self.seeds else self.returns(0)
+
+    @property
+    def unit(self) -> str:
+        return "training seeds" if self.seeds else "test episodes"
+
+
+def config_sort_key(name: str) -> tuple:
+    """Paper order: by containers, then PUs, then δ (n5_m2_dt60 < n5_m2_dt120 < n5_m5_dt60 < n11…)."""
+    m = _CONFIG.match(name)
+    return (0, *map(int, m.groups()), name) if m else (1, 0, 0, 0, name)
+
+
+def method_sort_key(group: MethodEvaluations) -> tuple:
+    """Policies without training seeds (rule-based) first, then learned methods, each by name."""
+    return (bool(group.seeds), group.method)
+
+
+def sort_groups(groups: Iterable[MethodEvaluations]) -> list[MethodEvaluations]:
+    return sorted(groups, key=lambda g: (config_sort_key(g.config), method_sort_key(g)))
+
+
+# ---- reading evaluation files ---------------------------------------------------------------------
+def _evaluation_files(directory: Path) -> list[tuple[Path, dict]]:
+    """The evaluation files of a folder (JSON with per-episode results; table.json and the like are not)."""
+    found = []
+    for file in sorted(directory.glob("*.json")) if directory.is_dir() else []:
+        try:
+            data = json.loads(file.read_text())
+        except ValueError:
+            continue
+        if isinstance(data, dict) and isinstance(data.get("episodes"), list):
+            found.append((file, data))
+    return found
+
+
+def load_evaluations(path: str | Path) -> list[MethodEvaluations]:
+    """Every (config, method) found under ``path`` (a compare output folder, its ``evaluations/``
+    folder or one config's folder), in table order. The config is the folder's name."""
+    path = Path(path)
+    if (path / "evaluations").is_dir():
+        path = path / "evaluations"
+    folders = [(path, files)] if (files := _evaluation_files(path)) else [
+        (d, f) for d in (sorted(path.iterdir()) if path.is_dir() else []) if d.is_dir() and (f := _evaluation_files(d))]
+    if not folders:
+        raise FileNotFoundError(f"{str(path)!r} holds no evaluation files (<method>_s<seed>.json or <method>.json), "
+                                f"neither directly nor in evaluations/<config>/")
+    groups = []
+    for directory, files in folders:
+        by_method: dict[str, list[tuple[int | None, dict]]] = {}
+        for file, data in files:
+            m = _FILE.match(file.stem)
+            seed = int(m["seed"]) if m["seed"] is not None else None
+            by_method.setdefault(m["method"], []).append((seed, data))
+        for method, found in by_method.items():
+            seeded = sorted(((s, d) for s, d in found if s is not None), key=lambda sd: sd[0])
+            if seeded and len(seeded) != len(found):
+                raise ValueError(f"{directory}: {method} has both per-seed files and a seedless {method}.json")
+            if not seeded and len(found) != 1:
+                raise ValueError(f"{directory}: more than one evaluation file for {method}")
+            if seeded:
+                groups.append(MethodEvaluations(directory.name, method, [s for s, _ in seeded],
+                                                [d for _, d in seeded]))
+            else:
+                groups.append(MethodEvaluations(directory.name, method, [], [found[0][1]]))
+    return sort_groups(groups)
+
+
+# ---- statistics -----------------------------------------------------------------------------------
+def bootstrap_rng(*names: str) -> np.random.Generator:
+    """The generator of one interval: seeded with :data:`TABLE_SEED` and the names it is about."""
+    key = tuple(zlib.crc32(str(n).encode("utf-8")) for n in names)
+    return np.random.default_rng(np.random.SeedSequence(TABLE_SEED, spawn_key=key))
+
+
+def _summary_value(evaluation: dict, key: str) -> float:
+    value = evaluation.get("summary", {}).get(key)
+    return float("nan") if value is None else float(value)
+
+
+def _budget(group: MethodEvaluations) -> int | None:
+    budgets = {e.get("compare", {}).get("timesteps") for e in group.evaluations}
+    return budgets.pop() if len(budgets) == 1 else None
+
+
+def table_rows(groups: Sequence[MethodEvaluations], reps: int = 2000) -> list[dict[str, Any]]:
+    """One row per (config, method), keys :data:`COLUMNS`."""
+    rows = []
+    for g in groups:
+        best, median = g.best, g.median
+        b, md = g.returns(best), g.returns(median)
+        point, low, high = st.stratified_bootstrap_ci(g.seed_means[:, None], st.iqm, reps=reps,
+                                                      rng=bootstrap_rng("iqm", g.config, g.method))
+        e = g.evaluations[best]
+        rows.append({
+            "config": g.config, "method": g.method, "view": g.view, "seeds": len(g.seeds),
+            "best_mean": float(b.mean()), "best_std": float(b.std()),
+            "median_mean": float(md.mean()), "median_std": float(md.std()),
+            "iqm": point, "iqm_low": low, "iqm_high": high,
+            "overflow_rate": _summary_value(e, "overflow_rate"), "emptyings": _summary_value(e, "emptyings_mean"),
+            "good_share": _summary_value(e, "good_emptying_share"),
+            "denied": _summary_value(e, "denied_requests_mean"), "pu_utilisation": _summary_value(e, "pu_utilisation"),
+            "best_seed": g.seeds[best] if g.seeds else None, "samples": _budget(g),
+        })
+    return rows
+
+
+def improvements(groups: Sequence[MethodEvaluations], pairs: Iterable[tuple[str, str]],
+                 reps: int = 2000) -> list[dict[str, Any]]:
+    """P(decentralised > centralised) with its 95 % bootstrap interval, for each pair present in a config."""
+    by_key = {(g.config, g.method): g for g in groups}
+    out = []
+    for config in dict.fromkeys(g.config for g in groups):
+        for dec, cen in pairs:
+            if (config, dec) in by_key and (config, cen) in by_key:
+                x, y = by_key[(config, dec)], by_key[(config, cen)]
+                p, low, high = st.probability_of_improvement_ci(
+                    x.improvement_scores()[:, None], y.improvement_scores()[:, None], reps=reps,
+                    rng=bootstrap_rng("poi", config, dec, cen))
+                out.append({"config": config, "decentralised": dec, "centralised": cen,
+                            "probability": p, "low": low, "high": high, "unit": x.unit})
+    return out
+
+
+# ---- formatting -----------------------------------------------------------------------------------
+def _num(x: float | None, fmt: str = ".2f") -> str:
+    return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
+
+
+def _samples(n: int | None) -> str:
+    """2000000 -> 2M, 2500000 -> 2.5M, 30000 -> 30k, 2048 -> 2,048."""
+    if n is None:
+        return "–"
+    for unit, size in (("M", 1_000_000), ("k", 1_000)):
+        if n >= size and (n * 10) % size == 0:
+            return f"{n / size:g}{unit}"
+    return f"{n:,}"
+
+
+def _protocol_text(groups: Sequence[MethodEvaluations]) -> str:
+    seen = {(p.get("timestep_s"), p.get("episode_length_steps"), p.get("episodes"))
+            for g in groups for e in g.evaluations if (p := e.get("protocol"))}
+    if len(seen) > 1:
+        return "test protocols differ between rows"
+    dt, steps, episodes = seen.pop() if seen else (120.0, 600, None)
+    name = "paper protocol" if (dt, steps) == (120.0, 600) else "test protocol"
+    return f"{name}: δ = {dt:g} s, T = {steps}" + (f", {episodes} episodes" if episodes else "")
+
+
+def markdown(rows: Sequence[dict], imps: Sequence[dict], groups: Sequence[MethodEvaluations] = ()) -> str:
+    """The Markdown table (one block for all configs) and the probabilities of improvement."""
+    lines = [
+        f"Test cumulative reward ({_protocol_text(groups)}). Best / median: the best and the median policy "
+        "over training seeds, mean ± std over test episodes. IQM: interquartile mean of the per-seed mean "
+        "returns [95 % stratified-bootstrap CI]. Overflow rate … PU busy: of the best policy. "
+        "Samples: training budget per run.",
+        "",
+        "| config | method | view | seeds | best | median | IQM [95 % CI] | overflow rate | emptyings | "
+        "r ≥ 0.75 | denied req. | PU busy | samples |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    configs = list(dict.fromkeys(r["config"] for r in rows))
+    for config in configs:
+        for r in (r for r in rows if r["config"] == config):
+            lines.append(
+                f"| {r['config']} | {r['method']} | {r['view']} | {r['seeds'] or '–'} | "
+                f"{r['best_mean']:.2f} ± {r['best_std']:.2f} | {r['median_mean']:.2f} ± {r['median_std']:.2f} | "
+                f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}] | {_num(r['overflow_rate'])} | "
+                f"{_num(r['emptyings'], '.1f')} | {_num(r['good_share'])} | {_num(r['denied'], '.1f')} | "
+                f"{_num(r['pu_utilisation'])} | {_samples(r['samples'])} |")
+        for algo, (best, median) in PAPER_TABLE_1.get(config, {}).items():
+            lines.append(f"| {config} | paper {algo.upper()} (15 seeds) | centralised | 15 | "
+                         f"{best[0]:.2f} ± {best[1]:.2f} | {median[0]:.2f} ± {median[1]:.2f} | – | – | – | – | – | "
+                         f"– | {'2M' if config.startswith('n5_') else '5M'} |")
+    if imps:
+        lines += ["", "Probability of improvement (decentralised over centralised) [95 % bootstrap CI]:", ""]
+        for i in imps:
+            lines.append(f"- {i['config']}: P({i['decentralised']} > {i['centralised']}) = {i['probability']:.2f} "
+                         f"[{i['low']:.2f}, {i['high']:.2f}] (over {i['unit']})")
+    return "\n".join(lines) + "\n"
+
+
+@dataclass
+class Table:
+    rows: list[dict]
+    improvements: list[dict]
+    markdown: str
+    seed_means: dict[str, list[float]]
+
+    def write(self, out: str | Path, meta: dict | None = None) -> list[Path]:
+        """Write ``table.md``, ``table.csv`` and ``table.json`` into ``out``; returns their paths."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "table.md").write_text(self.markdown)
+        with (out / "table.csv").open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=COLUMNS)
+            w.writeheader()
+            w.writerows(self.rows)
+        report = {**(meta or {}), "rows": self.rows, "improvements": self.improvements,
+                  "seed_means": self.seed_means}
+        (out / "table.json").write_text(json.dumps(report, indent=2))
+        return [out / "table.md", out / "table.csv", out / "table.json"]
+
+
+def build_table(groups: Sequence[MethodEvaluations], pairs: Iterable[tuple[str, str]] | None = None,
+                reps: int = 2000) -> Table:
+    """The table of ``groups`` (sorted into table order). ``pairs``: (decentralised, centralised)
+    method names whose probability of improvement is reported (default: compare's pairs)."""
+    if pairs is None:
+        from containergym_marl.compare import PAIRS as pairs
+    groups = sort_groups(groups)
+    rows = table_rows(groups, reps)
+    imps = improvements(groups, pairs, reps)
+    return Table(rows, imps, markdown(rows, imps, groups),
+                 {f"{g.config}/{g.method}": g.seed_means.tolist() for g in groups})
+
+
+def markdown_table(results: str | Path, reps: int = 2000) -> str:
+    """The Markdown table of the evaluation files under ``results`` (see :func:`load_evaluations`)."""
+    return build_table(load_evaluations(results), reps=reps).markdown
+
 
 @dataclass
 class MethodRow:
+    """Best and median policy of one method, as ``(mean, std, seed)``; seed -1: no training seeds."""
+
     method: str
     seeds: list[int]
-    best: tuple[float, float, int]  # mean, std, seed
+    best: tuple[float, float, int]
     median: tuple[float, float, int]
     overflow_rate_best: float
     view: str  # "centralised" or "decentralised", as the evaluation files record it
 
 
-_NAME = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")
-
-
-def _load_evaluations(directory: Path) -> dict[str, list[tuple[int, dict]]]:
-    by_method: dict[str, list[tuple[int, dict]]] = {}
-    for path in sorted(directory.glob("*.json")):
-        m = _NAME.match(path.stem)
-        seed = int(m["seed"]) if m["seed"] is not None else -1
-        by_method.setdefault(m["method"], []).append((seed, json.loads(path.read_text())))
-    return by_method
-
-
 def method_rows(results: str | Path) -> list[MethodRow]:
-    rows = []
-    for method, runs in _load_evaluations(Path(results)).items():
-        stats = []
-        for seed, data in runs:
-            r = np.array([e["cumulative_reward"] for e in data["episodes"]])
-            stats.append((float(r.mean()), float(r.std()), seed, data["summary"]["overflow_rate"]))
-        stats.sort(key=lambda s: s[0], reverse=True)
-        best = stats[0]
-        median = stats[(len(stats) - 1) // 2]  # the lower median for an even count
-        rows.append(MethodRow(method, sorted(s[2] for s in stats), best[:3], median[:3], best[3], _view(method, runs[0][1])))
-    return rows
+    """:class:`MethodRow` per (config, method) under ``results``."""
+    out = []
+    for g in load_evaluations(results):
+        seeds = g.seeds or [-1]
+        b, md = g.returns(g.best), g.returns(g.median)
+        out.append(MethodRow(g.method, seeds, (float(b.mean()), float(b.std()), seeds[g.best]),
+                             (float(md.mean()), float(md.std()), seeds[g.median]),
+                             _summary_value(g.evaluations[g.best], "overflow_rate")))
+    return out
 
 
-def _view(method: str, evaluation: dict) -> str:
-    """The view an evaluation file records; for files without one, the registry's."""
-    if "view" in evaluation:
-        return evaluation["view"]
-    from containergym_marl.training.algorithms import view_of
-
-    return view_of(method)
-
-
-def markdown_table(results: str | Path, config: str | None = None) -> str:
-    results = Path(results)
-    config = config or results.name  # compare writes evaluations/<config>/
-    lines = [
-        f"Test cumulative reward on `{config}` (paper protocol: δ = 120 s, T = 600, 15 episodes; "
-        "mean ± std over episodes of the best and the median policy over training seeds)",
-        "",
-        "| method | view | seeds | best | median | overflow rate (best) |",
-        "|---|---|---|---|---|---|",
-    ]
-    for row in method_rows(results):
-        seeds = "–" if row.seeds == [-1] else str(len(row.seeds))
-        lines.append(
-            f"| {row.method} | {row.view} | {seeds} | "
-            f"{row.best[0]:.2f} ± {row.best[1]:.2f} | {row.median[0]:.2f} ± {row.median[1]:.2f} | "
-            f"{row.overflow_rate_best:.2f} |"
-        )
-    for algo, (best, median) in PAPER_TABLE_1.get(config, {}).items():
-        lines.append(f"| paper {algo.upper()} (15 seeds) | centralised | 15 | {best[0]:.2f} ± {best[1]:.2f} | "
-                     f"{median[0]:.2f} ± {median[1]:.2f} | – |")
-    return "\n".join(lines) + "\n"
-
-
-def main(argv: list[str] | None = None) -> None:
-    argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 1:
-        raise SystemExit("usage: python -m containergym_marl.evaluation.table EVALUATIONS_DIR")
-    print(markdown_table(argv[0]))
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m containergym_marl.evaluation.table",
+                                     description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("path", help="a compare output folder, its evaluations/ folder, or one config's folder")
+    parser.add_argument("--out", default=None, help="also write table.md, table.csv and table.json here")
+    parser.add_argument("--bootstrap-reps", type=int, default=2000)
+    ns = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    table = build_table(load_evaluations(ns.path), reps=ns.bootstrap_reps)
+    print(table.markdown, end="")
+    if ns.out:
+        paths = table.write(ns.out, {"source": str(ns.path)})
+        print(f"written: {', '.join(str(p) for p in paths)}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

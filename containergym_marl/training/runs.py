@@ -529,15 +529,3 @@ __all__ = [
     "read_run_summary", "run_args", "run_status", "save_checkpoint", "truncate_metrics",
 ]
 
-
-def __getattr__(name: str):
-    """Names that moved: compare.py and benchmarks/throughput.py still import them from here."""
-    if name in ("train", "_no_distribution_validation"):
-        from containergym_marl.training import loop
-
-        return getattr(loop, name)
-    if name in ("policy_from_run", "evaluate_run"):
-        from containergym_marl.evaluation import runs
-
-        return getattr(runs, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

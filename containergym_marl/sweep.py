@@ -1,0 +1,660 @@
+"""compare's job graph on Ray: one task per training run, one per evaluation, progress in the driver.
+
+What Ray does here, and what this module adds:
+
+* **Resources**: every task asks for ``num_cpus=1`` (torch runs one thread), so Ray runs as many
+  trainings at once as the cluster has CPUs, on whichever node has one free.
+* **Retries**: training and evaluation tasks carry ``max_retries``; when the worker process or its
+  node dies, Ray runs the task again. A training task decides for itself what to do with its run
+  directory (:func:`prepare_run`): a finished run is returned as is, a run with a checkpoint is
+  resumed from its latest readable checkpoint (``train(TrainArgs(..., resume=True))``, losing at
+  most one checkpoint interval), a run that died before its first checkpoint starts over. So a
+  retried task, a rerun after Ctrl-C and a rerun after a crash all continue where the run stands.
+* **Dependencies**: an evaluation task takes the training task's result (the run's small files,
+  models included) as its argument; Ray starts it when the training ends.
+* **Progress**: training tasks send events (started, samples so far, finished) through a
+  ``ray.util.queue.Queue``; the driver folds them into one live line (runs done / running / left,
+  evaluations, ETA, samples/s of every running run).
+
+Storage: a training task writes its run directory at the same absolute path on whichever node runs
+it, and returns the run's small files (everything except ``checkpoints/`` and ``tb/``: args,
+config, metrics, best and final model, ~0.5 MB) to the driver, which writes them into its own copy
+when they differ. With a filesystem shared by all nodes nothing is copied; without one the driver
+still gets every file the table, the figures and a later rerun need, while checkpoints stay on the
+node that trained (a run interrupted there resumes only if Ray schedules it on that node again,
+otherwise it starts over).
+
+Each training task also holds ``<runs>/.sweep/<run>.pid`` (its worker's process id, locked while it
+trains and removed when it ends, so two sweeps never train one run at once) and appends one line
+per attempt to ``<runs>/.sweep/<run>.log``. Runs trained by other means (``containergym-marl train``,
+scripts) take no lock: do not point a sweep at their directories while they train.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import hashlib
+import json
+import logging
+import os
+import shutil
+import socket
+import sys
+import tempfile
+import threading
+import time
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, TextIO
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: no lock between sweeps
+    fcntl = None
+
+#: Folders of a run directory that stay on the node that trained it.
+NODE_LOCAL = ("checkpoints", "tb")
+#: Samples per second per CPU assumed for an ETA before any run has reported (PPO, n = 5 or 11, here).
+DEFAULT_RATE = 2_000.0
+
+
+class SweepError(RuntimeError):
+    """The sweep cannot run (no Ray) or some of its tasks failed after Ray's retries; finished runs are kept."""
+
+
+def ray_missing_message() -> str:
+    return ("containergym-marl compare runs its training and evaluation on Ray, which is not installed: "
+            "pip install 'containergym-marl[train,sweep]' (./run setup installs it)")
+
+
+# ---- what a training run is --------------------------------------------------------------------
+@dataclass(frozen=True)
+class RunSpec:
+    """One training run of a sweep: ``train(TrainArgs(algo, config, seed, timesteps, out=run_dir, **train))``."""
+
+    name: str  # <method>_<config>_s<seed>
+    method: str
+    algo: str
+    config: str
+    seed: int
+    timesteps: int
+    run_dir: str  # absolute; the same path on every node
+    train: dict[str, Any] = field(default_factory=dict)  # further TrainArgs fields (n_envs, reward_mode, …)
+
+    def train_args(self, resume: bool):
+        from containergym_marl.training.runs import TrainArgs
+
+        return TrainArgs(algo=self.algo, config=self.config, seed=self.seed, timesteps=self.timesteps,
+                         out=self.run_dir, resume=resume, progress_bar=False, torch_threads=1, **self.train)
+
+    @property
+    def sweep_dir(self) -> Path:
+        return Path(self.run_dir).parent / ".sweep"
+
+
+def _zip_ok(path: Path) -> bool:
+    try:
+        with zipfile.ZipFile(path) as z:
+            return z.testzip() is None
+    except (OSError, zipfile.BadZipFile, EOFError):
+        return False
+
+
+def finished_budget(run: str | Path) -> int | None:
+    """The budget of a finished run (a readable ``final_model.zip`` and ``args.json``), else None.
+    Reads two small files; no Ray, no torch."""
+    run = Path(run)
+    final, saved = run / "final_model.zip", run / "args.json"
+    if not (final.is_file() and saved.is_file() and _zip_ok(final)):
+        return None
+    try:
+        return int(json.loads(saved.read_text())["timesteps"])
+    except (ValueError, KeyError, TypeError):
+        return None
+
+
+def check_budget(spec: RunSpec) -> bool:
+    """True when ``spec``'s run is finished here with the same budget; a finished run with another
+    budget is an error (never retrained or overwritten)."""
+    budget = finished_budget(spec.run_dir)
+    if budget is not None and budget != spec.timesteps:
+        raise ValueError(f"{spec.run_dir} holds a finished run with a budget of {budget} samples, not "
+                         f"{spec.timesteps}; use another --runs directory or the same --timesteps")
+    return budget is not None
+
+
+def latest_readable_checkpoint(run: str | Path) -> int | None:
+    """Samples of the run's latest readable checkpoint; checkpoints cut short by a kill are removed."""
+    from containergym_marl.training.runs import latest_checkpoint  # one definition of checkpoint names
+
+    while (ckpt := latest_checkpoint(Path(run))) is not None:
+        path, steps = ckpt
+        if _zip_ok(path):
+            return steps
+        path.unlink()
+    return None
+
+
+def prepare_run(spec: RunSpec) -> tuple[str, int]:
+    """What a training task does with its run directory, and from which sample count:
+    ``("finished", budget)``, ``("resume", checkpoint samples)`` or ``("new", 0)``.
+
+    A run directory without a readable checkpoint (the run died before its first one) is removed
+    and the run starts over; checkpoints cut short by a kill are removed first."""
+    run = Path(spec.run_dir)
+    if check_budget(spec):
+        return "finished", spec.timesteps
+    if run.exists():
+        steps = latest_readable_checkpoint(run)
+        if steps is not None and (run / "args.json").is_file():
+            best = run / "best_model.zip"
+            if best.exists() and not _zip_ok(best):
+                best.unlink()  # cut short by a kill; the resumed run saves its next best
+            return "resume", steps
+        shutil.rmtree(run)
+    return "new", 0
+
+
+def small_files(run: str | Path) -> dict[str, bytes]:
+    """The run directory's files except :data:`NODE_LOCAL` folders, as ``{relative path: bytes}``."""
+    run = Path(run)
+    out = {}
+    for path in sorted(run.rglob("*")):
+        rel = path.relative_to(run)
+        if path.is_file() and rel.parts[0] not in NODE_LOCAL:
+            out[rel.as_posix()] = path.read_bytes()
+    return out
+
+
+def write_files(run: str | Path, files: dict[str, bytes]) -> int:
+    """Write ``files`` into ``run`` where they differ from what is there; returns how many were written."""
+    run = Path(run)
+    written = 0
+    for rel, data in files.items():
+        path = run / rel
+        if path.is_file() and path.read_bytes() == data:
+            continue
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.part")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+        written += 1
+    return written
+
+
+def sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+# ---- rates from metrics.csv -------------------------------------------------------------------------
+def _metrics_rows(run: Path) -> list[dict[str, float]]:
+    path = run / "metrics.csv"
+    if not path.is_file():
+        return []
+    try:
+        with path.open() as f:
+            return [{k: float(v) for k, v in r.items() if v not in (None, "")} for r in csv.DictReader(f)]
+    except (OSError, ValueError):
+        return []
+
+
+def measured_rate(run: str | Path) -> float | None:
+    """Samples per second of a run's last uninterrupted stretch, from its metrics.csv."""
+    rows = [r for r in _metrics_rows(Path(run)) if "timesteps" in r and "wall_time_s" in r]
+    if not rows:
+        return None
+    start = len(rows) - 1
+    while start > 0 and rows[start - 1]["wall_time_s"] < rows[start]["wall_time_s"]:
+        start -= 1  # wall time restarts at 0 when a run resumes
+    first, last = rows[start], rows[-1]
+    if last is first:
+        return last["timesteps"] / last["wall_time_s"] if last["wall_time_s"] > 0 and start == 0 else None
+    dt = last["wall_time_s"] - first["wall_time_s"]
+    return (last["timesteps"] - first["timesteps"]) / dt if dt > 0 else None
+
+
+class MetricsReporter(threading.Thread):
+    """Sends ("progress", run, samples, samples/s) whenever the run's metrics.csv grows."""
+
+    def __init__(self, run_dir: Path, name: str, events, start_samples: int, every_s: float = 5.0):
+        super().__init__(daemon=True, name=f"metrics-{name}")
+        self.run_dir, self.run_name, self.events = run_dir, name, events
+        self.start_samples, self.every_s = start_samples, every_s
+        self.skip = len(_metrics_rows(run_dir))  # rows of earlier attempts
+        self.stopped = threading.Event()
+
+    def run(self) -> None:  # the thread's body
+        seen = self.skip
+        while not self.stopped.wait(self.every_s):
+            rows = _metrics_rows(self.run_dir)
+            if len(rows) > seen:
+                seen = len(rows)
+                last = rows[-1]
+                wall = last.get("wall_time_s", 0.0)
+                rate = (last["timesteps"] - self.start_samples) / wall if wall > 0 else None
+                _emit(self.events, ("progress", self.run_name, int(last["timesteps"]), rate))
+
+    def stop(self) -> None:
+        self.stopped.set()
+
+
+def _emit(events, item) -> None:
+    if events is None:
+        return
+    try:
+        events.put_nowait(item)
+    except Exception:  # the driver went away or its queue is full: progress is best effort
+        pass
+
+
+# ---- the tasks ----------------------------------------------------------------------------------
+def train_run(spec: RunSpec, events=None) -> dict[str, Any]:
+    """Body of a training task: finish, resume or start ``spec``'s run; returns its small files and
+    timings. Idempotent: running it again on a finished run trains nothing."""
+    import torch
+
+    torch.set_num_threads(1)
+    from containergym_marl.training.loop import train
+
+    run = Path(spec.run_dir)
+    spec.sweep_dir.mkdir(parents=True, exist_ok=True)
+    pid_file = _claim(spec.sweep_dir / f"{spec.name}.pid", spec.name)
+    try:
+        return _train_claimed(spec, run, events, train)
+    finally:
+        with contextlib.suppress(OSError):
+            Path(pid_file.name).unlink()
+        pid_file.close()  # releases the lock
+
+
+def _claim(path: Path, name: str):
+    """Open and lock ``<runs>/.sweep/<run>.pid`` and write this process's id into it; the lock (held
+    until the task ends or its process dies) keeps two sweeps from training one run at once."""
+    f = path.open("a+")
+    if fcntl is not None:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            other = f.read().strip()
+            f.close()
+            raise RuntimeError(f"{name} is being trained by another process (pid {other or '?'}, see {path}); "
+                               f"one sweep at a time per runs directory") from None
+    f.seek(0)
+    f.truncate()
+    f.write(f"{os.getpid()}\n")
+    f.flush()
+    return f
+
+
+def _train_claimed(spec: RunSpec, run: Path, events, train) -> dict[str, Any]:
+    state, start = prepare_run(spec)
+    host = socket.gethostname()
+    action = {"finished": "finished already", "resume": f"resume from {start} samples", "new": "start"}[state]
+    with (spec.sweep_dir / f"{spec.name}.log").open("a") as log:
+        log.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {host} pid {os.getpid()}: {action}\n")
+    _emit(events, ("start", spec.name, host, os.getpid(), state, start))
+    t0 = time.perf_counter()
+    if state != "finished":
+        reporter = MetricsReporter(run, spec.name, events, start)
+        reporter.start()
+        try:
+            train(spec.train_args(resume=state == "resume"))
+        finally:
+            reporter.stop()
+    wall = time.perf_counter() - t0
+    trained = spec.timesteps - start if state != "finished" else 0
+    # samples/s of the training itself (metrics.csv) when the run logged any, else over the whole call
+    rate = (measured_rate(run) or trained / wall) if trained and wall > 0 else None
+    result = {"name": spec.name, "state": state, "resumed_from": start if state == "resume" else 0,
+              "samples": trained, "wall_s": wall, "samples_per_s": rate,
+              "host": host, "node": _node_id(), "pid": os.getpid(), "files": small_files(run)}
+    return result
+
+
+def _node_id() -> str | None:
+    try:
+        import ray
+
+        return ray.get_runtime_context().get_node_id() if ray.is_initialized() else None
+    except Exception:
+        return None
+
+
+@dataclass(frozen=True)
+class EvalSpec:
+    """One evaluation: a rule-based controller (``policy`` = its class in containergym_marl.policies)
+    or a run's best model (its files come with the task), under the test protocol."""
+
+    key: str  # the evaluation file's stem: <method>_s<seed> or <method>
+    method: str
+    config: str
+    episodes: int
+    arbitration: str = "fullest"
+    policy: str | None = None
+    seed: int | None = None
+
+
+def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_records: bool = False):
+    """Body of an evaluation task; ``run`` holds the run's files (a training task's result or
+    ``{"files": {...}}``). Returns the EvaluationResult (records only with ``keep_records``) and the
+    sha256 of the evaluated model."""
+    import torch
+
+    torch.set_num_threads(1)
+    from containergym_marl.config import load_config
+    from containergym_marl.evaluation import EvalProtocol, evaluate
+
+    protocol = EvalProtocol(episodes=spec.episodes)
+    if spec.policy is not None:
+        from containergym_marl import policies
+        from containergym_marl.core.params import PlantParams
+
+        policy = getattr(policies, spec.policy)(PlantParams.from_config(load_config(spec.config)))
+        model_sha = None
+        result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
+    else:
+        from containergym_marl.evaluation.runs import policy_from_run
+
+        files = run["files"]
+        model_sha = sha256(files["best_model.zip"])
+        with tempfile.TemporaryDirectory(prefix="cgm-eval-") as tmp:
+            write_files(tmp, {k: files[k] for k in ("args.json", "best_model.zip")})
+            policy = policy_from_run(tmp, "best")
+            result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
+    return result, model_sha
+
+
+# ---- the cluster --------------------------------------------------------------------------------
+class Cluster:
+    """A Ray session started on first use: a new local instance with ``num_cpus`` CPUs (default:
+    this machine's cores), or the cluster at ``address`` (or ``$RAY_ADDRESS``). Quiet logging, no
+    dashboard. ``close()`` disconnects, and stops the local instance if this object started it."""
+
+    def __init__(self, address: str | None = None, num_cpus: int | None = None, max_retries: int = 3):
+        self.address = address or os.environ.get("RAY_ADDRESS") or None
+        self.num_cpus = num_cpus
+        self.max_retries = max_retries
+        self._ray = None
+        self._owned = False
+        self._tasks: dict[str, Any] = {}
+
+    @property
+    def started(self) -> bool:
+        return self._ray is not None
+
+    def ray(self):
+        if self._ray is not None:
+            return self._ray
+        try:
+            import ray
+        except ImportError as exc:
+            raise SweepError(ray_missing_message()) from exc
+        if not ray.is_initialized():
+            opts = dict(include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False)
+            if self.address:
+                if self.num_cpus:
+                    raise ValueError("--num-cpus sizes a local Ray instance; a cluster at --address has its own CPUs")
+                ray.init(address=self.address, **opts)
+            else:
+                ray.init(address="local", num_cpus=self.num_cpus or os.cpu_count() or 1, **opts)
+            self._owned = True
+        self._ray = ray
+        remote = ray.remote(num_cpus=1, max_retries=self.max_retries)
+        self._tasks = {"train": remote(train_run), "evaluate": remote(evaluate_policy)}
+        return ray
+
+    def cpus(self) -> int:
+        return int(self.ray().cluster_resources().get("CPU", 1))
+
+    def describe(self) -> str:
+        ray = self.ray()
+        nodes = [n for n in ray.nodes() if n.get("Alive")]
+        where = f"cluster at {self.address}" if self.address else "local Ray instance"
+        return f"{where}: {len(nodes)} node{'s' * (len(nodes) != 1)}, {self.cpus()} CPUs"
+
+    def submit(self, kind: str, *args, **kwargs):
+        self.ray()
+        return self._tasks[kind].remote(*args, **kwargs)
+
+    def events(self):
+        from ray.util.queue import Queue
+
+        self.ray()
+        return Queue(actor_options={"num_cpus": 0})
+
+    def close(self) -> None:
+        if self._ray is not None and self._owned:
+            self._ray.shutdown()
+        self._ray, self._owned = None, False
+
+    def __enter__(self) -> "Cluster":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# ---- progress -----------------------------------------------------------------------------------
+def format_duration(seconds: float | None) -> str:
+    if seconds is None or seconds != seconds or seconds == float("inf"):
+        return "?"
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds}s"
+    if seconds < 3600:
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
+
+
+class Progress:
+    """The sweep's live line: runs done / running / left, evaluations, ETA, samples/s per running run.
+
+    On a terminal the line is redrawn in place every second; otherwise it is printed every
+    ``interval_s`` seconds. Events (a run finished, resumed, retried, failed) are printed as lines."""
+
+    def __init__(self, budgets: dict[str, int], evaluations: int, cpus: int, stream: TextIO | None = None,
+                 interval_s: float = 60.0):
+        self.budgets = dict(budgets)  # runs to train in this sweep -> budget
+        self.eval_total, self.evals_done = evaluations, 0
+        self.cpus = max(cpus, 1)
+        self.stream = stream or sys.stdout
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.interval_s = interval_s
+        self.running: dict[str, dict] = {}  # run -> {"samples", "rate", "host"}
+        self.done: dict[str, dict] = {}
+        self.failed: dict[str, str] = {}
+        self.attempts: dict[str, int] = {}
+        self.t0 = time.perf_counter()
+        self._last_print = -float("inf")
+        self._width = 0
+
+    # events
+    def started(self, name: str, host: str, pid: int, state: str, start: int) -> None:
+        self.attempts[name] = self.attempts.get(name, 0) + 1
+        if self.attempts[name] > 1:
+            self.say(f"retry {name} (attempt {self.attempts[name]}, {state} from {start:,} samples) on {host}")
+        elif state == "resume":
+            self.say(f"resume {name} from its checkpoint at {start:,} samples")
+        self.running[name] = {"samples": start, "rate": None, "host": host, "start": start}
+
+    def sampled(self, name: str, samples: int, rate: float | None) -> None:
+        if name in self.running:
+            self.running[name].update(samples=samples, rate=rate)
+
+    def run_done(self, name: str, result: dict) -> None:
+        self.running.pop(name, None)
+        self.done[name] = result
+        rate = result.get("samples_per_s")
+        how = {"finished": "already finished", "resume": f"resumed from {result['resumed_from']:,}",
+               "new": "trained"}[result["state"]]
+        self.say(f"done {name}: {how}, {result['samples']:,} samples in {format_duration(result['wall_s'])}"
+                 + (f" ({rate:,.0f} samples/s)" if rate else "") + f" on {result['host']}")
+
+    def run_failed(self, name: str, error: str) -> None:
+        self.running.pop(name, None)
+        self.failed[name] = error
+        self.say(f"FAILED {name}: {error}")
+
+    def eval_done(self) -> None:
+        self.evals_done += 1
+
+    # rendering
+    def rate_per_run(self) -> float | None:
+        rates = [r["rate"] for r in self.running.values() if r.get("rate")]
+        rates += [d["samples_per_s"] for d in self.done.values() if d.get("samples_per_s")]
+        return sum(rates) / len(rates) if rates else None
+
+    def eta_s(self) -> float | None:
+        left = [n for n in self.budgets if n not in self.done and n not in self.failed]
+        if not left:
+            return 0.0
+        rate = self.rate_per_run()
+        if rate is None:
+            return None
+        samples = sum(self.budgets[n] - self.running.get(n, {}).get("samples", 0) for n in left)
+        return samples / (rate * min(self.cpus, len(left)))
+
+    def line(self) -> str:
+        total = len(self.budgets)
+        done, running = len(self.done) + len(self.failed), len(self.running)
+        parts = [f"[{format_duration(time.perf_counter() - self.t0)}]"]
+        if total:
+            parts += [f"runs {done}/{total} done, {running} running, {total - done - running} queued"]
+        parts += [f"evaluations {self.evals_done}/{self.eval_total}"]
+        if total:
+            parts += [f"ETA {format_duration(self.eta_s())}"]
+        for name, r in sorted(self.running.items()):
+            budget = self.budgets.get(name, 0) or 1
+            rate = f" {r['rate']:,.0f}/s" if r.get("rate") else ""
+            parts.append(f"{name} {100 * r['samples'] / budget:.0f}%{rate}")
+        return parts[0] + " " + " · ".join(parts[1:])
+
+    def say(self, text: str) -> None:
+        self._clear()
+        print(f"  {text}", file=self.stream, flush=True)
+
+    def _clear(self) -> None:
+        if self.tty and self._width:
+            print("\r" + " " * self._width + "\r", end="", file=self.stream, flush=True)
+            self._width = 0
+
+    def tick(self, force: bool = False) -> None:
+        now = time.perf_counter()
+        if self.tty:
+            cols = shutil.get_terminal_size((120, 20)).columns
+            text = self.line()[: cols - 1]
+            self._clear()
+            print(text, end="", file=self.stream, flush=True)
+            self._width = len(text)
+        elif force or now - self._last_print >= self.interval_s:
+            print(self.line(), file=self.stream, flush=True)
+            self._last_print = now
+
+    def finish(self) -> None:
+        self._clear()
+        if not self.tty:
+            return
+        print(self.line(), file=self.stream, flush=True)
+
+
+# ---- running a batch of tasks -------------------------------------------------------------------
+@dataclass
+class Outcome:
+    runs: dict[str, dict] = field(default_factory=dict)  # run name -> training task result
+    evaluations: dict[tuple[str, str], tuple[Any, str | None]] = field(default_factory=dict)  # (config, key) -> (result, model sha)
+    failures: dict[str, str] = field(default_factory=dict)
+    attempts: dict[str, int] = field(default_factory=dict)  # run name -> training attempts seen (retries + 1)
+
+
+def _error_text(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    cause = getattr(exc, "cause", None)
+    if cause is not None:
+        return f"{type(cause).__name__}: {cause}".splitlines()[0]
+    return text[-1] if text else type(exc).__name__
+
+
+def execute(cluster: Cluster, runs: list[RunSpec], evaluations: list[tuple[EvalSpec, RunSpec | dict | None]],
+            keep_records: bool = False, on_run_done: Callable[[RunSpec, dict], None] | None = None,
+            stream: TextIO | None = None, interval_s: float = 60.0) -> Outcome:
+    """Train ``runs`` and evaluate ``evaluations`` on ``cluster``, with live progress.
+
+    Each evaluation names what it evaluates: a RunSpec of ``runs`` (it waits for that training), a
+    ``{"files": {...}}`` dict of a finished run, or None for a rule-based controller. Failures (after
+    Ray's retries) are collected, not raised; Ctrl-C propagates (every run stays resumable)."""
+    ray = cluster.ray()
+    outcome = Outcome()
+    if not runs and not evaluations:
+        return outcome
+    events = cluster.events() if runs else None
+    by_name = {s.name: s for s in runs}
+    pending: dict[Any, tuple[str, Any]] = {}
+    train_refs = {}
+    for spec in runs:
+        ref = cluster.submit("train", spec, events)
+        train_refs[spec.name] = ref
+        pending[ref] = ("train", spec)
+    for spec, source in evaluations:
+        arg = train_refs[source.name] if isinstance(source, RunSpec) else source
+        pending[cluster.submit("evaluate", spec, arg, keep_records)] = ("evaluate", spec)
+    progress = Progress({s.name: s.timesteps for s in runs}, len(evaluations), cluster.cpus(), stream, interval_s)
+    progress.tick(force=True)
+    try:
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=1.0)
+            _drain(events, progress)
+            # trainings first: an evaluation never lands before the training it depends on
+            for ref in sorted(ready, key=lambda r: pending[r][0] != "train"):
+                kind, spec = pending.pop(ref)
+                try:
+                    value = ray.get(ref)
+                except Exception as exc:  # RayTaskError, WorkerCrashedError after the retries…
+                    label = spec.name if kind == "train" else f"evaluation {spec.config}/{spec.key}"
+                    outcome.failures[label] = _error_text(exc)
+                    if kind == "train":
+                        progress.run_failed(spec.name, outcome.failures[label])
+                    else:
+                        progress.say(f"FAILED {label}: {outcome.failures[label]}")
+                    continue
+                if kind == "train":
+                    outcome.runs[spec.name] = value
+                    if on_run_done:
+                        on_run_done(by_name[spec.name], value)
+                    progress.run_done(spec.name, value)
+                else:
+                    outcome.evaluations[(spec.config, spec.key)] = value
+                    progress.eval_done()
+            progress.tick()
+    finally:
+        progress.finish()
+        outcome.attempts = dict(progress.attempts)
+    return outcome
+
+
+def _drain(events, progress: Progress) -> None:
+    if events is None:
+        return
+    try:
+        n = events.qsize()
+        items = events.get_nowait_batch(n) if n else []
+    except Exception:
+        return
+    for item in items:
+        if item[0] == "start":
+            progress.started(*item[1:])
+        elif item[0] == "progress":
+            progress.sampled(*item[1:])
+
+
+def estimate_rate(runs_root: str | Path) -> float:
+    """Samples/s per run measured by earlier runs under ``runs_root`` (median), else :data:`DEFAULT_RATE`."""
+    rates = sorted(r for p in Path(runs_root).glob("*/metrics.csv") if (r := measured_rate(p.parent)))
+    return rates[len(rates) // 2] if rates else DEFAULT_RATE
+
+
+__all__ = ["Cluster", "EvalSpec", "Outcome", "Progress", "RunSpec", "SweepError", "check_budget", "estimate_rate",
+           "evaluate_policy", "execute", "finished_budget", "format_duration", "measured_rate", "prepare_run",
+           "small_files", "train_run", "write_files"]

@@ -1,0 +1,65 @@
+"""compare on a local Ray instance (2 CPUs): a tiny sweep trains two runs and writes the table and
+figures; rerunning it trains nothing, evaluates nothing and starts no Ray at all.
+
+Slower checks (a two-node cluster through --address, a training worker killed mid-run) are in
+test_sweep_slow.py."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("ray")
+
+from containergym_marl.compare import CompareArgs, compare  # noqa: E402
+from containergym_marl.evaluation import table as tables  # noqa: E402
+
+TINY = dict(configs=["n5_m2_dt120"], methods=["rule_based", "rule_based_agents", "ppo"], seeds=[1, 2],
+            timesteps=1024, episodes=2, n_envs=1, checkpoint_every=512, bootstrap_reps=200, num_cpus=2,
+            hyperparams={"n_steps": 128, "batch_size": 64})
+RUNS = ("ppo_n5_m2_dt120_s1", "ppo_n5_m2_dt120_s2")
+
+
+def test_tiny_sweep_on_local_ray_then_a_rerun_trains_nothing(tmp_path, capsys):
+    out = tmp_path / "cmp"
+    report = compare(CompareArgs(out=str(out), **TINY))
+    sweep = report["sweep"]
+    assert sweep["ray"] == "local Ray instance: 1 node, 2 CPUs"
+    assert sorted(r["name"] for r in sweep["trained"]) == list(RUNS)
+    assert all(r["state"] == "new" and r["samples"] == 1024 and r["attempts"] == 1 for r in sweep["trained"])
+    assert sorted(sweep["evaluated"]) == ["n5_m2_dt120/ppo_s1", "n5_m2_dt120/ppo_s2", "n5_m2_dt120/rule_based",
+                                          "n5_m2_dt120/rule_based_agents"]
+    printed = capsys.readouterr().out
+    assert "runs 0/2 done" in printed and f"done {RUNS[0]}: trained, 1,024 samples" in printed
+    assert f"table: {out / 'table.md'}" in printed and f"figures: {out / 'figures'}/" in printed
+
+    for run in RUNS:
+        files = {p.name for p in (out / "runs" / run).iterdir()}
+        assert {"args.json", "config.toml", "best_model.zip", "final_model.zip", "checkpoints"} <= files
+        assert not (out / "runs" / ".sweep" / f"{run}.pid").exists()  # removed when the run ended
+    rows = {r["method"]: r for r in report["rows"]}
+    assert list(rows) == ["rule_based", "rule_based_agents", "ppo"]
+    assert rows["ppo"]["seeds"] == 2 and rows["ppo"]["samples"] == 1024
+    assert rows["ppo"]["best_mean"] >= rows["ppo"]["median_mean"]  # 2 seeds: the median is the worse one
+    assert rows["ppo"]["median_mean"] == min(report["seed_means"]["n5_m2_dt120/ppo"])
+    assert [(i["decentralised"], i["centralised"]) for i in report["improvements"]] == [
+        ("rule_based_agents", "rule_based")]
+    evaluation = json.loads((out / "evaluations" / "n5_m2_dt120" / "ppo_s1.json").read_text())
+    assert evaluation["compare"]["run"] == RUNS[0] and len(evaluation["episodes"]) == 2
+    figures = {p.name for p in (out / "figures").iterdir()}
+    assert {"n5_m2_dt120_reward_ecdf.svg", "n5_m2_dt120_pu_timeline_ppo.png",
+            "n5_m2_dt120_episode_rule_based_agents.png"} <= figures
+    # the one table builder: the committed evaluation files give back the same table
+    regenerated = tables.build_table(tables.load_evaluations(out), reps=TINY["bootstrap_reps"])
+    assert regenerated.markdown == (out / "table.md").read_text()
+    assert json.loads((out / "sweep.json").read_text())["trained"][0]["name"] in RUNS
+
+    # The same command again: finished runs and their evaluations are found from the files; no
+    # training, no evaluation, no Ray; same numbers.
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*") if p.is_file()}
+    again = compare(CompareArgs(out=str(out), **{**TINY, "figures": False}))
+    assert again["sweep"]["trained"] == [] and again["sweep"]["evaluated"] == [] and again["sweep"]["ray"] is None
+    assert sorted(again["sweep"]["reused"]) == list(RUNS)
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
+    assert json.dumps(again["rows"]) == json.dumps(report["rows"])  # (NaN shares compare equal as JSON)
