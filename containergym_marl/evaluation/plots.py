@@ -44,6 +44,7 @@ from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.dynamics import emptying_rewards
 from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation.records import EpisodeRecord
+from containergym_marl.evaluation.protocol import GOOD_REWARD
 from containergym_marl.render import container_colors
 
 __all__ = [
@@ -60,7 +61,6 @@ __all__ = [
 #: Formats written by default.
 FORMATS = ("png", "svg")
 PNG_DPI = 150
-GOOD_REWARD = 0.75  # the paper's "close to optimal" band [0.75, 1]
 
 
 # ---- helpers ---------------------------------------------------------------------------------

@@ -17,7 +17,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from containergym_marl.config import PlantConfig, load_config
+from containergym_marl.config import PAPER_TEST_PROTOCOL, PlantConfig, load_config
 from containergym_marl.evaluation.records import EpisodeRecord, EpisodeRecorder
 
 #: First evaluation seed; training runs use seeds far below it.
@@ -29,8 +29,8 @@ GOOD_REWARD = 0.75  # the paper's "close to optimal" band [0.75, 1]
 class EvalProtocol:
     """How policies are evaluated. ``PAPER`` is the paper's test protocol."""
 
-    timestep_s: float = 120.0
-    episode_length_steps: int = 600
+    timestep_s: float = PAPER_TEST_PROTOCOL["timestep_s"]
+    episode_length_steps: int = PAPER_TEST_PROTOCOL["episode_length_steps"]
     episodes: int = 15
     first_seed: int = EVAL_SEED_BASE
     deterministic: bool = True

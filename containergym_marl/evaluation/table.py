@@ -347,7 +347,7 @@ def method_rows(results: str | Path) -> list[MethodRow]:
         b, md = g.returns(g.best), g.returns(g.median)
         out.append(MethodRow(g.method, seeds, (float(b.mean()), float(b.std()), seeds[g.best]),
                              (float(md.mean()), float(md.std()), seeds[g.median]),
-                             _summary_value(g.evaluations[g.best], "overflow_rate")))
+                             _summary_value(g.evaluations[g.best], "overflow_rate"), g.view))
     return out
 
 

@@ -98,14 +98,6 @@ def _no_distribution_validation():
 
 
 # ---- the callback ---------------------------------------------------------------------------------
-def _plant_step(env) -> tuple[np.ndarray, np.ndarray]:
-    """(B,) plant rewards and episode ends of the last vector step."""
-    if hasattr(env, "last_plant_step"):
-        return env.last_plant_step()
-    out = env.simulator.last_outcome
-    return out.plant_reward, out.terminated | out.truncated
-
-
 def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: TrainingProgress, n_envs: int,
                    interval: int, start: int):
     from stable_baselines3.common.callbacks import BaseCallback
@@ -138,7 +130,7 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
                                 dynamic_ncols=True, desc=f"{args.algo} s{args.seed}")
 
         def _on_step(self) -> bool:
-            rewards, dones = _plant_step(self.training_env)
+            rewards, dones = self.training_env.last_plant_step()
             self._acc += rewards
             self._len += 1
             for b in np.flatnonzero(dones):
