@@ -111,6 +111,11 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
     )
 
 
+def _share(x: float, width: int = 0) -> str:
+    """A share with two decimals; "–" where it is undefined (no emptying action), as in the table."""
+    return f"{'–' if x != x else f'{x:.2f}':>{width}}"
+
+
 def _print_evaluation(result, json_path: str | None) -> int:
     s = result.summary()
     print(f"{result.policy} on {result.config} ({result.view} view), {s['episodes']} episodes, "
@@ -119,11 +124,11 @@ def _print_evaluation(result, json_path: str | None) -> int:
           f"{'r<0':>6} {'denied':>7} {'PU busy':>8}")
     for e in result.episodes:
         print(f"{e.seed:>6} {e.cumulative_reward:>9.2f} {e.steps:>6} {str(e.overflow):>9} {e.emptyings:>10} "
-              f"{e.good_emptying_share:>8.2f} {e.negative_emptying_share:>6.2f} {e.denied_requests:>7} "
+              f"{_share(e.good_emptying_share, 8)} {_share(e.negative_emptying_share, 6)} {e.denied_requests:>7} "
               f"{e.pu_utilisation:>8.2f}")
     print(f"cumulative reward {s['return_mean']:.2f} ± {s['return_std']:.2f}; overflow rate "
           f"{s['overflow_rate']:.2f}; emptyings/episode {s['emptyings_mean']:.1f}; share r>=0.75 "
-          f"{s['good_emptying_share']:.2f}, r<0 {s['negative_emptying_share']:.2f}; denied/episode "
+          f"{_share(s['good_emptying_share'])}, r<0 {_share(s['negative_emptying_share'])}; denied/episode "
           f"{s['denied_requests_mean']:.1f}; PU utilisation {s['pu_utilisation']:.2f}")
     if json_path:
         from containergym_marl.training.runs import atomic_write_text

@@ -107,3 +107,17 @@ def test_results_table_best_and_median_over_seeds(tmp_path):
     assert "| ppo | centralised | 3 | 30.00 ± 1.00 | 20.00 ± 1.00 |" in table
     assert "| rule_based | centralised | – | 50.00 ± 0.00 |" in table
     assert "paper PPO (15 seeds)" in table and "51.43 ± 3.00" in table
+
+
+def test_cli_prints_a_dash_where_no_emptying_makes_a_share_undefined(capsys):
+    """An episode without an emptying action has no share of good emptyings: the CLI prints "–"
+    there, as the table does, never "nan"."""
+    from containergym_marl.cli import _print_evaluation
+
+    cfg = load_config("n5_m2_dt120")
+    never = RuleBasedController(PlantParams.from_config(cfg), margin=-100.0)  # never within the margin
+    result = evaluate(never, cfg, EvalProtocol(episodes=1))
+    assert result.episodes[0].emptyings == 0
+    _print_evaluation(result, None)
+    out = capsys.readouterr().out
+    assert "nan" not in out and "–" in out
