@@ -156,7 +156,7 @@ def _cmd_compare(ns: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from containergym_marl.training.algorithms import ALGORITHMS, METHODS, REGISTRY, RULE_BASED
+    from containergym_marl.training.algorithms import ALGORITHMS, REGISTRY, RULE_BASED
 
     reward_modes = tuple(dict.fromkeys(m for spec in REGISTRY.values() for m in spec.reward_modes))
     parser = argparse.ArgumentParser(prog="containergym-marl", description=__doc__,

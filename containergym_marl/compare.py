@@ -70,6 +70,7 @@ from typing import Any
 
 from containergym_marl.config import load_config
 from containergym_marl.evaluation import table as tables
+from containergym_marl.files import atomic_write_text
 
 
 @dataclass(frozen=True)
@@ -294,7 +295,7 @@ def _save_evaluation(args: CompareArgs, out: Path, spec, result, model_sha: str 
     data["compare"] = _fingerprint(args, spec.config, METHODS[spec.method], run, model_sha)
     path = out / "evaluations" / _stem(spec.config) / f"{spec.key}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2) + "\n")
+    atomic_write_text(path, json.dumps(data, indent=2) + "\n")
     return data
 
 
@@ -334,15 +335,17 @@ def compare(args: CompareArgs, stream=None) -> dict:
                 rate, slots = estimate_rate(runs), min(cluster.cpus(), len(plan.to_train))
                 say(f"training: {samples:,} samples in {len(plan.to_train)} run(s), about "
                     f"{format_duration(samples / (rate * slots))} at ~{rate:,.0f} samples/s per run, {slots} at a time")
+            def save(spec, value) -> None:  # each evaluation is written as it lands
+                result, model_sha = value
+                evaluations[(spec.config, spec.key)] = _save_evaluation(args, out, spec, result, model_sha)
+                report["evaluated"].append(f"{_stem(spec.config)}/{spec.key}")
+
             done = execute(cluster, plan.to_train, plan.to_evaluate, stream=stream,
-                           on_run_done=lambda spec, result: write_files(spec.run_dir, result["files"]))
+                           on_run_done=lambda spec, result: write_files(spec.run_dir, result["files"]),
+                           on_evaluation_done=save)
             for name, result in done.runs.items():
                 report["trained"].append({**{k: v for k, v in result.items() if k != "files"},
                                           "attempts": done.attempts.get(name, 1)})
-            specs = {(s.config, s.key): s for s, _ in plan.to_evaluate}
-            for (config, key), (result, model_sha) in done.evaluations.items():
-                evaluations[(config, key)] = _save_evaluation(args, out, specs[(config, key)], result, model_sha)
-                report["evaluated"].append(f"{_stem(config)}/{key}")
             if done.failures:
                 raise SweepError(f"{len(done.failures)} task(s) failed: "
                                  + "; ".join(f"{k}: {v}" for k, v in done.failures.items())
@@ -363,7 +366,7 @@ def compare(args: CompareArgs, stream=None) -> dict:
     paths = table.write(out, meta)
     figures = [str(p) for p in _figures(records, out)] if args.figures else []
     report["wall_s"] = round(time.perf_counter() - start, 1)
-    (out / "sweep.json").write_text(json.dumps({**meta, **report}, indent=2) + "\n")
+    atomic_write_text(out / "sweep.json", json.dumps({**meta, **report}, indent=2) + "\n")
     say()
     say(table.markdown)
     say(f"table: {paths[0]} (also table.csv, table.json); what the sweep did: {out / 'sweep.json'}; "

@@ -579,12 +579,15 @@ def _error_text(exc: BaseException) -> str:
 
 def execute(cluster: Cluster, runs: list[RunSpec], evaluations: list[tuple[EvalSpec, RunSpec | dict | None]],
             keep_records: bool = False, on_run_done: Callable[[RunSpec, dict], None] | None = None,
+            on_evaluation_done: Callable[[EvalSpec, Any], None] | None = None,
             stream: TextIO | None = None, interval_s: float = 60.0) -> Outcome:
     """Train ``runs`` and evaluate ``evaluations`` on ``cluster``, with live progress.
 
     Each evaluation names what it evaluates: a RunSpec of ``runs`` (it waits for that training), a
     ``{"files": {...}}`` dict of a finished run, or None for a rule-based controller. Failures (after
-    Ray's retries) are collected, not raised; Ctrl-C propagates (every run stays resumable)."""
+    Ray's retries) are collected, not raised; Ctrl-C propagates (every run stays resumable).
+    ``on_run_done`` and ``on_evaluation_done`` are called in the driver as each result lands, so
+    an interrupted sweep keeps what finished."""
     ray = cluster.ray()
     outcome = Outcome()
     if not runs and not evaluations:
@@ -626,6 +629,8 @@ def execute(cluster: Cluster, runs: list[RunSpec], evaluations: list[tuple[EvalS
                     progress.run_done(spec.name, value)
                 else:
                     outcome.evaluations[(spec.config, spec.key)] = value
+                    if on_evaluation_done:
+                        on_evaluation_done(spec, value)
                     progress.eval_done()
             progress.tick()
     finally:

@@ -41,6 +41,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from containergym_marl.evaluation import stats as st
+from containergym_marl.files import atomic_write, atomic_write_text
 
 #: The paper's Table 1 (PPO, TRPO, DQN; best and median of 15 seeds; mean ± std over 15 episodes).
 PAPER_TABLE_1 = {
@@ -298,14 +299,18 @@ class Table:
         """Write ``table.md``, ``table.csv`` and ``table.json`` into ``out``; returns their paths."""
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "table.md").write_text(self.markdown)
-        with (out / "table.csv").open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=COLUMNS)
-            w.writeheader()
-            w.writerows(self.rows)
+        atomic_write_text(out / "table.md", self.markdown)
+
+        def write_csv(tmp: Path) -> None:
+            with tmp.open("w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=COLUMNS)
+                w.writeheader()
+                w.writerows(self.rows)
+
+        atomic_write(out / "table.csv", write_csv)
         report = {**(meta or {}), "rows": self.rows, "improvements": self.improvements,
                   "seed_means": self.seed_means}
-        (out / "table.json").write_text(json.dumps(report, indent=2))
+        atomic_write_text(out / "table.json", json.dumps(report, indent=2))
         return [out / "table.md", out / "table.csv", out / "table.json"]
 
 

@@ -30,7 +30,6 @@ and one per *agent* step for shared PPO (a simulation step of an n-container pla
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
 import json
@@ -38,7 +37,6 @@ import math
 import os
 import re
 import socket
-import tempfile
 import time
 import warnings
 import zipfile
@@ -46,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.training.algorithms import get_algorithm
 
 try:
@@ -129,31 +128,7 @@ class RunWarning(UserWarning):
     """Something in a run directory was unreadable or incomplete and was skipped (said what)."""
 
 
-# ---- crash-safe writes ----------------------------------------------------------------------------
-def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
-    """Write ``path`` crash-safe: ``write(tmp)`` fills a temporary file in the same directory, which
-    is flushed to disk and renamed over ``path``. A reader sees the old or the new file, never a part."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(name)
-    try:
-        write(tmp)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
-    return path
-
-
-def atomic_write_text(path: str | Path, text: str) -> Path:
-    return atomic_write(path, lambda tmp: tmp.write_text(text))
-
-
+# ---- crash-safe writes (containergym_marl.files) ----------------------------------------------
 def atomic_save_model(model: Any, path: str | Path) -> Path:
     """``model.save`` to a temporary file, then renamed over ``path``."""
     return atomic_write(path, lambda tmp: _save_via_file(model.save, tmp))
@@ -162,15 +137,6 @@ def atomic_save_model(model: Any, path: str | Path) -> Path:
 def _save_via_file(save: Callable[[Any], None], tmp: Path) -> None:
     with open(tmp, "wb") as f:  # a file object: SB3 would otherwise append ".zip"/".pkl" to the name
         save(f)
-
-
-def _fsync_dir(directory: Path) -> None:
-    with contextlib.suppress(OSError):  # not every platform / file system can open directories
-        fd = os.open(directory, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
 
 
 def _jsonable(x):
