@@ -2,8 +2,10 @@
 
 What Ray does here, and what this module adds:
 
-* **Resources**: every task asks for ``num_cpus=1`` (torch runs one thread), so Ray runs as many
-  trainings at once as the cluster has CPUs, on whichever node has one free.
+* **Resources**: every training asks for ``num_cpus=1`` (torch runs one thread), so Ray runs as many
+  trainings at once as the cluster has CPUs, on whichever node has one free. On a local instance
+  evaluations use a slot resource of their own (one per core) instead of a CPU, so a finished run is
+  evaluated at once rather than after every queued training; on a cluster they ask for a CPU.
 * **Retries**: training and evaluation tasks carry ``max_retries``; when the worker process or its
   node dies, Ray runs the task again. A training task decides for itself what to do with its run
   directory (:func:`prepare_run`): a finished run is returned as is, a run with a checkpoint is
@@ -368,6 +370,10 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
 
 
 # ---- the cluster --------------------------------------------------------------------------------
+#: Custom Ray resource of a local instance: evaluations running beside the trainings (one per core).
+EVALUATION_SLOTS = "containergym_evaluation_slots"
+
+
 class Cluster:
     """A Ray session started on first use: a new local instance with ``num_cpus`` CPUs (default:
     this machine's cores), or the cluster at ``address`` (or ``$RAY_ADDRESS``). Quiet logging, no
@@ -399,11 +405,17 @@ class Cluster:
                     raise ValueError("--num-cpus sizes a local Ray instance; a cluster at --address has its own CPUs")
                 ray.init(address=self.address, **opts)
             else:
-                ray.init(address="local", num_cpus=self.num_cpus or os.cpu_count() or 1, **opts)
+                cpus = self.num_cpus or os.cpu_count() or 1
+                ray.init(address="local", num_cpus=cpus, resources={EVALUATION_SLOTS: cpus}, **opts)
             self._owned = True
         self._ray = ray
-        remote = ray.remote(num_cpus=1, max_retries=self.max_retries)
-        self._tasks = {"train": remote(train_run), "evaluate": remote(evaluate_policy)}
+        # On a local instance evaluations take slots of their own rather than CPUs: a finished run
+        # is evaluated as soon as it lands (a short, briefly oversubscribed task) instead of waiting
+        # behind hours of queued trainings. A cluster started elsewhere has no such slots.
+        slots = ray.cluster_resources().get(EVALUATION_SLOTS, 0)
+        evaluate_resources = {"num_cpus": 0, "resources": {EVALUATION_SLOTS: 1}} if slots else {"num_cpus": 1}
+        self._tasks = {"train": ray.remote(num_cpus=1, max_retries=self.max_retries)(train_run),
+                       "evaluate": ray.remote(max_retries=self.max_retries, **evaluate_resources)(evaluate_policy)}
         return ray
 
     def cpus(self) -> int:
