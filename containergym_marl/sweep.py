@@ -243,11 +243,13 @@ class MetricsReporter(threading.Thread):
 
 
 def _emit(events, item) -> None:
+    """Send a progress event without waiting for it: a task blocked in ``ray.get`` (as
+    ``Queue.put`` is) gives its CPU back to Ray, which then starts another training on it."""
     if events is None:
         return
     try:
-        events.put_nowait(item)
-    except Exception:  # the driver went away or its queue is full: progress is best effort
+        events.actor.put_nowait.remote(item)
+    except Exception:  # the driver went away: progress is best effort
         pass
 
 
