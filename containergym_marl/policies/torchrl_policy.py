@@ -1,0 +1,86 @@
+"""An adapter that lets :func:`~containergym_marl.evaluation.evaluate` run a TorchRL policy trained on
+:class:`~containergym_marl.envs.torchrl_env.ContainerAgentsTorchRLEnv` (BenchMARL's MAPPO, IPPO,
+QMIX, … or any TensorDict module reading the env's keys) under the paper's test protocol::
+
+    from benchmarl.experiment import Experiment
+    from containergym_marl.evaluation import evaluate
+    from containergym_marl.policies.torchrl_policy import TorchRLAgentsPolicy
+
+    experiment = Experiment.reload_from_file("…/checkpoints/checkpoint_<frames>.pt")
+    result = evaluate(TorchRLAgentsPolicy(experiment.policy, name="mappo"), "n5_m2_dt120")
+
+Each step, the agents' observations from the decentralised view are stacked into the TorchRL env's
+layout, a batch of one simulation: ``("container", "observation")`` [1, n, F],
+``("container", "action_mask")`` [1, n, 2] and the normalised ``"state"`` [1, n + m], computed
+from the same functions the batched env uses, so the policy sees what it saw in training. Actions
+are the mode of the policy's distribution (``deterministic=True``, TorchRL's
+``ExplorationType.DETERMINISTIC``, as the paper's test protocol asks) or samples from it.
+
+Needs torch and torchrl (the ``clients`` extra).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from containergym_marl.envs._common import normalised_state_bounds, normalised_state_scale
+from containergym_marl.envs.torchrl_env import CLIENTS_EXTRA_HINT, GROUP
+
+
+class TorchRLAgentsPolicy:
+    """A TensorDict policy acting for all container agents at once (one shared call per step).
+
+    Args:
+        policy: a callable on a TensorDict that writes ``(group, "action")`` (categorical [1, n]
+            or one-hot [1, n, 2]), such as BenchMARL's ``experiment.policy``.
+        name: the policy's name in evaluation results.
+        group: the agent group the policy was trained for (the env's ``"container"``).
+        deterministic: act with the distribution's mode (the test protocol) or sample.
+    """
+
+    view = "decentralised"
+
+    def __init__(self, policy: Any, name: str = "torchrl_policy", group: str = GROUP,
+                 deterministic: bool = True):
+        try:
+            import torch
+            from tensordict import TensorDict
+            from torchrl.envs.utils import ExplorationType, set_exploration_type
+        except ImportError as error:
+            raise ImportError(f"TorchRLAgentsPolicy needs torchrl ({error}); install the clients "
+                              f"extra: {CLIENTS_EXTRA_HINT}") from error
+        self.policy, self.name, self.group, self.deterministic = policy, name, group, deterministic
+        self._torch, self._TensorDict = torch, TensorDict
+        mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+        self._exploration = lambda: set_exploration_type(mode)
+        self._scale_for: tuple[Any, np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def _state_scale(self, params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._scale_for is None or self._scale_for[0] is not params:
+            self._scale_for = (params, normalised_state_scale(params), *normalised_state_bounds(params))
+        return self._scale_for[1:]
+
+    def inputs(self, observations: dict[str, Any], env: Any):
+        """The TensorDict the policy gets for the decentralised view's ``observations``."""
+        torch, sim = self._torch, env.simulator
+        obs = np.stack([o["observation"] if isinstance(o, dict) else o for o in observations.values()])
+        n = obs.shape[0]
+        mask = np.ones((1, n, 2), dtype=bool)
+        mask[0, :, 1] = bool(sim.free_pu_count()[0] > 0)
+        scale, low, high = self._state_scale(sim.params)
+        state = np.divide(sim.global_state(), scale, dtype=np.float32)
+        np.clip(state, low, high, out=state)
+        group = self._TensorDict({"observation": torch.from_numpy(np.ascontiguousarray(obs, np.float32))[None],
+                                  "action_mask": torch.from_numpy(mask)}, batch_size=(1, n))
+        return self._TensorDict({self.group: group, "state": torch.from_numpy(state)}, batch_size=(1,))
+
+    def act(self, observations: dict[str, Any], env: Any) -> dict[str, int]:
+        td = self.inputs(observations, env)
+        with self._torch.no_grad(), self._exploration():
+            td = self.policy(td)
+        action = td.get((self.group, "action"))[0]
+        if action.ndim == 2:  # one-hot
+            action = action.to(self._torch.uint8).argmax(-1)
+        return {a: int(x) for a, x in zip(observations, action.tolist())}
