@@ -5,17 +5,11 @@
   ``seed + b``, step for step through ends and autoresets: observations, masks, normalised state,
   rewards (individual and team), terminated/truncated and infos.
 * Partial resets through ``"_reset"`` masks touch only the masked simulations; seeding.
-* Without torchrl the module imports and constructing the env names the ``clients`` extra.
 
 Needs torchrl (skipped without it; the ``clients`` extra installs it).
 """
 
 from __future__ import annotations
-
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,7 +22,6 @@ from torchrl.envs.utils import check_env_specs  # noqa: E402
 from containergym_marl import container_agents_v0  # noqa: E402
 from containergym_marl.envs.torchrl_env import GROUP, ContainerAgentsTorchRLEnv  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
 CFG = "n5_m2_dt120"
 # both kinds of ends within a few dozen steps: time limits and overflows (full starting volumes)
 ENDS = dict(episode_length_steps=20, initial_volume_min=25.0, initial_volume_max=39.5)
@@ -152,17 +145,6 @@ def test_bad_arguments():
     td[GROUP, "action"] = torch.full((2, 5), 2, dtype=torch.int64)
     with pytest.raises(ValueError, match="requests"):
         env.step(td)
-
-
-def test_without_torchrl_the_error_names_the_extra():
-    script = ("import sys; sys.modules['torch'] = sys.modules['torchrl'] = None\n"
-              "from containergym_marl.envs import torchrl_env\n"
-              "try:\n    torchrl_env.ContainerAgentsTorchRLEnv()\n"
-              "except ImportError as e:\n    print(e)\n")
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, cwd=ROOT)
-    assert out.returncode == 0, out.stderr
-    assert "containergym-marl[clients]" in out.stdout
 
 
 # ---- evaluating a TorchRL policy with the paper's protocol -----------------------------------------
