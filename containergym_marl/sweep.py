@@ -242,14 +242,24 @@ class MetricsReporter(threading.Thread):
         self.stopped.set()
 
 
+class EventSender:
+    """What a task holds of the driver's event queue: ``put_nowait`` sends without waiting. (A task
+    blocked in ``ray.get``, as ``Queue.put`` is, lends its CPU back to Ray, which then starts
+    another training on it.)"""
+
+    def __init__(self, queue_actor):
+        self.queue_actor = queue_actor
+
+    def put_nowait(self, item) -> None:
+        self.queue_actor.put_nowait.remote(item)
+
+
 def _emit(events, item) -> None:
-    """Send a progress event without waiting for it: a task blocked in ``ray.get`` (as
-    ``Queue.put`` is) gives its CPU back to Ray, which then starts another training on it."""
     if events is None:
         return
     try:
-        events.actor.put_nowait.remote(item)
-    except Exception:  # the driver went away: progress is best effort
+        events.put_nowait(item)
+    except Exception:  # the driver or its queue went away: progress is best effort
         pass
 
 
@@ -610,8 +620,9 @@ def execute(cluster: Cluster, runs: list[RunSpec], evaluations: list[tuple[EvalS
     by_name = {s.name: s for s in runs}
     pending: dict[Any, tuple[str, Any]] = {}
     train_refs = {}
+    sender = EventSender(events.actor) if events is not None else None
     for spec in runs:
-        ref = cluster.submit("train", spec, events)
+        ref = cluster.submit("train", spec, sender)
         train_refs[spec.name] = ref
         pending[ref] = ("train", spec)
     for spec, source in evaluations:
