@@ -1,19 +1,23 @@
-"""benchmarks/throughput.py runs at tiny sizes and prints the documented tables (structure, not speed)."""
+"""benchmarks/throughput.py runs at tiny sizes and prints the documented tables (structure, not speed).
+
+The run compares this checkout with itself (``--compare-with``, the before/after path) and has no
+reference venv, so the earlier implementation's columns must be left out with a message.
+"""
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
 
-from containergym_marl.core import compiled
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "throughput.py"
+REPO = Path(__file__).resolve().parents[1]
+SCRIPT = REPO / "benchmarks" / "throughput.py"
 
 
 def _table(lines: list[str], heading: str) -> tuple[list[str], list[list[str]]]:
-    start = lines.index(heading)
+    start = next(i for i, line in enumerate(lines) if line.startswith(heading))
     rows = []
     for line in lines[start + 1:]:
         if line.startswith("## "):
@@ -23,49 +27,61 @@ def _table(lines: list[str], heading: str) -> tuple[list[str], list[list[str]]]:
     return rows[0], rows[1:]
 
 
+def _number(cell: str) -> float:
+    return float(cell.replace(",", "").rstrip("×"))
+
+
 def test_smoke_run_prints_every_table(tmp_path):
     out_json = tmp_path / "throughput.json"
-    proc = subprocess.run([sys.executable, str(SCRIPT), "--smoke", "--quiet", "--json", str(out_json)],
-                          capture_output=True, text=True, timeout=300, check=True)
+    env = {k: v for k, v in os.environ.items() if k != "CONTAINERGYM_REFERENCE_PYTHON"}
+    proc = subprocess.run([sys.executable, str(SCRIPT), "--smoke", "--quiet", "--json", str(out_json),
+                           "--compare-with", str(REPO)],
+                          capture_output=True, text=True, timeout=300, check=True, env=env)
     lines = proc.stdout.splitlines()
     assert lines[0] == "# Throughput (smoke run)"
+    assert any(line.startswith("- skipped: the earlier implementation: no --reference-python") for line in lines)
+    assert any(line.startswith("- **ours**:") for line in lines)
+    assert any(line.startswith("- **before**:") for line in lines)
 
-    header, rows = _table(lines, "## Environment steps per second")
-    assert header == ["path", "backend", "B", "n=5 env steps/s", "n=5 agent steps/s", "n=5 × ref (global)",
-                      "n=5 × ref (Generator)", "n=11 env steps/s", "n=11 agent steps/s",
-                      "n=11 × ref (global)", "n=11 × ref (Generator)"]
-    backends = ["numpy", "numba"] if compiled.numba_available() else ["numpy"]
-    paths = {(r[0], r[1], r[2]) for r in rows}
-    for ref in ("earlier implementation, cost model (global np.random)",
-                "earlier implementation, cost model (np.random.Generator)"):
-        assert (ref, "–", "1") in paths
-    for backend in backends:  # every package path is measured with every available backend
-        for single in ("centralised Gymnasium env (ContainerGymEnv)",
-                       "PettingZoo parallel env (container_agents_v0)"):
-            assert (single, backend, "1") in paths
-        assert any(p.startswith("SuperSuit stack") and be == backend for p, be, _ in paths)
-        for native in ("native SB3 ContainerGymVecEnv", "native Gymnasium ContainerGymVectorEnv",
-                       "native SB3 ContainerAgentsVecEnv (B·n agent slots)"):
-            assert {(native, backend, b) for b in ("1", "4")} <= paths  # the smoke batch sizes
+    # B = 1: no reference columns without the reference venv
+    header, rows = _table(lines, "## B = 1")
+    assert header == ["path", "n", "B", "ours steps/s", "µs per call", "ours steps per CPU-second", "before steps/s",
+                      "ours ÷ before"]
+    assert {(r[0], r[1]) for r in rows} == {
+        (path, n) for path in ("centralised env step (ContainerGymEnv)", "reset() alone (ContainerGymEnv)",
+                               "PettingZoo parallel_env step (dict API)") for n in ("5", "11")}
     for r in rows:
-        assert len(r) == len(header)
-        assert float(r[3].replace(",", "")) > 0 and float(r[7].replace(",", "")) > 0
-        assert r[5].endswith("×") and r[10].endswith("×")
-    ref = next(r for r in rows if r[0].endswith("(global np.random)"))
-    assert ref[5] == "1.00×" and ref[9] == "1.00×"
+        assert r[2] == "1" and all(_number(c) > 0 for c in r[3:7])
+        assert r[7].endswith("×") and _number(r[7]) > 0
+    assert any(line.startswith("PettingZoo parallel_env step time ÷ centralised step time: n = 5: ours ")
+               for line in lines)
 
-    header, rows = _table(lines, "## Where the time goes")
-    assert header[0] == "configuration" and len(rows) == 3 * len(backends)
-    assert all(len(r) == len(header) and r[2].endswith("%") for r in rows)
-    assert {r[0].rsplit("[", 1)[1].rstrip("]") for r in rows} == set(backends)
+    header, rows = _table(lines, "## Vectorised envs")
+    assert header == ["path", "n", "B", "ours env steps/s", "µs per call", "ours env steps per CPU-second",
+                      "ours agent steps/s", "before env steps/s", "ours ÷ before"]
+    assert [(r[0], r[1]) for r in rows] == [("ContainerGymVecEnv (SB3)", "5"), ("ContainerGymVecEnv (SB3)", "11"),
+                                            ("ContainerAgentsVecEnv (SB3)", "5"), ("ContainerAgentsVecEnv (SB3)", "11")]
+    for r in rows:
+        assert _number(r[3]) > 0 and _number(r[5]) > 0 and _number(r[7]) > 0 and r[8].endswith("×")
+        if r[0].startswith("ContainerAgentsVecEnv"):  # agent steps = n × env steps
+            assert abs(_number(r[6]) - int(r[1]) * _number(r[3])) <= int(r[1])
+        else:
+            assert r[6] == "–"
 
-    header, rows = _table(lines, "## SB3 PPO training throughput (n5_m2_dt120, MlpPolicy, torch threads = 1)")
-    assert header == ["training", "env slots", "samples/s", "env share of wall time", "projected 2M-step run (min)"]
-    assert [r[0].split(",")[0] for r in rows] == ["shared PPO", "shared PPO", "centralised PPO", "centralised PPO"]
-    assert "default Adam" in rows[3][0]
-    assert "SuperSuit" in rows[0][0] and "native" in rows[1][0]
-    assert all(r[3].endswith("%") for r in rows)
+    header, rows = _table(lines, "## Where the time goes at B = 1")
+    assert header[:5] == ["path", "n", "untimed", "with timers", "kernel"] and "resets" in header
+    assert len(rows) == 4 and all(len(r) == len(header) for r in rows)
+
+    header, rows = _table(lines, "## SB3 PPO training")
+    assert header == ["algorithm", "env slots", "samples/s", "env share of wall time", "projected 2M samples (min)"]
+    assert [r[0] for r in rows] == ["ppo", "shared_ppo"] and all(r[3].endswith("%") for r in rows)
+
+    header, rows = _table(lines, "## Targets")
+    assert header == ["target", "this run", "status"] and len(rows) == 7
+    assert all(r[2] == "not judged (smoke sizes)" for r in rows)
+    assert rows[0][1] == "reference not run"
 
     data = json.loads(out_json.read_text())
-    assert set(data) >= {"meta", "env", "profile", "ppo", "reference_sampling_share"}
-    assert data["meta"]["smoke"] is True and len(data["env"]) == len(paths)
+    assert set(data) >= {"meta", "implementations", "skipped", "summary", "raw", "profile", "ppo", "targets"}
+    assert list(data["implementations"]) == ["ours", "before"] and data["meta"]["smoke"] is True
+    assert len(data["summary"]["rows"]) == 10
