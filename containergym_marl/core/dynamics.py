@@ -190,25 +190,41 @@ def step_simulation(b, state, requests, normals, priorities, params, next_state,
     out.truncated[b] = not overflow and next_state.step_count[b] >= params.episode_length_steps
 
 
+@jit
+def unpack_params(per_container, reward_table, scalars) -> PlantParams:
+    """PlantParams rebuilt inside compiled code from its three storage arrays (see params.py)."""
+    return PlantParams(int(scalars[0]), int(scalars[1]), scalars[2], int(scalars[3]), scalars[4], scalars[5],
+                       scalars[6], scalars[7], per_container[:, 0], per_container[:, 1], per_container[:, 2],
+                       per_container[:, 3], per_container[:, 4], per_container[:, 5], reward_table[0],
+                       reward_table[1], reward_table[2], per_container[:, 6], scalars[8], per_container,
+                       reward_table, scalars)
+
+
+@jit
+def _named_outputs(per_sim_floats, per_sim_flags, pu_index, next_pu_timers_s, plant_reward, counts, ends):
+    """The next PlantState and the StepOutcome as views of the stacked output arrays that
+    :func:`_allocate_outputs` makes (the same views in Python and in compiled code)."""
+    next_state = PlantState(per_sim_floats[0], next_pu_timers_s, counts[0])
+    out = StepOutcome(per_sim_flags[0], per_sim_flags[1], per_sim_flags[2], pu_index, per_sim_floats[1],
+                      per_sim_floats[2], per_sim_flags[3], per_sim_floats[3], plant_reward, counts[1], ends[0],
+                      ends[1])
+    return next_state, out
+
+
 def _compile_batch_step(priority: Callable) -> Callable:
     """The batched step with one arbitration rule's priority compiled in.
 
-    The arguments are the fields of PlantState, the inputs, the next PlantState, StepOutcome and
-    PlantParams, flat and in that order: numba takes plain arrays and numbers several times faster
-    than named tuples or function objects, which matters when one simulation steps in a few
-    microseconds. They are named tuples again inside. The rule is compiled into the kernel for the
-    same reason.
+    Numba unpacks every argument of a call, and a named tuple or a function object several times
+    more slowly than an array; with one simulation stepping in a few microseconds that matters. So
+    the kernel takes the state, the inputs, the plant's three storage arrays and the outputs stacked
+    by type (:func:`_allocate_outputs`), names them again inside, and has the rule compiled in.
     """
 
-    def step_batch(volumes, pu_timers_s, step_count, requests, normals, uniforms,
-                   next_volumes, next_pu_timers_s, next_step_count,
-                   requested, granted, denied, pu_index, emptied_volume, container_reward, overflowed,
-                   individual_reward, plant_reward, free_pus_before, terminated, truncated, *params_fields):
+    def step_batch(volumes, pu_timers_s, step_count, requests, normals, uniforms, per_container, reward_table,
+                   scalars, *outputs):
         state = PlantState(volumes, pu_timers_s, step_count)
-        params = PlantParams(*params_fields)
-        next_state = PlantState(next_volumes, next_pu_timers_s, next_step_count)
-        out = StepOutcome(requested, granted, denied, pu_index, emptied_volume, container_reward, overflowed,
-                          individual_reward, plant_reward, free_pus_before, terminated, truncated)
+        params = unpack_params(per_container, reward_table, scalars)
+        next_state, out = _named_outputs(*outputs)
         priorities = np.zeros(params.n_containers)
         for b in range(requests.shape[0]):
             for i in range(params.n_containers):
@@ -217,6 +233,19 @@ def _compile_batch_step(priority: Callable) -> Callable:
             step_simulation(b, state, requests, normals, priorities, params, next_state, out)
 
     return numba.njit(cache=True, nogil=True)(step_batch)
+
+
+#: Which of the outputs are stacked (batch on axis 1).
+_STACKED = (True, True, False, False, False, True, True)
+
+
+def _allocate_outputs(bsz: int, n: int, m: int) -> tuple[np.ndarray, ...]:
+    """Fresh outputs of one step, stacked by type (fewer allocations and kernel arguments):
+    (next volumes, emptied volume, container reward, individual reward), (requested, granted,
+    denied, overflowed), PU index, next timers, plant reward, (next step count, free PUs before),
+    (terminated, truncated). :func:`_named_outputs` names them."""
+    return (np.empty((4, bsz, n)), np.empty((4, bsz, n), bool), np.empty((bsz, n), np.int64), np.empty((bsz, m)),
+            np.empty(bsz), np.empty((2, bsz), np.int64), np.empty((2, bsz), bool))
 
 
 # ---- 1. arbitration rules: name -> compiled priority ---------------------------------------------
@@ -322,28 +351,19 @@ def step(
         raise ValueError(f"requests: expected shape {(bsz, n)}, got {requests.shape}")
     normals = _float_rows("normals", normals, (bsz, n))
     uniforms = _float_rows("uniforms", uniforms, (bsz, n))
-    next_state = PlantState(np.empty((bsz, n)), np.empty((bsz, m)), np.empty(bsz, np.int64))
-    out = StepOutcome(
-        requested=np.empty((bsz, n), bool),
-        granted=np.empty((bsz, n), bool),
-        denied=np.empty((bsz, n), bool),
-        pu_index=np.empty((bsz, n), np.int64),
-        emptied_volume=np.empty((bsz, n)),
-        container_reward=np.empty((bsz, n)),
-        overflowed=np.empty((bsz, n), bool),
-        individual_reward=np.empty((bsz, n)),
-        plant_reward=np.empty(bsz),
-        free_pus_before=np.empty(bsz, np.int64),
-        terminated=np.empty(bsz, bool),
-        truncated=np.empty(bsz, bool),
-    )
-    arrays = (*state, requests, normals, uniforms, *next_state, *out)
+    outputs = _allocate_outputs(bsz, n, m)
+    inputs = (*state, requests, normals, uniforms)
     if bsz < PARALLEL_MIN_BATCH or _THREADS == 1:
-        rule.step_batch(*arrays, *params)
+        rule.step_batch(*inputs, *params.kernel_arrays(), *outputs)
     else:  # row blocks in threads: the kernel releases the GIL, and simulations are independent
         bounds = np.linspace(0, bsz, _THREADS + 1).astype(int)
-        blocks = [[a[lo:hi] for a in arrays] for lo, hi in zip(bounds[:-1], bounds[1:])]
-        list(_thread_pool().map(lambda block: rule.step_batch(*block, *params), blocks))
+
+        def block(lo: int, hi: int) -> None:
+            rule.step_batch(*(a[lo:hi] for a in inputs), *params.kernel_arrays(),
+                            *(a[:, lo:hi] if stacked else a[lo:hi] for a, stacked in zip(outputs, _STACKED)))
+
+        list(_thread_pool().map(block, bounds[:-1], bounds[1:]))
+    next_state, out = _named_outputs.py_func(*outputs)  # the same naming, in Python
     return next_state, out
 
 
@@ -359,8 +379,8 @@ def reset_state(params: PlantParams, uniforms: np.ndarray) -> PlantState:
 
 
 @jit
-def _emptying_rewards_into(volumes, out, *params_fields):
-    params = PlantParams(*params_fields)
+def _emptying_rewards_into(volumes, out, per_container, reward_table, scalars):
+    params = unpack_params(per_container, reward_table, scalars)
     for b in range(volumes.shape[0]):
         for i in range(volumes.shape[1]):
             out[b, i] = emptying_reward(i, volumes[b, i], params)
@@ -373,5 +393,5 @@ def emptying_rewards(volumes: np.ndarray, params: PlantParams) -> np.ndarray:
     if volumes.ndim != 2 or volumes.shape[1] != params.n_containers:
         raise ValueError(f"volumes: expected shape (B, {params.n_containers}), got {volumes.shape}")
     out = np.empty(volumes.shape)
-    _emptying_rewards_into(volumes, out, *params)
+    _emptying_rewards_into(volumes, out, *params.kernel_arrays())
     return out

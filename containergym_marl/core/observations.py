@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from containergym_marl.core.dynamics import PlantState, emptying_reward, jit
+from containergym_marl.core.dynamics import PlantState, emptying_reward, jit, unpack_params
 from containergym_marl.core.params import PlantParams
 
 #: The rule-based controller's margin (paper, section 6.2), also used by ``others_ready_frac``.
@@ -113,8 +113,8 @@ def global_state(state: PlantState, params: PlantParams) -> np.ndarray:
 
 
 @jit
-def _agent_observations_into(volumes, timers, previous_requests, out, *params_fields):
-    params = PlantParams(*params_fields)
+def _agent_observations_into(volumes, timers, previous_requests, out, per_container, reward_table, scalars):
+    params = unpack_params(per_container, reward_table, scalars)
     bsz, n = volumes.shape
     m = timers.shape[1]
     others = max(n - 1, 1)  # with one container the "others" shares are 0
@@ -170,5 +170,5 @@ def agent_observations(
     if previous_requests.shape != (bsz, n):
         raise ValueError(f"previous_requests: expected shape {(bsz, n)}, got {previous_requests.shape}")
     out = np.empty((bsz, n, len(SCALAR_FEATURES) + params.n_pus + n), dtype=np.float32)
-    _agent_observations_into(v, state.pu_timers_s, previous_requests, out, *params)
+    _agent_observations_into(v, state.pu_timers_s, previous_requests, out, *params.kernel_arrays())
     return out

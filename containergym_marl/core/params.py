@@ -13,6 +13,14 @@ from typing import NamedTuple
 import numpy as np
 
 
+#: Columns of PlantParams.per_container, in order.
+PER_CONTAINER_COLUMNS = ("fill_mean_per_step", "fill_std_per_step", "max_volume", "product_size", "pu_offset_s",
+                         "pu_time_per_product_s", "target_volume")
+#: Entries of PlantParams.scalars, in order.
+SCALARS = ("n_containers", "n_pus", "timestep_s", "episode_length_steps", "initial_volume_min",
+           "initial_volume_max", "overflow_reward", "penalty_reward", "max_pu_time_s")
+
+
 def _frozen(a) -> np.ndarray:
     out = np.array(a, dtype=np.float64)
     out.setflags(write=False)
@@ -45,6 +53,16 @@ class PlantParams(NamedTuple):
     reward_two_width_sq: np.ndarray  # (n, K): 2 w_k², 1 for padding
     target_volume: np.ndarray  # the global optimum v* of each container
     max_pu_time_s: float  # largest g_i(v) for v < v_max: an upper bound of every PU timer
+    # The storage of everything above, in three arrays: the per-container arrays are views of
+    # ``per_container`` and ``reward_table``. The compiled step takes these three (numba unpacks
+    # each argument of a call, so three arrays cost far less than nineteen fields) and rebuilds the
+    # named tuple inside (:func:`containergym_marl.core.dynamics.unpack_params`).
+    per_container: np.ndarray  # (n, 7): the columns PER_CONTAINER_COLUMNS
+    reward_table: np.ndarray  # (3, n, K): reward_peaks, reward_coef, reward_two_width_sq
+    scalars: np.ndarray  # (9,): SCALARS
+
+    def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.per_container, self.reward_table, self.scalars
 
     @classmethod
     def from_config(cls, cfg) -> "PlantParams":
@@ -68,24 +86,36 @@ class PlantParams(NamedTuple):
         # g(v) <= β + λ·⌊v_max / b⌋ bounds every timer.
         max_pu_time = float(np.max(beta + lam * np.floor(vmax / size)))
         dt = float(cfg.timestep_s)
+        columns = {
+            "fill_mean_per_step": column("fill_rate_per_s") * dt,
+            "fill_std_per_step": column("fill_noise_per_sqrt_s") * np.sqrt(dt),
+            "max_volume": vmax,
+            "product_size": size,
+            "pu_offset_s": beta,
+            "pu_time_per_product_s": lam,
+            "target_volume": np.array([c.target_volume for c in cfg.containers], dtype=np.float64),
+        }
+        per_container = _frozen(np.stack([columns[name] for name in PER_CONTAINER_COLUMNS], axis=1))
+        reward_table = _frozen(np.stack([peaks, coef, two_w_sq]))
+        scalar = {
+            "n_containers": n,
+            "n_pus": int(cfg.num_processing_units),
+            "timestep_s": dt,
+            "episode_length_steps": int(cfg.episode_length_steps),
+            "initial_volume_min": float(cfg.initial_volume_min),
+            "initial_volume_max": float(cfg.initial_volume_max),
+            "overflow_reward": float(cfg.overflow_reward),
+            "penalty_reward": float(cfg.penalty_reward),
+            "max_pu_time_s": max_pu_time,
+        }
+        views = {name: per_container[:, k] for k, name in enumerate(PER_CONTAINER_COLUMNS)}
         return cls(
-            n_containers=n,
-            n_pus=int(cfg.num_processing_units),
-            timestep_s=dt,
-            episode_length_steps=int(cfg.episode_length_steps),
-            initial_volume_min=float(cfg.initial_volume_min),
-            initial_volume_max=float(cfg.initial_volume_max),
-            overflow_reward=float(cfg.overflow_reward),
-            penalty_reward=float(cfg.penalty_reward),
-            fill_mean_per_step=_frozen(column("fill_rate_per_s") * dt),
-            fill_std_per_step=_frozen(column("fill_noise_per_sqrt_s") * np.sqrt(dt)),
-            max_volume=_frozen(vmax),
-            product_size=_frozen(size),
-            pu_offset_s=_frozen(beta),
-            pu_time_per_product_s=_frozen(lam),
-            reward_peaks=_frozen(peaks),
-            reward_coef=_frozen(coef),
-            reward_two_width_sq=_frozen(two_w_sq),
-            target_volume=_frozen([c.target_volume for c in cfg.containers]),
-            max_pu_time_s=max_pu_time,
+            **scalar,
+            **views,
+            reward_peaks=reward_table[0],
+            reward_coef=reward_table[1],
+            reward_two_width_sq=reward_table[2],
+            per_container=per_container,
+            reward_table=reward_table,
+            scalars=_frozen([scalar[name] for name in SCALARS]),
         )
