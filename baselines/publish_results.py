@@ -6,7 +6,7 @@ the best and median model of each (row, method), and the table regenerated from 
 RUNS is compare's ``--runs`` folder, OUT its ``--out`` folder. For every finished run (a readable
 ``final_model.zip``) it copies ``args.json``, ``run.json``, ``config.toml`` and ``metrics.csv`` to
 ``<to>/runs/<run>/``; every evaluation file of OUT to ``<to>/evaluations/<config>/``; and, for each
-(config, method) whose seeds are all evaluated, the best model (``best_model.zip``, the policy the
+(config, method) with at least ``--min-seeds`` evaluated seeds, the best model (``best_model.zip``, the policy the
 evaluation used) of its best and of its median seed by mean test return (the table's rule) to
 ``<to>/models/<config>/<method>_{best,median}.zip`` with ``<method>.json`` naming the seeds and
 their returns. Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
@@ -33,7 +33,7 @@ def _copy(src: Path, dst: Path) -> None:
     atomic_write(dst, lambda tmp: shutil.copyfile(src, tmp))
 
 
-def publish(runs: Path, compare_out: Path, to: Path) -> dict:
+def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3) -> dict:
     done = {"runs": [], "evaluations": 0, "models": []}
     for run in sorted(p for p in runs.iterdir() if p.is_dir() and not p.name.startswith(".")):
         if run_status(run) != "finished":
@@ -46,8 +46,8 @@ def publish(runs: Path, compare_out: Path, to: Path) -> dict:
         _copy(path, to / "evaluations" / path.parent.name / path.name)
         done["evaluations"] += 1
     for group in tables.load_evaluations(to / "evaluations"):
-        if not group.seeds:
-            continue  # a rule-based controller: nothing to ship
+        if len(group.seeds) < min_seeds:
+            continue  # a rule-based controller (nothing to ship), or a row still training
         runs_of = [runs / f"{group.method}_{group.config}_s{seed}" for seed in group.seeds]
         if not all(run_status(r) == "finished" for r in runs_of):
             continue
@@ -77,8 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", required=True, type=Path, help="compare's --runs folder")
     parser.add_argument("--compare", required=True, type=Path, help="compare's --out folder")
     parser.add_argument("--to", default=Path("results/paper_rows"), type=Path, help="destination in the repository")
+    parser.add_argument("--min-seeds", type=int, default=3, help="ship models of a (row, method) from this many seeds on")
     ns = parser.parse_args(argv)
-    done = publish(ns.runs, ns.compare, ns.to)
+    done = publish(ns.runs, ns.compare, ns.to, ns.min_seeds)
     size = sum(p.stat().st_size for p in (ns.to / "models").rglob("*.zip")) if (ns.to / "models").exists() else 0
     print(f"published {len(done['runs'])} finished run(s), {done['evaluations']} evaluation(s), models of "
           f"{len(done['models'])} (row, method) pair(s) ({size / 1e6:.1f} MB of models) to {ns.to}/")
