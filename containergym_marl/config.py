@@ -6,6 +6,44 @@ a config directly: it reads :class:`~containergym_marl.core.params.PlantParams`,
 derived from it by ``PlantParams.from_config`` (the config knows nothing of the core).
 
 Units: volumes in the plant's volume units, times in seconds, rates per second.
+
+Bounds
+------
+Every config is checked against these bounds when it is built (loaded, overridden or constructed
+by hand); a value outside them raises :class:`ConfigError` naming the field (and the container for
+per-container fields). They keep every volume, timer, reward and observation bound finite, and
+leave room far beyond the paper's plants (n ≤ 16, v_max = 40, δ ≤ 120 s, T ≤ 1500).
+
+==========================  ====================================================  ==================
+field                       bound                                                 constant
+==========================  ====================================================  ==================
+containers (n)              1 ≤ n ≤ 1024, distinct non-empty names                MAX_CONTAINERS
+num_processing_units (m)    integer, 1 ≤ m ≤ 1024 (m > n is allowed)              MAX_PROCESSING_UNITS
+timestep_s (δ)              1e-3 ≤ δ ≤ 1e7 s                                      MIN/MAX_TIMESTEP_S
+episode_length_steps (T)    integer, 1 ≤ T ≤ 10**9                                MAX_EPISODE_LENGTH_STEPS
+penalty_reward (r_pen)      r_min < r_pen < 0                                     –
+overflow_reward (r_min)     -1e6 ≤ r_min < r_pen                                  MIN_OVERFLOW_REWARD
+initial_volume_min/max      0 ≤ min ≤ max < every container's max_volume          –
+max_volume (v_max)          1e-3 ≤ v_max ≤ 1e12                                   MIN/MAX_VOLUME
+product_size (b)            1e-3 ≤ b ≤ 1e12                                       MIN/MAX_VOLUME
+fill_rate_per_s (μ)         0 ≤ μ ≤ 1e12 per second                               MAX_RATE
+fill_noise_per_sqrt_s (σ)   0 ≤ σ ≤ 1e12 per √second                              MAX_RATE
+pu_offset_s (β)             0 < β ≤ 1e9 s                                         MAX_PU_DURATION_S
+pu_time_per_product_s (λ)   0 < λ ≤ 1e9 s                                         MAX_PU_DURATION_S
+longest PU time             β + λ·⌊v_max / b⌋ ≤ 1e12 s (named as λ's error)        MAX_PU_TIME_S
+reward_peaks (v*_k)         0 < v*_k ≤ v_max, at least one                        –
+reward_heights (h_k)        0 < h_k ≤ 1                                           –
+reward_widths (w_k)         1e-3 ≤ w_k ≤ 1e12                                     MIN/MAX_VOLUME
+batch size B (simulator,    integer, 1 ≤ B ≤ 2**24 (checked by PlantSimulator     MAX_BATCH_SIZE
+vector envs)                and the vector envs, ValueError naming the argument)
+==========================  ====================================================  ==================
+
+Every number must be a finite real (bools and strings are refused). Integer fields take integral
+values of any numeric type (``600``, ``600.0``, ``np.int64(600)``, ``np.float32(600)``) and refuse
+non-integral ones (``600.5``). Why these limits: a width below 1e-3 makes ``exp(-d²/2w²)``
+underflow or divide by zero (1e-160 gave NaN); timers up to 1e12 s still count down exactly by
+δ ≥ 1e-3 s in float64; volumes, rates and durations up to these limits keep the float32
+observation bounds finite; r_min ≥ -1e6 keeps sums of n penalties finite; m, n and B bound memory.
 """
 
 from __future__ import annotations
@@ -13,6 +51,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import operator
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
@@ -20,6 +59,10 @@ from pathlib import Path
 from typing import Any, Mapping
 
 __all__ = [
+    "MAX_BATCH_SIZE",
+    "MAX_CONTAINERS",
+    "MAX_EPISODE_LENGTH_STEPS",
+    "MAX_PROCESSING_UNITS",
     "ConfigError",
     "ContainerSpec",
     "PlantConfig",
@@ -32,6 +75,25 @@ __all__ = [
 #: The paper's test protocol (section 6.1): every policy is evaluated with δ = 120 s and T = 600.
 PAPER_TEST_PROTOCOL: Mapping[str, Any] = {"timestep_s": 120.0, "episode_length_steps": 600}
 _PROTOCOLS = {"paper_test": PAPER_TEST_PROTOCOL}
+
+# ---- bounds (the table in the module docstring) ----------------------------------------------
+MAX_CONTAINERS = 1024
+MAX_PROCESSING_UNITS = 1024
+MIN_TIMESTEP_S = 1e-3
+MAX_TIMESTEP_S = 1e7
+MAX_EPISODE_LENGTH_STEPS = 10**9
+MIN_OVERFLOW_REWARD = -1e6
+#: smallest and largest v_max, product size and reward width (volume units)
+MIN_VOLUME = 1e-3
+MAX_VOLUME = 1e12
+#: largest fill rate μ (per s) and fill noise σ (per √s)
+MAX_RATE = 1e12
+#: largest β and λ (s)
+MAX_PU_DURATION_S = 1e9
+#: largest PU busy time β + λ·⌊v_max / b⌋ (s)
+MAX_PU_TIME_S = 1e12
+#: largest batch size B of a simulator or vector env (checked there, not in the config)
+MAX_BATCH_SIZE = 2**24
 
 
 class ConfigError(ValueError):
@@ -203,7 +265,7 @@ def _toml_str(s: str) -> str:
 
 
 def _as_float(value: Any, where: str) -> float:
-    if isinstance(value, (bool, str)) or not hasattr(value, "__float__"):
+    if isinstance(value, (bool, str, bytes) + _np_bool_types()) or not hasattr(value, "__float__"):
         raise ConfigError(f"{where}: expected a number, got {value!r}")
     try:
         out = float(value)
@@ -215,27 +277,56 @@ def _as_float(value: Any, where: str) -> float:
 
 
 def _as_int(value: Any, where: str) -> int:
-    if isinstance(value, bool):
+    """An integral number of any numeric type (int, numpy integer, a float such as 600.0 or
+    ``np.float32(600)``) as a Python int; bools, strings and non-integral values are refused."""
+    if isinstance(value, (bool, str, bytes) + _np_bool_types()):
         raise ConfigError(f"{where}: expected an integer, got {value!r}")
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    if not isinstance(value, int) and not (hasattr(value, "__index__")):
-        raise ConfigError(f"{where}: expected an integer, got {value!r}")
-    return int(value)
+    if hasattr(value, "__index__"):
+        return operator.index(value)
+    if hasattr(value, "__float__"):
+        try:
+            as_float = float(value)
+        except (TypeError, ValueError, OverflowError):
+            as_float = math.nan
+        if math.isfinite(as_float) and as_float.is_integer():
+            return int(as_float)
+    raise ConfigError(f"{where}: expected an integer, got {value!r}")
+
+
+def _np_bool_types() -> tuple[type, ...]:
+    """numpy's bool type, if numpy is importable (the config itself does not need numpy)."""
+    try:
+        import numpy
+    except ImportError:  # pragma: no cover - numpy is a dependency of the package
+        return ()
+    return (numpy.bool_,)
 
 
 # ---- validation ----------------------------------------------------------------------------
 def _check_finite(value: Any, where: str) -> None:
     """Direct construction bypasses the loaders' casting: still insist on finite real numbers."""
-    if isinstance(value, (bool, str)) or not isinstance(value, (int, float)) and not hasattr(value, "__float__"):
+    if (isinstance(value, (bool, str, bytes) + _np_bool_types())
+            or not isinstance(value, (int, float)) and not hasattr(value, "__float__")):
         raise ConfigError(f"{where}: expected a number, got {value!r}")
     if not math.isfinite(float(value)):
         raise ConfigError(f"{where}: must be finite, got {value!r}")
 
 
+def _check_range(value: float, lo: float, hi: float, where: str, what: str = "",
+                 lo_open: bool = False) -> None:
+    """lo ≤ value ≤ hi (lo < value with ``lo_open``), else a ConfigError naming ``where``."""
+    ok = (value > lo if lo_open else value >= lo) and value <= hi
+    if not ok:
+        left = "(" if lo_open else "["
+        raise ConfigError(f"{where} must lie in {left}{lo!r}, {hi!r}]{what}, got {value!r}")
+
+
 def _validate(cfg: PlantConfig) -> None:
     if not isinstance(cfg.containers, tuple) or len(cfg.containers) == 0:
         raise ConfigError("containers: a plant needs at least one container")
+    if len(cfg.containers) > MAX_CONTAINERS:
+        raise ConfigError(f"containers: at most {MAX_CONTAINERS} containers are supported, "
+                          f"got {len(cfg.containers)}")
     for c in cfg.containers:
         if not isinstance(c, ContainerSpec):
             raise ConfigError(f"containers: expected ContainerSpec entries, got {type(c).__name__}")
@@ -245,16 +336,17 @@ def _validate(cfg: PlantConfig) -> None:
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise ConfigError(f"containers: duplicate container name(s) {dup}")
-    if not isinstance(cfg.num_processing_units, int) or cfg.num_processing_units < 1:
+    m = cfg.num_processing_units
+    if isinstance(m, bool) or not isinstance(m, int) or not 1 <= m <= MAX_PROCESSING_UNITS:
         raise ConfigError(
-            f"num_processing_units: need at least one processing unit (m >= 1), "
-            f"got {cfg.num_processing_units!r}"
+            f"num_processing_units: need an integer 1 <= m <= {MAX_PROCESSING_UNITS} "
+            f"(at least one processing unit), got {m!r}"
         )
-    if not (cfg.timestep_s > 0):
-        raise ConfigError(f"timestep_s: must be > 0, got {cfg.timestep_s!r}")
-    if not isinstance(cfg.episode_length_steps, int) or cfg.episode_length_steps < 1:
+    _check_range(cfg.timestep_s, MIN_TIMESTEP_S, MAX_TIMESTEP_S, "timestep_s", " seconds")
+    t = cfg.episode_length_steps
+    if isinstance(t, bool) or not isinstance(t, int) or not 1 <= t <= MAX_EPISODE_LENGTH_STEPS:
         raise ConfigError(
-            f"episode_length_steps: must be a positive integer, got {cfg.episode_length_steps!r}"
+            f"episode_length_steps: must be a positive integer <= {MAX_EPISODE_LENGTH_STEPS}, got {t!r}"
         )
     if not (cfg.penalty_reward < 0):
         raise ConfigError(
@@ -265,6 +357,8 @@ def _validate(cfg: PlantConfig) -> None:
             f"overflow_reward: r_min must be < penalty_reward r_pen={cfg.penalty_reward!r}, "
             f"got {cfg.overflow_reward!r}"
         )
+    if not cfg.overflow_reward >= MIN_OVERFLOW_REWARD:
+        raise ConfigError(f"overflow_reward: r_min must be >= {MIN_OVERFLOW_REWARD!r}, got {cfg.overflow_reward!r}")
     if not (0 <= cfg.initial_volume_min <= cfg.initial_volume_max):
         raise ConfigError(
             f"initial_volume_min: need 0 <= initial_volume_min <= initial_volume_max, got "
@@ -286,16 +380,30 @@ def _validate_container(c: ContainerSpec) -> None:
     for key in _CONTAINER_FLOAT_FIELDS:
         _check_finite(getattr(c, key), f"{where}: {key}")
     for key in _CONTAINER_LIST_FIELDS:
+        if not isinstance(getattr(c, key), (tuple, list)):
+            raise ConfigError(f"{where}: {key} must be a sequence of numbers, got {getattr(c, key)!r}")
         for x in getattr(c, key):
             _check_finite(x, f"{where}: {key}")
     if not c.fill_rate_per_s >= 0:
         raise ConfigError(f"{where}: fill_rate_per_s must be >= 0 (containers only fill), got {c.fill_rate_per_s!r}")
+    _check_range(c.fill_rate_per_s, 0.0, MAX_RATE, f"{where}: fill_rate_per_s", " per second")
+    if not c.fill_noise_per_sqrt_s >= 0:
+        raise ConfigError(f"{where}: fill_noise_per_sqrt_s must be >= 0, got {c.fill_noise_per_sqrt_s!r}")
+    _check_range(c.fill_noise_per_sqrt_s, 0.0, MAX_RATE, f"{where}: fill_noise_per_sqrt_s", " per sqrt(second)")
     for key in ("max_volume", "product_size", "pu_offset_s", "pu_time_per_product_s"):
         value = getattr(c, key)
         if not value > 0:
             raise ConfigError(f"{where}: {key} must be > 0, got {value!r}")
-    if not c.fill_noise_per_sqrt_s >= 0:
-        raise ConfigError(f"{where}: fill_noise_per_sqrt_s must be >= 0, got {c.fill_noise_per_sqrt_s!r}")
+    _check_range(c.max_volume, MIN_VOLUME, MAX_VOLUME, f"{where}: max_volume", " volume units")
+    _check_range(c.product_size, MIN_VOLUME, MAX_VOLUME, f"{where}: product_size", " volume units")
+    for key in ("pu_offset_s", "pu_time_per_product_s"):
+        _check_range(getattr(c, key), 0.0, MAX_PU_DURATION_S, f"{where}: {key}", " seconds", lo_open=True)
+    longest = c.pu_offset_s + c.pu_time_per_product_s * math.floor(c.max_volume / c.product_size)
+    if not longest <= MAX_PU_TIME_S:
+        raise ConfigError(
+            f"{where}: pu_time_per_product_s: the longest PU time pu_offset_s + pu_time_per_product_s "
+            f"* floor(max_volume / product_size) = {longest!r} s exceeds {MAX_PU_TIME_S!r} s"
+        )
     lengths = {k: len(getattr(c, k)) for k in _CONTAINER_LIST_FIELDS}
     if lengths["reward_peaks"] == 0:
         raise ConfigError(f"{where}: reward_peaks must list at least one optimum")
@@ -310,9 +418,15 @@ def _validate_container(c: ContainerSpec) -> None:
     for w in c.reward_widths:
         if not w > 0:
             raise ConfigError(f"{where}: reward_widths must be > 0, got {w!r}")
+        _check_range(w, MIN_VOLUME, MAX_VOLUME, f"{where}: reward_widths", " volume units")
     for p in c.reward_peaks:
         if not p > 0:
             raise ConfigError(f"{where}: reward_peaks must be > 0, got {p!r}")
+        if not p <= c.max_volume:
+            raise ConfigError(
+                f"{where}: reward_peaks must be <= max_volume={c.max_volume!r} (a container is "
+                f"emptied below v_max), got {p!r}"
+            )
 
 
 # ---- building from mappings ----------------------------------------------------------------
@@ -423,11 +537,12 @@ def config_from_reference_json(data: Mapping[str, Any], *, name: str = "referenc
     if isinstance(enabled, list):
         names = [str(x) for x in enabled]
         keyed = True
-    elif isinstance(enabled, int) and not isinstance(enabled, bool) and enabled > 0:
+    elif isinstance(enabled, int) and not isinstance(enabled, bool) and 0 < enabled <= MAX_CONTAINERS:
         names = [f"C{i + 1}" for i in range(enabled)]
         keyed = False
     else:
-        raise ConfigError(f"ENABLED_CONTAINERS: expected a list of names or a positive count, got {enabled!r}")
+        raise ConfigError(f"ENABLED_CONTAINERS: expected a list of names or a count in "
+                          f"[1, {MAX_CONTAINERS}], got {enabled!r}")
 
     def per_container(key: str, idx: int, cname: str) -> Any:
         table = data[key]
@@ -496,6 +611,10 @@ def _read_file(path: Path) -> PlantConfig:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read config file {str(path)!r}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"config file {str(path)!r} is not UTF-8 text (byte {exc.start}: {exc.reason})"
+        ) from exc
     try:
         if path.suffix == ".toml":
             data = tomllib.loads(text)

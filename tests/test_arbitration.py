@@ -73,7 +73,9 @@ def test_fullest_grants_highest_fill_fraction():
 
 def test_fullest_uses_fraction_of_v_max():
     c = list(CFG.containers)
-    c[0] = type(c[0])(**{**c[0].__dict__, "max_volume": 20.0})
+    # peaks no higher than the new v_max (a bound of the config); they play no part in "fullest"
+    c[0] = type(c[0])(**{**c[0].__dict__, "max_volume": 20.0,
+                         "reward_peaks": tuple(min(p, 20.0) for p in c[0].reward_peaks)})
     cfg = CFG.replace(containers=tuple(c), initial_volume_max=15.0)
     vols = [15.0, 30.0] + [0.0] * (N - 2)  # 15/20 = 0.75 beats 30/40 = 0.75? tie → lower index
     _, out = dynamics.step(make_state(vols, [0.0, 100.0]), np.array([[True, True] + [False] * (N - 2)]),

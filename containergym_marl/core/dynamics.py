@@ -324,6 +324,18 @@ def _float_rows(name: str, x, shape: tuple[int, int]) -> np.ndarray:
     return x
 
 
+def _bool_requests(requests) -> np.ndarray:
+    """``requests`` as a C-contiguous bool array: booleans, or integers 0/1; floats (NaN too),
+    other integers and objects are refused rather than cast (``bool(nan)`` is True)."""
+    a = np.asarray(requests)
+    if a.dtype != np.bool_:
+        if not np.issubdtype(a.dtype, np.integer):
+            raise ValueError(f"requests: expected booleans (or integers 0/1), got dtype {a.dtype}")
+        if ((a != 0) & (a != 1)).any():
+            raise ValueError("requests: integer requests must be 0 or 1")
+    return np.ascontiguousarray(a, dtype=bool)
+
+
 def step(
     state: PlantState,
     requests: np.ndarray,
@@ -336,7 +348,8 @@ def step(
 
     Args:
         state: the current state (B simulations).
-        requests: (B, n) bool, which containers ask to be emptied.
+        requests: (B, n) bool (or integers 0/1), which containers ask to be emptied; floats
+            are refused.
         params: the plant.
         normals, uniforms: (B, n), one random row per simulation (see :mod:`.rng`); the uniforms
             are read only by the ``"random"`` arbitration.
@@ -346,7 +359,7 @@ def step(
     bsz, n = state.volumes.shape
     m = state.pu_timers_s.shape[1]
     if not (type(requests) is np.ndarray and requests.dtype == np.bool_ and requests.flags.c_contiguous):
-        requests = np.ascontiguousarray(requests, dtype=bool)
+        requests = _bool_requests(requests)
     if requests.shape != (bsz, n):
         raise ValueError(f"requests: expected shape {(bsz, n)}, got {requests.shape}")
     normals = _float_rows("normals", normals, (bsz, n))

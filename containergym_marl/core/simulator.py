@@ -10,7 +10,7 @@ from typing import Sequence
 
 import numpy as np
 
-from containergym_marl.config import PlantConfig
+from containergym_marl.config import MAX_BATCH_SIZE, PlantConfig
 from containergym_marl.core import dynamics
 from containergym_marl.core.dynamics import PlantState, StepOutcome, get_rule
 from containergym_marl.core.observations import global_state
@@ -34,8 +34,9 @@ class PlantSimulator:
 
     def __init__(self, config: PlantConfig, batch_size: int = 1, arbitration: str = "fullest"):
         get_rule(arbitration)  # validated once, before anything is built
-        if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
-            raise ValueError(f"batch_size: expected an integer >= 1, got {batch_size!r}")
+        if (isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer))
+                or not 1 <= batch_size <= MAX_BATCH_SIZE):
+            raise ValueError(f"batch_size: expected an integer in [1, {MAX_BATCH_SIZE}], got {batch_size!r}")
         self.config = config
         self.params = PlantParams.from_config(config)
         self.arbitration = arbitration

@@ -103,6 +103,15 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ``episode_return_mean``) shows n × the plant return in team mode; the plant return is one
     agent's return (or the sum of the ``plant_reward`` infos).
 
+    Every denied request costs r_pen, also in the plant ("team") reward: a step with k denied
+    requests and no emptying scores k·r_pen. The decentralised plant return therefore counts each
+    denied request exactly as the centralised return does (where a step holds at most one
+    request). A consequence: a team/plant step reward can fall below r_min when more than
+    |r_min / r_pen| requests are denied in one step (10 in the built-in configs, r_min = -1,
+    r_pen = -0.1; e.g. -1.6 when all 16 agents of ``n16_m2_dt120`` request while no PU is free).
+    r_min remains the worst *terminal* outcome: an overflow also ends the episode and forfeits
+    every later reward, whereas denials do not.
+
     ## Info (per agent)
     ``requested``, ``granted``, ``denied`` (bool), ``pu_index`` (int, -1 if not emptied),
     ``emptied_volume`` (float, 0.0 if not emptied), ``emptying_reward`` (float, this agent's
@@ -341,9 +350,34 @@ def parallel_env(config: str | PlantConfig = "n5_m2_dt120", **kwargs: Any) -> Co
     return ContainerAgentsParallelEnv(config, **kwargs)
 
 
-def raw_env(config: str | PlantConfig = "n5_m2_dt120", **kwargs: Any):
-    """The AEC-API environment without wrappers (``parallel_to_aec`` of the parallel env)."""
-    return conversions.parallel_to_aec(parallel_env(config, **kwargs))
+class ContainerAgentsAECEnv(conversions.parallel_to_aec_wrapper):
+    """The AEC view: PettingZoo's ``parallel_to_aec`` of the parallel env, with every action
+    checked at its own agent's turn.
+
+    PettingZoo's conversion stores each agent's action and hands them all to the parallel env at
+    the last agent's turn, so an invalid action used to be accepted at its turn and refused only
+    at the last agent's, after which every step failed until ``reset()``. Here an invalid action
+    (not an integer 0/1, e.g. 3, None, 0.0 or NaN; or anything but None for a finished agent) is
+    refused at once, naming the agent, and changes nothing: the same agent is still to act, with
+    the state, stored actions, rewards and random streams as before.
+    """
+
+    def step(self, action):
+        if not hasattr(self, "_actions"):
+            raise EpisodeFinishedError("the environment was never reset; call reset() before step()")
+        agent = self.agent_selection
+        if self.terminations[agent] or self.truncations[agent]:
+            if action is not None:
+                raise ValueError(f"agent {agent!r} has finished (terminated or truncated): its action "
+                                 f"must be None, got {action!r}")
+            return super().step(None)
+        return super().step(discrete_action(action, 2, f"agent {agent!r}"))
+
+
+def raw_env(config: str | PlantConfig = "n5_m2_dt120", **kwargs: Any) -> ContainerAgentsAECEnv:
+    """The AEC-API environment without PettingZoo's order-enforcing wrapper
+    (``parallel_to_aec`` of the parallel env, checking each action at its agent's turn)."""
+    return ContainerAgentsAECEnv(parallel_env(config, **kwargs))
 
 
 def env(config: str | PlantConfig = "n5_m2_dt120", **kwargs: Any):

@@ -12,7 +12,13 @@ Seeding: simulation b is seeded with ``seed + b`` (``VecEnv.seed(seed)`` then ``
 ``reset(seed=seed)`` for the Gymnasium one), exactly as a single environment ``reset(seed=seed + b)``;
 after an episode ends it is reset automatically and continues its own random stream, as a single
 environment's ``reset()`` without a seed would. So B vectorised simulations equal B single
-environments with those seeds.
+environments with those seeds. A seed is None or a non-negative integer (Python or numpy);
+anything else (``2.7``, ``"5"``, True) is refused with a ValueError rather than cast. The Gymnasium
+env's ``reset(seed=...)`` also takes B seeds, one per simulation, as a list, tuple or 1-D integer
+array (``reset(seed=np.arange(B))`` seeds simulation b with b).
+
+Sizes: ``num_envs`` / ``num_sims`` must be integers in [1, ``MAX_BATCH_SIZE``] (2**24); floats are
+refused.
 
 Autoreset: when simulation b ends, the returned observation is the first of its next episode; the
 last observation of the finished episode is in ``infos[k]["terminal_observation"]`` (SB3) or
@@ -39,7 +45,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from containergym_marl.config import PlantConfig, load_config
+from containergym_marl.config import MAX_BATCH_SIZE, PlantConfig, load_config
 from containergym_marl.core.dynamics import StepOutcome
 from containergym_marl.core.observations import (
     agent_observation_bounds,
@@ -120,6 +126,42 @@ class _AutoresetBatch:
 _NO_SIMS = np.zeros(0, dtype=np.int64)
 
 
+def _is_integer(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _batch_size(value, name: str) -> int:
+    """A number of simulations: an integer in [1, MAX_BATCH_SIZE] (floats are refused, not cast)."""
+    if not _is_integer(value) or not 1 <= value <= MAX_BATCH_SIZE:
+        raise ValueError(f"{name}: expected an integer in [1, {MAX_BATCH_SIZE}], got {value!r}")
+    return int(value)
+
+
+def _seed(value, name: str) -> int | None:
+    """None or a non-negative integer, as a Python int; anything else is refused, not cast."""
+    if value is None:
+        return None
+    if not _is_integer(value) or value < 0:
+        raise ValueError(f"{name}: expected None or a non-negative integer, got {value!r} "
+                         f"({type(value).__name__})")
+    return int(value)
+
+
+def _seed_list(seed, count: int) -> list[int | None]:
+    """The per-simulation seeds of ``seed``: None → all None; an integer s → s, s+1, …; a list,
+    tuple or 1-D integer array of ``count`` seeds → those."""
+    if seed is None:
+        return [None] * count
+    if isinstance(seed, (list, tuple)) or (isinstance(seed, np.ndarray) and seed.ndim == 1):
+        if isinstance(seed, np.ndarray) and not np.issubdtype(seed.dtype, np.integer):
+            raise ValueError(f"seed: an array of seeds must hold integers, got dtype {seed.dtype}")
+        if len(seed) != count:
+            raise ValueError(f"seed: expected {count} seeds (one per simulation), got {len(seed)}")
+        return [_seed(s, f"seed[{b}]") for b, s in enumerate(seed)]
+    base = _seed(seed, "seed")
+    return [base + b for b in range(count)]
+
+
 def _integer_actions(actions, expected: int, what: str) -> np.ndarray:
     a = np.asarray(actions)
     if a.shape != (expected,) and a.size == expected:
@@ -177,10 +219,8 @@ class _SB3Base(VecEnv):
 
     def seed(self, seed: int | None = None) -> list[int | None]:
         """Simulation b gets ``seed + b`` at the next ``reset()``."""
-        if seed is None:
-            self._sim_seeds = [None] * self.num_sims
-        else:
-            self._sim_seeds = [int(seed) + b for b in range(self.num_sims)]
+        base = _seed(seed, "seed")
+        self._sim_seeds = [None if base is None else base + b for b in range(self.num_sims)]
         return list(self._sim_seeds)
 
     def reset(self):
@@ -228,7 +268,8 @@ class ContainerGymVecEnv(_SB3Base):
         _require_sb3(type(self).__name__)
         cfg = load_config(config, protocol=protocol, **overrides)
         low, high = global_state_bounds(PlantParams.from_config(cfg))
-        self._init_sb3(cfg, int(num_envs), "fullest", int(num_envs),
+        num_envs = _batch_size(num_envs, "num_envs")
+        self._init_sb3(cfg, num_envs, "fullest", num_envs,
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(cfg.n_containers + 1))
 
     def _observe(self, state, previous_requests) -> np.ndarray:
@@ -273,7 +314,8 @@ class ContainerAgentsVecEnv(_SB3Base):
         self.reward_mode = reward_mode
         self.n_agents = cfg.n_containers
         low, high = agent_observation_bounds(PlantParams.from_config(cfg))
-        self._init_sb3(cfg, int(num_sims), arbitration, int(num_sims) * cfg.n_containers,
+        num_sims = _batch_size(num_sims, "num_sims")
+        self._init_sb3(cfg, num_sims, arbitration, num_sims * cfg.n_containers,
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(2))
 
     def _observe(self, state, previous_requests) -> np.ndarray:
@@ -331,7 +373,7 @@ class ContainerGymVectorEnv(VectorEnv):
         if render_mode is not None:
             raise ValueError("render_mode: the vector env does not render; render a single env instead")
         self.config = load_config(config, protocol=protocol, **overrides)
-        self.num_envs = int(num_envs)
+        self.num_envs = _batch_size(num_envs, "num_envs")
         self._batch = _AutoresetBatch(self.config, self.num_envs)
         params = self._batch.params
         low, high = global_state_bounds(params)
@@ -351,13 +393,8 @@ class ContainerGymVectorEnv(VectorEnv):
     def simulator(self) -> PlantSimulator:
         return self._batch.sim
 
-    def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
-        if seed is None or isinstance(seed, (list, tuple)):
-            seeds = list(seed) if seed is not None else [None] * self.num_envs
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"seed: expected {self.num_envs} seeds, got {len(seeds)}")
-        else:
-            seeds = [int(seed) + b for b in range(self.num_envs)]
+    def reset(self, *, seed: int | Sequence[int | None] | np.ndarray | None = None, options: dict | None = None):
+        seeds = _seed_list(seed, self.num_envs)  # checked before anything changes
         if seed is None and self._started:
             self._batch.sim.reset()  # continue every simulation's own stream
         else:
