@@ -34,16 +34,17 @@ longest PU time             β + λ·⌊v_max / b⌋ ≤ 1e12 s (named as λ's e
 reward_peaks (v*_k)         0 < v*_k ≤ v_max, at least one                        –
 reward_heights (h_k)        0 < h_k ≤ 1                                           –
 reward_widths (w_k)         1e-3 ≤ w_k ≤ 1e12                                     MIN/MAX_VOLUME
-batch size B (simulator,    integer, 1 ≤ B ≤ 2**24 (checked by PlantSimulator     MAX_BATCH_SIZE
-vector envs)                and the vector envs, ValueError naming the argument)
+batch size B                integer, 1 ≤ B ≤ 2**24 (checked by PlantSimulator     MAX_BATCH_SIZE
+                            and the vector envs: ValueError naming the argument)
 ==========================  ====================================================  ==================
 
 Every number must be a finite real (bools and strings are refused). Integer fields take integral
 values of any numeric type (``600``, ``600.0``, ``np.int64(600)``, ``np.float32(600)``) and refuse
-non-integral ones (``600.5``). Why these limits: a width below 1e-3 makes ``exp(-d²/2w²)``
-underflow or divide by zero (1e-160 gave NaN); timers up to 1e12 s still count down exactly by
-δ ≥ 1e-3 s in float64; volumes, rates and durations up to these limits keep the float32
-observation bounds finite; r_min ≥ -1e6 keeps sums of n penalties finite; m, n and B bound memory.
+non-integral ones (``600.5``). Why these limits: with tiny widths 2w² underflows to 0 and
+``exp(-d²/2w²)`` became NaN (w = 1e-160) or a ZeroDivisionError (1e-200); timers up to 1e12 s
+still count down by δ ≥ 1e-3 s (float64 resolves 1.2e-4 s at 1e12); volumes, rates and durations
+within these limits keep volumes and the float32 observation bounds finite; r_min ≥ -1e6 keeps
+sums of n penalties finite; m, n and B bound memory.
 """
 
 from __future__ import annotations
@@ -269,6 +270,8 @@ def _as_float(value: Any, where: str) -> float:
         raise ConfigError(f"{where}: expected a number, got {value!r}")
     try:
         out = float(value)
+    except OverflowError:
+        raise ConfigError(f"{where}: must be finite (and within the documented bounds), got {value!r}") from None
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: expected a number, got {value!r}") from exc
     if not math.isfinite(out):
@@ -308,7 +311,13 @@ def _check_finite(value: Any, where: str) -> None:
     if (isinstance(value, (bool, str, bytes) + _np_bool_types())
             or not isinstance(value, (int, float)) and not hasattr(value, "__float__")):
         raise ConfigError(f"{where}: expected a number, got {value!r}")
-    if not math.isfinite(float(value)):
+    try:
+        finite = math.isfinite(float(value))
+    except OverflowError:
+        finite = False
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}: expected a number, got {value!r}") from None
+    if not finite:
         raise ConfigError(f"{where}: must be finite, got {value!r}")
 
 

@@ -451,3 +451,24 @@ def test_env_card_documents_team_rewards_below_r_min():
 
     doc = " ".join(ContainerAgentsParallelEnv.__doc__.split())
     assert "below r_min" in doc and "|r_min / r_pen|" in doc and "terminal" in doc
+
+
+@pytest.mark.parametrize("field", ["timestep_s", "penalty_reward", "initial_volume_max"])
+def test_huge_integers_for_float_fields_raise_config_error(field):
+    """10**400 cannot become a float: a ConfigError naming the field, not an OverflowError."""
+    with pytest.raises(ConfigError, match=field):
+        load_config(CFG, **{field: 10**400 if field != "penalty_reward" else -10**400})
+
+
+def test_huge_integers_in_files_and_direct_construction_raise_config_error(tmp_path):
+    import dataclasses
+
+    base = load_config(CFG)
+    path = tmp_path / "huge.toml"
+    path.write_text(base.to_toml().replace("max_volume = 40.0", "max_volume = 1" + "0" * 400, 1),
+                    encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"'C1-20'.*max_volume"):
+        load_config(path)
+    spec = dataclasses.replace(base.containers[0], reward_widths=(10**400,) * len(base.containers[0].reward_widths))
+    with pytest.raises(ConfigError, match=r"'C1-20'.*reward_widths"):
+        dataclasses.replace(base, containers=(spec, *base.containers[1:]))

@@ -77,3 +77,11 @@ def test_refused_invalid_action_is_checked(stress, monkeypatch):
     stress.stress_centralised(plant, 1000, 0, chk)
     assert chk.violations > 0
     assert all("invalid action refused" in e or "refused action changes nothing" in e for e in chk.examples)
+
+
+def test_short_episodes_exercise_every_end_without_violations(stress):
+    """With T = 7 every view truncates (and overflows) many episodes; ends and resets hold too."""
+    report = stress.run(["n5_m2_dt120", "n16_m2_dt120"], core_steps=4096, view_steps=300, batch=128,
+                        vec_batch=8, seed=1, log=lambda msg: None, episode_length_steps=7)
+    assert report["violations"] == 0, report["violation_examples"]
+    assert report["episode_ends"] > 1000
