@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import sys
@@ -50,10 +51,15 @@ def test_checks_catch_a_core_that_breaks_the_physics(stress, monkeypatch, field,
     """Mutated physics (the core's parameters no longer those of the config) is reported."""
     original = params_module.PlantParams.from_config.__func__
 
-    def mutated(cls, cfg):
-        p = original(cls, cfg)
-        value = getattr(p, field)
-        return p._replace(**{field: value + 1 if factor is None else value * factor})
+    def mutated(cls, cfg):  # the core's parameters from a slightly different (still valid) plant
+        if field in ("penalty_reward", "episode_length_steps"):
+            value = getattr(cfg, field)
+            cfg = cfg.replace(**{field: value + 1 if factor is None else value * factor})
+        else:
+            c0 = cfg.containers[0]
+            c0 = dataclasses.replace(c0, **{field: getattr(c0, field) * factor})
+            cfg = cfg.replace(containers=(c0, *cfg.containers[1:]))
+        return original(cls, cfg)
 
     monkeypatch.setattr(params_module.PlantParams, "from_config", classmethod(mutated))
     report = stress.run(["n5_m2_dt120"], core_steps=20_000, view_steps=20, batch=256, vec_batch=4, seed=0,
