@@ -16,7 +16,8 @@ each run) and writes, to ``--out``:
 * ``figures/``: episode rollouts, ECDFs, PU timelines and reward functions of the best seed of each method.
 
 Methods (:data:`METHODS`): ``rule_based`` (centralised) and ``rule_based_agents`` (decentralised)
-controllers; ``ppo``, ``trpo``, ``dqn``, ``maskable_ppo`` (centralised, SB3); ``shared_ppo`` (one
+controllers; ``planner`` and ``planner_agents``, the rollout planner through each view
+(:mod:`containergym_marl.policies.planner`, default settings); ``ppo``, ``trpo``, ``dqn``, ``maskable_ppo`` (centralised, SB3); ``shared_ppo`` (one
 PPO policy shared by the container agents, individual rewards) and ``shared_ppo_team`` (the same
 with the team reward). Runs are ``<runs>/<method>_<config>_s<seed>/`` and train on the config as it
 is (the δ = 60 rows at δ = 60 s); ``--timesteps paper`` gives each config the paper's budget (2M
@@ -95,6 +96,8 @@ class Method:
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("rule_based", "centralised", policy="RuleBasedController"),
     Method("rule_based_agents", "decentralised", policy="RuleBasedAgents", counterpart="rule_based"),
+    Method("planner", "centralised", policy="RolloutPlanner"),
+    Method("planner_agents", "decentralised", policy="PlannerAgents", counterpart="planner"),
     Method("ppo", "centralised", algo="ppo"),
     Method("trpo", "centralised", algo="trpo"),
     Method("dqn", "centralised", algo="dqn"),
