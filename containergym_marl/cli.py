@@ -4,6 +4,7 @@
     containergym-marl train --algo shared_ppo --config n5_m2_dt120 --seed 1 --out runs/x --resume
     containergym-marl evaluate runs/ppo_n5_m2_dt120_s1            # the run's best model, paper protocol
     containergym-marl evaluate rule_based --config n11_m2_dt120 --episodes 15
+    containergym-marl evaluate planner --config n11_m2_dt120      # the rollout planner (planner_agents: per container)
     containergym-marl compare                                   # the benchmark's main job
 """
 
@@ -86,12 +87,14 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
     from pathlib import Path
 
     from containergym_marl.evaluation import PAPER, EvalProtocol, evaluate
+    from containergym_marl.policies.planner import PLANNERS
     from containergym_marl.training.algorithms import RULE_BASED
 
+    built_in = {**RULE_BASED, **PLANNERS}
     protocol = EvalProtocol(episodes=episodes) if episodes != PAPER.episodes else PAPER
-    if target in RULE_BASED:
+    if target in built_in:
         plant = load_config(config or "n5_m2_dt120")
-        policy = RULE_BASED[target](PlantParams.from_config(plant))
+        policy = built_in[target](PlantParams.from_config(plant))
         return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest")
     if Path(target).is_dir():
         from containergym_marl.evaluation.runs import evaluate_run
@@ -107,7 +110,7 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
                 warnings.showwarning(w.message, w.category, w.filename, w.lineno)
         return result
     raise SystemExit(
-        f"evaluate: {target!r} is neither a run directory nor a built-in policy ({', '.join(RULE_BASED)})"
+        f"evaluate: {target!r} is neither a run directory nor a built-in policy ({', '.join(built_in)})"
     )
 
 
@@ -194,7 +197,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("evaluate", help="evaluate a run directory or a built-in policy (paper protocol)")
-    e.add_argument("target", help=f"a run directory or one of {tuple(RULE_BASED)}")
+    from containergym_marl.policies.planner import PLANNERS
+
+    e.add_argument("target", help=f"a run directory or one of {(*RULE_BASED, *PLANNERS)}")
     e.add_argument("--config", default=None, help="plant (default: the run's own, or n5_m2_dt120)")
     e.add_argument("--episodes", type=_positive_int, default=15)
     e.add_argument("--model", choices=("best", "final"), default="best")

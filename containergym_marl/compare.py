@@ -16,11 +16,13 @@ each run) and writes, to ``--out``:
 * ``figures/``: episode rollouts, ECDFs, PU timelines and reward functions of the best seed of each method.
 
 Methods (:data:`METHODS`): ``rule_based`` (centralised) and ``rule_based_agents`` (decentralised)
-controllers; ``ppo``, ``trpo``, ``dqn``, ``maskable_ppo`` (centralised, SB3); ``shared_ppo`` (one
-PPO policy shared by the container agents, individual rewards) and ``shared_ppo_team`` (the same
-with the team reward). Runs are ``<runs>/<method>_<config>_s<seed>/`` and train on the config as it
-is (the δ = 60 rows at δ = 60 s); ``--timesteps paper`` gives each config the paper's budget (2M
-samples for n = 5, 5M for n >= 11).
+controllers; ``planner`` and ``planner_agents``, the rollout planner through each view
+(:mod:`containergym_marl.policies.planner`, default settings); ``ppo``, ``trpo``, ``dqn``,
+``maskable_ppo`` (centralised, SB3); ``shared_ppo`` (one PPO policy shared by the container agents,
+individual rewards) and ``shared_ppo_team`` (the same with the team reward). Runs are
+``<runs>/<method>_<config>_s<seed>/`` and train on the config as it is (the δ = 60 rows at
+δ = 60 s); ``--timesteps paper`` gives each config the paper's budget (2M samples for n = 5, 5M for
+n >= 11).
 
 Execution on Ray (:mod:`containergym_marl.sweep`): one task per training run (one CPU each, torch
 one thread), one per evaluation; tables and figures in the driver. By default compare starts a
@@ -95,6 +97,8 @@ class Method:
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("rule_based", "centralised", policy="RuleBasedController"),
     Method("rule_based_agents", "decentralised", policy="RuleBasedAgents", counterpart="rule_based"),
+    Method("planner", "centralised", policy="RolloutPlanner"),
+    Method("planner_agents", "decentralised", policy="PlannerAgents", counterpart="planner"),
     Method("ppo", "centralised", algo="ppo"),
     Method("trpo", "centralised", algo="trpo"),
     Method("dqn", "centralised", algo="dqn"),

@@ -408,3 +408,34 @@ def emptying_rewards(volumes: np.ndarray, params: PlantParams) -> np.ndarray:
     out = np.empty(volumes.shape)
     _emptying_rewards_into(volumes, out, *params.kernel_arrays())
     return out
+
+
+@jit
+def _overflow_probabilities_into(volumes, emptied, out, *params_fields):
+    params = PlantParams(*params_fields)
+    for b in range(volumes.shape[0]):
+        survive = 1.0
+        for i in range(volumes.shape[1]):
+            if not emptied[b, i]:
+                std = params.fill_std_per_step[i]
+                gap = params.max_volume[i] - volumes[b, i] - params.fill_mean_per_step[i]
+                if std > 0.0:
+                    survive *= 1.0 - 0.5 * math.erfc(gap / (std * math.sqrt(2.0)))
+                elif gap <= 0.0:
+                    survive = 0.0
+        out[b] = 1.0 - survive
+
+
+def overflow_probabilities(volumes: np.ndarray, emptied: np.ndarray, params: PlantParams) -> np.ndarray:
+    """(B,) probability that a step from ``volumes`` (B, n), emptying the containers ``emptied``
+    (B, n) bool, overflows: 1 − Πᵢ P(vᵢ + N(μᵢδ, σᵢ²δ) < v_max,i) over the containers not emptied
+    (the step's fill draws are independent). A planner uses it as the conditional probability of an
+    overflow given the state, far less noisy than the sampled event."""
+    volumes = np.ascontiguousarray(volumes, dtype=np.float64)
+    emptied = np.ascontiguousarray(emptied, dtype=bool)
+    if volumes.ndim != 2 or volumes.shape[1] != params.n_containers or emptied.shape != volumes.shape:
+        raise ValueError(f"volumes, emptied: expected shape (B, {params.n_containers}), got "
+                         f"{volumes.shape} and {emptied.shape}")
+    out = np.empty(volumes.shape[0])
+    _overflow_probabilities_into(volumes, emptied, out, *params)
+    return out

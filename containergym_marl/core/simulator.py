@@ -70,6 +70,30 @@ class PlantSimulator:
             if gen is not self._streams.generator(int(sim)):
                 self._streams.set_generator(int(sim), gen)
 
+    # ---- what-if copies ----------------------------------------------------------------------
+    def branch(self, sim: int, generators: Sequence[np.random.Generator]) -> "PlantSimulator":
+        """A new simulator of ``len(generators)`` simulations, each a copy of simulation ``sim`` now
+        (volumes, PU timers, step count, last requests, finished flag), each drawing its noise from
+        its own generator.
+
+        Nothing of this simulator is touched, its random stream included: stepping the copies (a
+        planner's look-ahead) leaves the original trajectory bit-identical to one run without them.
+        Copies built from generators with the same seeds see the same noise (common random numbers,
+        for comparing decisions). :func:`containergym_marl.core.whatif.simulate_futures` is the
+        allocation-free form a planner uses: K copies × C first decisions in one batch.
+        """
+        if not 0 <= int(sim) < self.batch_size:
+            raise IndexError(f"sim: {sim} out of range for a batch of {self.batch_size}")
+        copies = len(generators)
+        new = PlantSimulator(self.config, batch_size=copies, arbitration=self.arbitration)
+        rows = np.full(copies, int(sim))
+        new.state = self.state.select(rows)  # fancy indexing: new arrays
+        new.previous_requests = self.previous_requests[rows]
+        new.finished = self.finished[rows]
+        new._any_finished = bool(new.finished.any())
+        new._streams = NoiseStreams(list(generators), self.params.n_containers)
+        return new
+
     # ---- episode control ---------------------------------------------------------------------
     def reset(
         self,

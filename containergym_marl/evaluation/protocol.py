@@ -168,6 +168,8 @@ def evaluate(
 
     episodes, records = [], []
     for seed in protocol.seeds:
+        if hasattr(policy, "reset"):  # a policy with its own randomness (the planner) is seeded per episode
+            policy.reset(seed=seed)
         rec = EpisodeRecorder(env.simulator, view=policy.view, policy=policy.name, seed=seed)
         if policy.view == "centralised":
             obs, _ = env.reset(seed=seed)

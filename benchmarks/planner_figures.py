@@ -1,0 +1,120 @@
+"""What the rollout planner does differently from the rule-based agents on a contended row (m = 2).
+
+    python benchmarks/planner_figures.py                     # n11_m2_dt120, 15 test episodes (~2 min)
+    python benchmarks/planner_figures.py --config n16_m2_dt120
+
+Evaluates ``rule_based_agents`` and ``planner_agents`` (default setting) with the paper's test protocol,
+keeps the episode records, and writes to ``--out`` (default docs/figures) the package's figures:
+emptying-volume ECDFs and the reward ECDF of both methods, and for the first test episode of each a
+rollout (the first ``--window`` steps) and the PU timeline. It prints, and writes to ``--json``, the
+numbers behind the explanation: per container, where the emptyings fall relative to the optimum v*
+(earlier than the rule's margin, v < v* − 1; later, v > v* + 1), and how often a ready container had to
+wait because both PUs were busy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+
+from containergym_marl.config import load_config
+from containergym_marl.core.params import PlantParams
+from containergym_marl.evaluation import PAPER, EpisodeRecord, evaluate
+from containergym_marl.evaluation import plots
+from containergym_marl.policies import PlannerAgents, RuleBasedAgents
+
+
+def window(record: EpisodeRecord, steps: int) -> EpisodeRecord:
+    """The first ``steps`` steps of an episode, as a record (for a readable rollout figure)."""
+    t = min(steps, record.steps)
+    per_step = {k: getattr(record, k)[:t] for k in ("requested", "granted", "denied", "pu_index",
+                                                     "emptied_volume", "container_reward", "plant_reward")}
+    return dataclasses.replace(record, volumes=record.volumes[:t + 1], pu_timers_s=record.pu_timers_s[:t + 1],
+                               terminated=record.terminated and t == record.steps, **per_step)
+
+
+def behaviour(records: list[EpisodeRecord], params: PlantParams, names: tuple[str, ...], margin: float = 1.0) -> dict:
+    """Where emptyings fall relative to v*, and how long ready containers wait for a PU."""
+    target = np.asarray(params.target_volume)
+    per_container = {}
+    for i, name in enumerate(names):
+        v = np.concatenate([r.emptying_volumes(i) for r in records])
+        per_container[name] = {
+            "target": float(target[i]), "emptyings": int(v.size),
+            "median_volume": float(np.median(v)) if v.size else None,
+            "early_share": float((v < target[i] - margin).mean()) if v.size else None,
+            "late_share": float((v > target[i] + margin).mean()) if v.size else None,
+        }
+    all_v = [(r.emptied_volume[r.granted], np.nonzero(r.granted)[1]) for r in records]
+    volumes = np.concatenate([v for v, _ in all_v])
+    index = np.concatenate([i for _, i in all_v])
+    waits, both_busy, steps = 0, 0, 0
+    for r in records:
+        state_v, timers = r.volumes[:-1], r.pu_timers_s[:-1]
+        ready = target[None, :] - state_v <= margin
+        no_pu = (timers == 0).sum(axis=1) == 0
+        waits += int((ready & ~r.granted & no_pu[:, None]).sum())
+        both_busy += int(no_pu.sum())
+        steps += r.steps
+    rewards = np.concatenate([r.emptying_rewards() for r in records])
+    return {
+        "return_mean": float(np.mean([r.cumulative_reward for r in records])),
+        "emptyings_per_episode": volumes.size / len(records),
+        "mean_reward_per_emptying": float(rewards.mean()),
+        "early_share": float((volumes < target[index] - margin).mean()),
+        "late_share": float((volumes > target[index] + margin).mean()),
+        "ready_waiting_for_a_pu_per_episode": waits / len(records),
+        "all_pus_busy_share_of_steps": both_busy / steps,
+        "denied_requests_per_episode": float(np.mean([r.denied.sum() for r in records])),
+        "per_container": per_container,
+    }
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", default="n11_m2_dt120")
+    p.add_argument("--episodes", type=int, default=PAPER.episodes)
+    p.add_argument("--window", type=int, default=200, help="steps shown in the rollout figures")
+    p.add_argument("--out", default="docs/figures")
+    p.add_argument("--json", default=None, help="default: results/planner/behaviour_<config>.json")
+    ns = p.parse_args(argv)
+    cfg = load_config(ns.config)
+    params = PlantParams.from_config(cfg)
+    protocol = dataclasses.replace(PAPER, episodes=ns.episodes)
+    records = {policy.name: evaluate(policy, cfg, protocol).records
+               for policy in (RuleBasedAgents(params), PlannerAgents(params))}
+    plant = protocol.plant(cfg)
+    out = Path(ns.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = out / f"{cfg.name}_planner"
+    plots.plot_emptying_volume_ecdfs(records, f"{stem}_emptying_volume_ecdfs", config=plant, formats=("png",))
+    plots.plot_reward_ecdf(records, f"{stem}_reward_ecdf", formats=("png",))
+    for method, recs in records.items():
+        plots.plot_episode(window(recs[0], ns.window), f"{stem}_episode_{method}", config=plant, formats=("png",))
+        plots.plot_pu_timeline(window(recs[0], ns.window), f"{stem}_pu_timeline_{method}", config=plant,
+                               formats=("png",))
+    summary = {method: behaviour(recs, PlantParams.from_config(plant), plant.container_names)
+               for method, recs in records.items()}
+    summary["meta"] = {"config": cfg.name, "episodes": ns.episodes, "window_steps": ns.window,
+                       "first_seed": protocol.first_seed}
+    path = Path(ns.json or f"results/planner/behaviour_{cfg.name}.json")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(summary, indent=1) + "\n")
+    for method in records:
+        s = summary[method]
+        print(f"{method}: return {s['return_mean']:.2f}, {s['emptyings_per_episode']:.1f} emptyings/episode, "
+              f"mean reward {s['mean_reward_per_emptying']:.3f}, early {s['early_share']:.3f}, late "
+              f"{s['late_share']:.3f}, ready and waiting for a PU {s['ready_waiting_for_a_pu_per_episode']:.1f} "
+              f"container-steps/episode, all PUs busy {s['all_pus_busy_share_of_steps']:.3f} of steps")
+        for name, c in s["per_container"].items():
+            print(f"   {name:6s} v*={c['target']:5.1f}  n={c['emptyings']:4d}  median {c['median_volume']:5.2f}"
+                  f"  early {c['early_share']:.2f}  late {c['late_share']:.2f}")
+    print(f"wrote {stem}_*.png and {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,107 @@
+"""What-if simulations: many futures of one simulation's state, for look-ahead planning.
+
+:func:`simulate_futures` copies one state into a batch of C × K simulations: C candidate first
+decisions, each followed by K noise streams over H steps, with the same K streams for every
+candidate (common random numbers: two candidates are compared on the same futures, so the noise of
+their difference is far smaller than that of either return). After the first step a policy of the
+state, ``(B, n) requests = policy(state, params)``, decides. The noise comes from arrays the caller
+draws (from the planner's own generator), so the simulation whose state is copied, and its random
+stream, are never touched. All C·K simulations advance together, one call of the compiled step per
+look-ahead step.
+
+:meth:`PlantSimulator.branch <containergym_marl.core.simulator.PlantSimulator.branch>` is the same
+idea as a full simulator object (one generator per copy, episode control), for interactive use.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from containergym_marl.core import dynamics
+from containergym_marl.core.dynamics import PlantState
+from containergym_marl.core.params import PlantParams
+
+#: ``policy(state, params) -> (B, n) bool requests``: who decides after the first step.
+RequestPolicy = Callable[[PlantState, PlantParams], np.ndarray]
+
+
+class Futures(NamedTuple):
+    """C candidates × K futures of one state (arrays indexed ``[c, k]``).
+
+    ``rewards[c, k, t]`` is the plant reward of look-ahead step t (r_min on the step that
+    overflows), 0 after the future's episode ended. ``end_step[c, k]`` is the number of steps the
+    future ran (H if its episode did not end), ``overflowed[c, k]`` whether it ended in an overflow.
+    ``overflow_risk[c, k, t]`` is the probability that step t overflows given the state before it
+    and its emptyings (:func:`~containergym_marl.core.dynamics.overflow_probabilities`), 0 after the
+    end: ``Σₜ overflow_risk`` has the expectation of ``overflowed`` with far less variance.
+    ``final_state`` holds the C·K states after the last step (candidate-major: row c·K + k); rows of
+    futures that ended early are not meaningful.
+    """
+
+    rewards: np.ndarray  # (C, K, H)
+    overflow_risk: np.ndarray  # (C, K, H)
+    end_step: np.ndarray  # (C, K) int64
+    overflowed: np.ndarray  # (C, K) bool
+    final_state: PlantState  # C·K rows
+    ended: np.ndarray  # (C, K) bool: the episode ended (overflow or time limit) within H steps
+
+
+def simulate_futures(
+    state: PlantState,
+    sim: int,
+    first_requests: np.ndarray,
+    policy: RequestPolicy,
+    params: PlantParams,
+    normals: np.ndarray,
+    arbitration: str = "fullest",
+) -> Futures:
+    """Simulate K futures of each of C first decisions from simulation ``sim`` of ``state``.
+
+    Args:
+        state: any batch of states; only row ``sim`` is read (and not modified).
+        sim: the simulation to copy.
+        first_requests: (C, n) bool, the candidates' requests of the first step.
+        policy: the requests of every later step, from the state (e.g. a rule-based base policy).
+        params: the plant.
+        normals: (H, K, n) standard normals, the K noise streams of the H steps; the same for every
+            candidate. The uniforms of the step (read only by the ``"random"`` arbitration) are
+            0.5, so a random arbitration breaks ties by index here.
+        arbitration: the arbitration rule of the simulated plant.
+
+    Cost: H compiled steps of C·K simulations (and their overflow probabilities) plus H calls of
+    ``policy`` on them.
+    """
+    first_requests = np.asarray(first_requests, dtype=bool)
+    normals = np.asarray(normals, dtype=np.float64)
+    n_candidates, n = first_requests.shape
+    horizon, copies = normals.shape[:2]
+    if normals.shape != (horizon, copies, n) or n != params.n_containers or horizon < 1:
+        raise ValueError(f"normals: expected shape (H >= 1, K, {params.n_containers}), got {normals.shape}")
+    batch = n_candidates * copies
+    current = state.select(np.full(batch, int(sim)))
+    uniforms = np.full((batch, n), 0.5)
+    requests = np.repeat(first_requests, copies, axis=0)
+    rewards = np.zeros((batch, horizon))
+    risk = np.zeros((batch, horizon))
+    end_step = np.full(batch, horizon, dtype=np.int64)
+    overflowed = np.zeros(batch, dtype=bool)
+    alive = np.ones(batch, dtype=bool)
+    for t in range(horizon):
+        if t > 0:
+            requests = policy(current, params)
+        noise = np.tile(normals[t], (n_candidates, 1))  # candidate-major: row c·K + k uses stream k
+        before = current.volumes
+        current, out = dynamics.step(current, requests, params, noise, uniforms, arbitration)
+        rewards[:, t] = np.where(alive, out.plant_reward, 0.0)
+        risk[:, t] = np.where(alive, dynamics.overflow_probabilities(before, out.granted, params), 0.0)
+        ended_now = alive & (out.terminated | out.truncated)
+        end_step[ended_now] = t + 1
+        overflowed |= ended_now & out.terminated
+        alive &= ~ended_now
+        if not alive.any():
+            break
+    shape = (n_candidates, copies)
+    return Futures(rewards.reshape(*shape, horizon), risk.reshape(*shape, horizon), end_step.reshape(shape), overflowed.reshape(shape),
+                   current, (~alive).reshape(shape))

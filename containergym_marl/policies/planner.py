@@ -1,0 +1,277 @@
+"""A rollout planner: Monte Carlo look-ahead over a base policy (Bertsekas' policy rollout).
+
+At every step where a choice exists, the planner lists candidate decisions for this step, simulates
+``futures`` (K) noise streams over ``horizon`` (H) steps for each of them — the candidate first, then
+the base policy — and takes the candidate with the best mean look-ahead value. All C candidates × K
+futures run as one batch of the compiled core (:func:`~containergym_marl.core.whatif.simulate_futures`),
+with the same K noise streams for every candidate (common random numbers). The base policy's own
+decision is the first candidate and wins ties, so the planner departs from the base policy only
+where the simulated futures say it pays.
+
+**Candidates.** Nothing is planned while no PU is free (emptying would be denied: wait) or while no
+container is *eligible* (ready by the base rule, v* − v <= ``margin``, or earning at least
+``min_reward`` if emptied now): then the planner waits, at no cost. Otherwise:
+
+* centralised (one emptying per step): wait, and empty i for each eligible i;
+* container agents (up to f requests, f = free PUs): the base policy's set S, nothing, S without
+  each of its members, and S plus each other eligible container (or, if S already fills the f free
+  PUs, S with its least full member swapped for it). Requests never exceed the free PUs, so none is
+  denied and the environment's arbitration never has to choose.
+
+**Value of a future.** Its rewards over the horizon (an overflow earns r_min, as in the plant), plus
+
+* a *terminal value* if its episode is still running after H steps: each container is worth
+  ``r(v*)·v / v*`` below its optimum (the share of its next full-value emptying it has already
+  collected; at steady state this makes emptying at the optimum neither gain nor lose value) and
+  ``r(v)`` past it (what emptying it now would still earn);
+* minus an *expected overflow cost*: at every simulated step t, the probability that the step
+  overflows given the state before it (computed from the fill distribution, not sampled: an
+  overflow risk of a few per cent is seen even with few futures) times the rewards the rest of the
+  episode would have brought, ``ρ·(T − t)`` with ρ = Σᵢ r(v*ᵢ)·μᵢδ / v*ᵢ, the plant's reward per
+  step when every container is emptied at its optimum, plus ``overflow_penalty`` (default 10, the
+  reward of ten ideal emptyings): in the plant an overflow is an incident, not merely the end of an
+  episode, and the benchmark counts overflowing episodes apart; without it the planner would
+  accept a few per cent of overflow risk near the end of an episode, where little reward is left to
+  lose. A sampled overflow also ends its future, with r_min, as in the plant.
+
+A time-limit end inside the horizon gets no terminal value: volumes left at the end are worth
+nothing, so near the end of an episode the planner empties what still earns something.
+
+**Base policies** (:data:`BASE_POLICIES`): ``"fullest"`` (default), the per-container rule-based
+agents with the ``fullest`` arbitration, requesting only what free PUs can grant (ready containers,
+fullest v / v_max first, at most one per step in the centralised view); ``"index"``, the same with
+the centralised rule's order (lowest index first).
+
+**Cost per decision** (a planned step): H compiled steps of C·K simulations, their overflow
+probabilities and H base-policy calls on them, C <= n + 1 candidates. With the defaults (K = 16,
+H = 8) that is 8 steps of up to 192 simulations at n = 11, about 1–2 ms of CPU on one core; steps
+without a choice (no free PU, nothing eligible) cost nothing. Doubling K doubles the simulated
+work (the per-step Python overhead stays); doubling H doubles both. ``benchmarks/planner_rows.py``
+measures the time per step on every row (``results/planner/rows.md``).
+
+**Choosing K and H.** The defaults were chosen on validation episodes (seeds 20000+, not the test
+seeds). K = 16 futures suffice: with common random numbers and the computed overflow risk, 32 or 64
+futures did not raise the return. Longer horizons *lower* it on the contended rows (m = 2): on
+``n11_m2`` H = 4–8 gave 96–97 against 92–94 for H = 24–48, on ``n16_m2`` 110–114 against 90–105. A
+long rollout scores a decision by what the base policy would do for many steps, and the base
+policy copes badly with contention (it empties in order of fullness only when a container is
+ready, and lets the others wait), so long look-aheads are pessimistic and push the planner to
+empty early to hedge against mistakes its own later decisions would not make. A short look-ahead
+with the terminal value above is the better estimate here; on the uncontended rows the horizon
+hardly matters.
+
+**Randomness.** The planner draws its futures from its own generator, seeded per episode from
+``(episode seed, seed)`` by :meth:`reset` (which :func:`~containergym_marl.evaluation.evaluate`
+calls with the evaluation seed), so an evaluation is reproducible and the environment's random
+stream is never touched. Without a ``reset`` call the seed is derived from the episode's initial
+state, itself a function of the environment's seed.
+
+The planner reads the exact (float64) state from ``env.simulator`` and the plant from its params,
+so one object works on any plant; the ``params`` it is built with (for the registries that build
+every controller from the training config) are not needed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any, Callable
+
+import numpy as np
+
+from containergym_marl.core.dynamics import PlantState, emptying_rewards
+from containergym_marl.core.params import PlantParams
+from containergym_marl.core.whatif import Futures, simulate_futures
+from containergym_marl.policies.rule_based import within_margin
+
+#: Last word of the planner's seed entropy, so its streams differ from the environment's (which
+#: are seeded from the episode seed alone).
+_STREAM_TAG = 0x706C616E  # "plan"
+
+
+# ---- base policies: (state, params, max_requests, margin) -> (B, n) bool requests ---------------
+def _grant_by_priority(ready: np.ndarray, priority: np.ndarray, state: PlantState, max_requests: int) -> np.ndarray:
+    """Ready containers in decreasing ``priority``, as many as there are free PUs (at most
+    ``max_requests``): requests that the plant will all grant."""
+    limit = np.minimum((state.pu_timers_s == 0.0).sum(axis=1), max_requests)
+    key = np.where(ready, priority, -np.inf)
+    if max_requests == 1:  # one request: the best ready container
+        out = np.zeros_like(ready)
+        rows = np.flatnonzero(ready.any(axis=1) & (limit > 0))
+        out[rows, key[rows].argmax(axis=1)] = True
+        return out
+    order = np.argsort(-key, axis=1, kind="stable")  # ties to the lower index
+    rank = np.empty_like(order)
+    np.put_along_axis(rank, order, np.arange(ready.shape[1])[None, :], axis=1)
+    return ready & (rank < limit[:, None])
+
+
+def fullest_base(state: PlantState, params: PlantParams, max_requests: int, margin: float = 1.0) -> np.ndarray:
+    """Rule-based agents with the ``fullest`` arbitration: ready containers, fullest v / v_max
+    first, as many as free PUs allow."""
+    ready = within_margin(state.volumes, params, margin)
+    return _grant_by_priority(ready, state.volumes / params.max_volume, state, max_requests)
+
+
+def index_base(state: PlantState, params: PlantParams, max_requests: int, margin: float = 1.0) -> np.ndarray:
+    """The centralised rule's order: ready containers, lowest index first, as many as free PUs allow."""
+    ready = within_margin(state.volumes, params, margin)
+    return _grant_by_priority(ready, -np.arange(params.n_containers, dtype=np.float64)[None, :], state,
+                              max_requests)
+
+
+#: name -> base policy of the look-ahead.
+BASE_POLICIES: dict[str, Callable[..., np.ndarray]] = {"fullest": fullest_base, "index": index_base}
+
+
+class RolloutPlanner:
+    """Rollout planner for the centralised view (at most one emptying per step).
+
+    Args:
+        params: the plant (optional; the plant is read from the environment at every step).
+        futures: K, noise streams simulated per candidate.
+        horizon: H, look-ahead steps per future (the first is the candidate's).
+        base: the base policy of the look-ahead, a name of :data:`BASE_POLICIES`.
+        margin: the base rule's margin (volume units below the optimum at which it empties).
+        min_reward: containers earning at least this if emptied now are candidates too.
+        overflow_penalty: cost of an overflow on top of r_min and the estimated rest-of-episode reward.
+        seed: combined with each episode's seed to seed the planner's generator.
+    """
+
+    name = "planner"
+    view = "centralised"
+    max_requests: int | None = 1  # per step; None: as many as free PUs (container agents)
+
+    def __init__(self, params: PlantParams | None = None, *, futures: int = 16, horizon: int = 8,
+                 base: str = "fullest", margin: float = 1.0, min_reward: float = 0.0,
+                 overflow_penalty: float = 10.0, seed: int = 0):
+        if base not in BASE_POLICIES:
+            raise ValueError(f"base: unknown base policy {base!r}; choose one of {tuple(BASE_POLICIES)}")
+        for label, value in (("futures", futures), ("horizon", horizon)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{label}: expected an integer >= 1, got {value!r}")
+        self.params = params
+        self.futures, self.horizon, self.base = int(futures), int(horizon), base
+        self.margin, self.min_reward = float(margin), float(min_reward)
+        self.overflow_penalty = float(overflow_penalty)
+        self.seed = int(seed)
+        self._base = BASE_POLICIES[base]
+        self._rng: np.random.Generator | None = None
+        self._seeded_by_reset = False
+        self._plant: tuple[PlantParams, np.ndarray, float] | None = None
+        #: decisions taken / planned (with a look-ahead) since construction
+        self.decisions = self.planned = 0
+
+    # ---- episode control --------------------------------------------------------------------
+    def reset(self, seed: int | None = None) -> None:
+        """Start an episode: the planner's generator is seeded from ``(seed, self.seed)``."""
+        self._rng = None if seed is None else self._generator_for(int(seed))
+        self._seeded_by_reset = seed is not None
+
+    def _generator_for(self, episode_seed: int) -> np.random.Generator:
+        return np.random.default_rng([episode_seed % 2**64, self.seed % 2**64, _STREAM_TAG])
+
+    def _start_of_step(self, state: PlantState) -> None:
+        """Episode bookkeeping, at every decision: an episode that starts without a :meth:`reset`
+        gets a generator seeded from its initial state (a function of the environment's seed)."""
+        if state.step_count.item(0) == 0:
+            if not self._seeded_by_reset:
+                self._rng = None
+            self._seeded_by_reset = False
+        if self._rng is None:
+            digest = hashlib.sha256(state.volumes[:1].tobytes()).digest()
+            self._rng = self._generator_for(int.from_bytes(digest[:8], "little"))
+
+    # ---- the decision ------------------------------------------------------------------------
+    def _plant_constants(self, params: PlantParams) -> tuple[np.ndarray, float]:
+        """r(v*) per container and ρ, the reward per step of emptying everything at its optimum."""
+        if self._plant is None or self._plant[0] is not params:
+            target_reward = emptying_rewards(np.asarray(params.target_volume)[None, :], params)[0]
+            rate = float((target_reward * params.fill_mean_per_step / params.target_volume).sum())
+            self._plant = (params, target_reward, rate)
+        return self._plant[1], self._plant[2]
+
+    def decide(self, state: PlantState, params: PlantParams) -> np.ndarray:
+        """(n,) bool: the containers to empty now in the one-simulation ``state``."""
+        self.decisions += 1
+        self._start_of_step(state)
+        n = params.n_containers
+        free = int((state.pu_timers_s[0] == 0.0).sum())
+        if free == 0:
+            return np.zeros(n, dtype=bool)
+        limit = free if self.max_requests is None else min(free, self.max_requests)
+        volumes = state.volumes[:1]
+        ready = within_margin(volumes, params, self.margin)[0]
+        eligible = ready | (emptying_rewards(volumes, params)[0] >= self.min_reward)
+        if not eligible.any():
+            return np.zeros(n, dtype=bool)
+        base = self._base(state, params, limit, self.margin)[0]
+        candidates = self._candidates(base, eligible, limit, volumes[0] / params.max_volume)
+        if len(candidates) == 1:
+            return candidates[0]
+        self.planned += 1
+        max_requests = n if self.max_requests is None else self.max_requests
+        futures = simulate_futures(
+            state, 0, candidates, lambda s, p: self._base(s, p, max_requests, self.margin), params,
+            self._rng.standard_normal((self.horizon, self.futures, n)))
+        values = self.future_values(futures, params, int(state.step_count[0])).mean(axis=1)
+        return candidates[int(np.argmax(values))]  # the first best: the base decision on ties
+
+    @staticmethod
+    def _candidates(base: np.ndarray, eligible: np.ndarray, limit: int, fullness: np.ndarray) -> np.ndarray:
+        """(C, n) candidate request sets, the base policy's first, without duplicates."""
+        out = [base]
+        if base.any():
+            out.append(np.zeros_like(base))
+        members = np.flatnonzero(base)
+        if members.size >= 2:
+            for j in members:
+                c = base.copy()
+                c[j] = False
+                out.append(c)
+        least_full = members[np.argmin(fullness[members])] if members.size else -1
+        for i in np.flatnonzero(eligible & ~base):
+            c = base.copy()
+            if members.size >= limit:
+                c[least_full] = False
+            c[i] = True
+            out.append(c)
+        unique = dict.fromkeys(c.tobytes() for c in out)
+        return np.frombuffer(b"".join(unique), dtype=bool).reshape(len(unique), base.size)
+
+    def future_values(self, futures: Futures, params: PlantParams, step: int) -> np.ndarray:
+        """(C, K) value of every simulated future from absolute step ``step`` (see the module doc)."""
+        target_reward, rate = self._plant_constants(params)
+        value = futures.rewards.sum(axis=-1)
+        horizon = futures.rewards.shape[-1]
+        # an overflow at step t loses the rest of the episode, and is an incident in itself
+        cost = rate * np.maximum(params.episode_length_steps - (step + 1 + np.arange(horizon)), 0)
+        cost += self.overflow_penalty
+        value -= futures.overflow_risk @ cost  # the expected cost, from each step's overflow probability
+        v = futures.final_state.volumes
+        target = np.asarray(params.target_volume)
+        worth = np.where(v <= target, target_reward * v / target, emptying_rewards(v, params))
+        terminal = worth.sum(axis=1).reshape(futures.end_step.shape)
+        return value + np.where(futures.ended, 0.0, terminal)
+
+    def act(self, observation: Any, env: Any) -> int:
+        sim = env.unwrapped.simulator if hasattr(env, "unwrapped") else env.simulator
+        requests = self.decide(sim.state, sim.params)
+        return int(requests.argmax()) + 1 if requests.any() else 0
+
+
+class PlannerAgents(RolloutPlanner):
+    """The rollout planner acting for all container agents (decentralised view): it decides which
+    containers request, never more than there are free PUs."""
+
+    name = "planner_agents"
+    view = "decentralised"
+    max_requests = None
+
+    def act(self, observations: dict[str, Any], env: Any) -> dict[str, int]:
+        sim = env.unwrapped.simulator if hasattr(env, "unwrapped") else env.simulator
+        requests = self.decide(sim.state, sim.params)
+        return {agent: int(requests[i]) for i, agent in enumerate(env.possible_agents) if agent in observations}
+
+
+#: The planners by name, as ``containergym-marl evaluate`` and compare know them.
+PLANNERS: dict[str, type] = {cls.name: cls for cls in (RolloutPlanner, PlannerAgents)}
