@@ -37,8 +37,11 @@ def window(record: EpisodeRecord, steps: int) -> EpisodeRecord:
                                terminated=record.terminated and t == record.steps, **per_step)
 
 
-def behaviour(records: list[EpisodeRecord], params: PlantParams, names: tuple[str, ...], margin: float = 1.0) -> dict:
-    """Where emptyings fall relative to v*, and how long ready containers wait for a PU."""
+def behaviour(records: list[EpisodeRecord], params: PlantParams, names: tuple[str, ...], margin: float = 1.0,
+              end_game: int = 20) -> dict:
+    """Where emptyings fall relative to v*, and how long ready containers wait for a PU. The
+    ``end_game`` last steps of an episode are counted apart: with nothing to gain from volume left at
+    the time limit, the planner empties what still earns something there."""
     target = np.asarray(params.target_volume)
     per_container = {}
     for i, name in enumerate(names):
@@ -48,10 +51,16 @@ def behaviour(records: list[EpisodeRecord], params: PlantParams, names: tuple[st
             "median_volume": float(np.median(v)) if v.size else None,
             "early_share": float((v < target[i] - margin).mean()) if v.size else None,
             "late_share": float((v > target[i] + margin).mean()) if v.size else None,
+            "early_emptyings_before_the_end_game": int(sum(
+                ((r.emptied_volume[:, i] < target[i] - margin) & r.granted[:, i])[:r.steps - end_game].sum()
+                for r in records)),
         }
-    all_v = [(r.emptied_volume[r.granted], np.nonzero(r.granted)[1]) for r in records]
-    volumes = np.concatenate([v for v, _ in all_v])
-    index = np.concatenate([i for _, i in all_v])
+    all_v = [(r.emptied_volume[r.granted], np.nonzero(r.granted)[1], np.nonzero(r.granted)[0] >= r.steps - end_game)
+             for r in records]
+    volumes = np.concatenate([v for v, _, _ in all_v])
+    index = np.concatenate([i for _, i, _ in all_v])
+    late_in_episode = np.concatenate([e for _, _, e in all_v])
+    early = volumes < target[index] - margin
     waits, both_busy, steps = 0, 0, 0
     for r in records:
         state_v, timers = r.volumes[:-1], r.pu_timers_s[:-1]
@@ -60,12 +69,17 @@ def behaviour(records: list[EpisodeRecord], params: PlantParams, names: tuple[st
         waits += int((ready & ~r.granted & no_pu[:, None]).sum())
         both_busy += int(no_pu.sum())
         steps += r.steps
-    rewards = np.concatenate([r.emptying_rewards() for r in records])
+    rewards = np.concatenate([r.emptying_rewards() for r in records])  # granted, in the same order as volumes
     return {
         "return_mean": float(np.mean([r.cumulative_reward for r in records])),
         "emptyings_per_episode": volumes.size / len(records),
         "mean_reward_per_emptying": float(rewards.mean()),
-        "early_share": float((volumes < target[index] - margin).mean()),
+        "early_share": float(early.mean()),
+        "early_share_before_the_end_game": float(early[~late_in_episode].mean()),
+        "end_game_steps": end_game,
+        "end_game_emptyings_per_episode": float(late_in_episode.sum() / len(records)),
+        "mean_reward_of_early_emptyings_before_the_end_game": (
+            float(rewards[early & ~late_in_episode].mean()) if (early & ~late_in_episode).any() else None),
         "late_share": float((volumes > target[index] + margin).mean()),
         "ready_waiting_for_a_pu_per_episode": waits / len(records),
         "all_pus_busy_share_of_steps": both_busy / steps,
@@ -108,11 +122,15 @@ def main(argv=None) -> None:
         s = summary[method]
         print(f"{method}: return {s['return_mean']:.2f}, {s['emptyings_per_episode']:.1f} emptyings/episode, "
               f"mean reward {s['mean_reward_per_emptying']:.3f}, early {s['early_share']:.3f}, late "
-              f"{s['late_share']:.3f}, ready and waiting for a PU {s['ready_waiting_for_a_pu_per_episode']:.1f} "
+              f"{s['late_share']:.3f} (early before the last {s['end_game_steps']} steps "
+              f"{s['early_share_before_the_end_game']:.3f}; {s['end_game_emptyings_per_episode']:.1f} emptyings "
+              f"in them per episode; mean reward of those early ones "
+              f"{s['mean_reward_of_early_emptyings_before_the_end_game'] or float('nan'):.3f}), ready and waiting for a PU {s['ready_waiting_for_a_pu_per_episode']:.1f} "
               f"container-steps/episode, all PUs busy {s['all_pus_busy_share_of_steps']:.3f} of steps")
         for name, c in s["per_container"].items():
             print(f"   {name:6s} v*={c['target']:5.1f}  n={c['emptyings']:4d}  median {c['median_volume']:5.2f}"
-                  f"  early {c['early_share']:.2f}  late {c['late_share']:.2f}")
+                  f"  early {c['early_share']:.2f}  late {c['late_share']:.2f}"
+                  f"  early before the end game {c['early_emptyings_before_the_end_game']}")
     print(f"wrote {stem}_*.png and {path}")
 
 

@@ -141,6 +141,10 @@ def markdown(entries: list[dict], args: Args) -> str:
         "earning at least 0.75. ms/step: wall-clock decision time per step, mean / 99th percentile (CPU time "
         "mean in brackets), measured on a 2-core machine shared with other jobs (load average in rows.json).",
         "",
+        "Under the test protocol every `_dt60` row is the same plant as its `_dt120` row (the configs differ only "
+        "in the training δ, which the protocol replaces by 120 s; their PlantParams are equal), so their "
+        "returns coincide; both are measured, and only the decision times differ.",
+        "",
         "| row | method | setting | return | share | overflows | r ≥ 0.75 | denied | ms/step |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
@@ -170,8 +174,14 @@ def _targets(entries: list[dict], args: Args) -> list[str]:
             beats = rule is not None and e["return_mean"] >= rule
             safe = e["overflowing_episodes"] == 0
             paper = " (paper row)" if row in PAPER_ROWS else ""
+            paired = []  # the same test episodes (seeds) for every method: per-episode differences
+            for r in (x for x in entries if x["row"] == row and x["method"].startswith("rule")):
+                d = np.array(e["returns"]) - np.array(r["returns"])
+                se = d.std(ddof=1) / np.sqrt(d.size) if d.size > 1 else float("nan")
+                paired.append(f"{r['method']} {d.mean():+.2f} ± {se:.2f}, {int((d > 0).sum())}/{d.size} episodes")
             out.append(f"- {row}{paper}, {e['method']}: {'≥' if beats else '<'} both rule-based controllers "
-                       f"({e['return_mean']:.2f} vs best rule {rule:.2f}); "
+                       f"({e['return_mean']:.2f} vs best rule {rule:.2f}; paired difference ± s.e. and episodes "
+                       f"won against {'; '.join(paired)}); "
                        f"{'no' if safe else e['overflowing_episodes']} overflowing episodes"
                        + (f"; {e['decision_ms_mean']:.1f} ms per step (≤ 50 ms: {'yes' if e['decision_ms_mean'] <= 50 else 'no'})"
                           if row.startswith("n11_") else ""))

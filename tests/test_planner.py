@@ -15,7 +15,7 @@ from containergym_marl.core.simulator import PlantSimulator
 from containergym_marl.envs.container_agents_v0 import parallel_env
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.policies import PlannerAgents, RolloutPlanner, RuleBasedAgents
-from containergym_marl.policies.planner import fullest_base
+from containergym_marl.policies.planner import fullest_base, index_base
 from tests.conftest import make_state
 
 SMALL = dict(futures=4, horizon=6)  # a cheap planner for behaviour tests
@@ -115,6 +115,19 @@ def test_overflow_probability_matches_the_normal_tail_and_sampling():
 
 
 # ---- the planner ----------------------------------------------------------------------------------
+def test_base_policies_request_only_what_the_free_pus_grant():
+    """Every container at its optimum (all ready): ``fullest`` picks by v / v_max, ``index`` by
+    index, as many as free PUs (at most ``max_requests``)."""
+    params = PlantParams.from_config(load_config("n5_m2_dt120"))
+    target = np.asarray(params.target_volume)  # 27, 25, 25.5, 31.5, 25: v_max 40 for all
+    state = make_state([target] * 3, [[0.0, 0.0], [0.0, 60.0], [60.0, 60.0]])
+    assert np.flatnonzero(fullest_base(state, params, 2)[0]).tolist() == [0, 3]
+    assert fullest_base(state, params, 2).sum(axis=1).tolist() == [2, 1, 0]
+    assert np.flatnonzero(fullest_base(state, params, 1)[0]).tolist() == [3]
+    assert np.flatnonzero(index_base(state, params, 2)[0]).tolist() == [0, 1]
+    assert np.flatnonzero(index_base(state, params, 2)[1]).tolist() == [0]
+
+
 def _decide(planner, cfg, volumes, timers, step=5):
     sim = PlantSimulator(cfg)
     sim.reset(generators=[np.random.default_rng(0)])
