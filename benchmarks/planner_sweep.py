@@ -30,10 +30,11 @@ def main(argv=None) -> None:
     p.add_argument("--horizons", type=int, nargs="+", default=[2, 4, 8, 16, 32])
     p.add_argument("--episodes", type=int, default=5)
     p.add_argument("--first-seed", type=int, default=20_000)
+    p.add_argument("--episode-length-steps", type=int, default=600, help="T (600: the paper's test protocol)")
     p.add_argument("--out", default="results/planner")
     ns = p.parse_args(argv)
     cls = PlannerAgents if ns.view == "decentralised" else RolloutPlanner
-    protocol = EvalProtocol(episodes=ns.episodes, first_seed=ns.first_seed)
+    protocol = EvalProtocol(episodes=ns.episodes, first_seed=ns.first_seed, episode_length_steps=ns.episode_length_steps)
     evaluate(cls(futures=4, horizon=2), ns.row, EvalProtocol(episodes=1, episode_length_steps=20, first_seed=1),
              keep_records=False)  # warm-up: load the compiled kernels
     entries = []

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 
@@ -211,19 +212,23 @@ def test_planner_runs_through_the_parallel_env_and_the_registries(capsys):
     assert "planner on n5_m5_dt120 (centralised view), 1 episodes" in capsys.readouterr().out
 
 
-def test_rows_benchmark_smoke_run(tmp_path, monkeypatch):
-    """benchmarks/planner_rows.py end to end at a tiny size: every method measured, the table written."""
+def _script(name: str, monkeypatch):
+    """A script of benchmarks/ as a module."""
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "planner_rows.py"
-    spec = importlib.util.spec_from_file_location("planner_rows", path)
-    script = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "planner_rows", script)  # dataclasses look their module up
-    spec.loader.exec_module(script)
-    script.main(script.parse(["--smoke", "--out", str(tmp_path)]))
-    import json
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, name, module)  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
 
+
+def test_rows_benchmark_smoke_run(tmp_path, monkeypatch):
+    """benchmarks/planner_rows.py end to end at a tiny size: every method measured, the table written."""
+    script = _script("planner_rows", monkeypatch)
+    script.main(script.parse(["--smoke", "--out", str(tmp_path)]))
     data = json.loads((tmp_path / "rows.json").read_text())["evaluations"]
     assert [(e["method"], e["setting"]) for e in data] == [
         ("rule_based", "-"), ("rule_based_agents", "-"), ("planner", "default"), ("planner_agents", "default"),
@@ -231,3 +236,12 @@ def test_rows_benchmark_smoke_run(tmp_path, monkeypatch):
     assert all(len(e["returns"]) == 2 and e["decision_ms_mean"] > 0 for e in data)
     table = (tmp_path / "rows.md").read_text()
     assert "| n5_m2_dt120 | planner_agents | strong (K=8, H=8) |" in table and "## Targets" in table
+
+
+def test_sweep_script_smoke_run(tmp_path, monkeypatch):
+    script = _script("planner_sweep", monkeypatch)
+    script.main(["--row", "n5_m2_dt120", "--futures", "2", "--horizons", "2", "3", "--episodes", "1",
+                 "--episode-length-steps", "15", "--out", str(tmp_path)])
+    data = json.loads((tmp_path / "sweep_n5_m2_dt120.json").read_text())
+    assert [(e["futures"], e["horizon"]) for e in data["settings"]] == [(2, 2), (2, 3)]
+    assert "| 2 | " in (tmp_path / "sweep_n5_m2_dt120.md").read_text()
