@@ -1,17 +1,25 @@
-"""Copy what a comparison produced into the repository: small files of every run, every evaluation,
-the best and median model of each (row, method), and the table regenerated from those files.
+"""Copy what a comparison produced into the repository (every run with its policies, every
+evaluation, the best and median model of each (row, method), the table), and bring it back.
 
     python baselines/publish_results.py --runs RUNS --compare OUT --to results/paper_rows
+    python baselines/publish_results.py --runs RUNS --compare OUT --to results/paper_rows --restore
 
 RUNS is compare's ``--runs`` folder, OUT its ``--out`` folder. For every finished run (a readable
-``final_model.zip``) it copies ``args.json``, ``run.json``, ``config.toml`` and ``metrics.csv`` to
-``<to>/runs/<run>/``; every evaluation file of OUT to ``<to>/evaluations/<config>/``; and, for each
-(config, method) with at least ``--min-seeds`` evaluated seeds, the best model (``best_model.zip``, the policy the
-evaluation used) of its best and of its median seed by mean test return (the table's rule) to
-``<to>/models/<config>/<method>_{best,median}.zip`` with ``<method>.json`` naming the seeds and
-their returns. Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
+``final_model.zip``) it copies ``args.json``, ``run.json``, ``config.toml``, ``metrics.csv``,
+``best_model.zip`` (the policy the evaluations use) and ``final_model.zip`` to ``<to>/runs/<run>/``
+(~330 kB a run); with ``--with-checkpoints``, every interrupted run too, with only its newest intact
+checkpoint, so that a later session on another machine resumes it (``--restore``). Every evaluation
+file of OUT goes to ``<to>/evaluations/<config>/``; for each (config, method) with at least
+``--min-seeds`` evaluated seeds, the best model of its best and of its median seed by mean test
+return (the table's rule) to ``<to>/models/<config>/<method>_{best,median}.zip`` with
+``<method>.json`` naming the seeds and their returns (git stores each of these once: they are the
+runs' own files). Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
 (``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same). Rerunning it is
 safe: files are replaced atomically, nothing else is touched.
+
+``--restore`` goes the other way before a sweep is rerun on a fresh machine: runs of ``<to>/runs``
+that RUNS lacks or holds less far trained are copied there, evaluations OUT lacks are copied to
+OUT, so that ``compare`` reuses the finished runs and evaluations and resumes the rest.
 """
 
 from __future__ import annotations
@@ -24,27 +32,60 @@ from pathlib import Path
 from containergym_marl.compare import PAIRS
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text
-from containergym_marl.training.runs import run_status
+from containergym_marl.sweep import latest_readable_checkpoint
+from containergym_marl.training.runs import checkpoint_files, checkpoints, run_status
 
 SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
+MODELS = ("best_model.zip", "final_model.zip")
 
 
 def _copy(src: Path, dst: Path) -> None:
     atomic_write(dst, lambda tmp: shutil.copyfile(src, tmp))
 
 
-def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3) -> dict:
-    done = {"runs": [], "evaluations": 0, "models": []}
+def _trained_samples(run: Path) -> int:
+    """How far a run got: its budget when finished, else its newest checkpoint's samples (0: none)."""
+    if run_status(run) == "finished":
+        return int(json.loads((run / "args.json").read_text())["timesteps"])
+    found = checkpoints(run)
+    return found[0][0] if found else 0
+
+
+def _copy_run(run: Path, dst: Path) -> None:
+    """The run's small files and policies; for an unfinished run, its newest intact checkpoint only."""
+    for name in SMALL_FILES + MODELS:
+        if (run / name).is_file():
+            _copy(run / name, dst / name)
+    keep = set()
+    if run_status(run) != "finished" and (steps := latest_readable_checkpoint(run)) is not None:
+        for path in checkpoint_files(run, steps).values():
+            if path.is_file():
+                _copy(path, dst / "checkpoints" / path.name)
+                keep.add(path.name)
+    for old in (dst / "checkpoints").glob("*") if (dst / "checkpoints").is_dir() else []:
+        if old.name not in keep:  # an older checkpoint, or any once the run has finished
+            old.unlink()
+    if (dst / "checkpoints").is_dir() and not keep:
+        (dst / "checkpoints").rmdir()
+
+
+def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_checkpoints: bool = False) -> dict:
+    done = {"runs": [], "interrupted": [], "evaluations": 0, "models": []}
     for run in sorted(p for p in runs.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        if run_status(run) != "finished":
-            continue
-        for name in SMALL_FILES:
-            if (run / name).is_file():
-                _copy(run / name, to / "runs" / run.name / name)
-        done["runs"].append(run.name)
+        status = run_status(run)
+        if status == "finished":
+            _copy_run(run, to / "runs" / run.name)
+            done["runs"].append(run.name)
+        elif status == "interrupted" and with_checkpoints and latest_readable_checkpoint(run) is not None:
+            dst = to / "runs" / run.name
+            if _trained_samples(run) >= (_trained_samples(dst) if dst.is_dir() else 0):
+                _copy_run(run, dst)
+                done["interrupted"].append(run.name)
     for path in sorted((compare_out / "evaluations").glob("*/*.json")):
         _copy(path, to / "evaluations" / path.parent.name / path.name)
         done["evaluations"] += 1
+    if not any((to / "evaluations").glob("*/*.json")):
+        return done  # runs only (a sweep still training): no table yet
     for group in tables.load_evaluations(to / "evaluations"):
         if len(group.seeds) < min_seeds:
             continue  # a rule-based controller (nothing to ship), or a row still training
@@ -71,6 +112,26 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3) -> dict
     return done
 
 
+def restore(to: Path, runs: Path, compare_out: Path) -> dict:
+    """Copy published runs into ``runs`` where they are absent or further trained than there, and
+    published evaluations into ``compare_out`` where absent."""
+    done = {"runs": [], "evaluations": 0}
+    for src in sorted(p for p in (to / "runs").glob("*") if p.is_dir()):
+        dst = runs / src.name
+        if dst.is_dir() and _trained_samples(dst) >= _trained_samples(src):
+            continue
+        if dst.is_dir():
+            shutil.rmtree(dst)
+        shutil.copytree(src, dst)
+        done["runs"].append(src.name)
+    for path in sorted((to / "evaluations").glob("*/*.json")):
+        dst = compare_out / "evaluations" / path.parent.name / path.name
+        if not dst.is_file():
+            _copy(path, dst)
+            done["evaluations"] += 1
+    return done
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -78,10 +139,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--compare", required=True, type=Path, help="compare's --out folder")
     parser.add_argument("--to", default=Path("results/paper_rows"), type=Path, help="destination in the repository")
     parser.add_argument("--min-seeds", type=int, default=3, help="ship models of a (row, method) from this many seeds on")
+    parser.add_argument("--with-checkpoints", action="store_true",
+                        help="also publish interrupted runs with their newest checkpoint (resumable elsewhere)")
+    parser.add_argument("--restore", action="store_true",
+                        help="copy published runs and evaluations back into --runs and --compare instead")
     ns = parser.parse_args(argv)
-    done = publish(ns.runs, ns.compare, ns.to, ns.min_seeds)
+    if ns.restore:
+        done = restore(ns.to, ns.runs, ns.compare)
+        print(f"restored {len(done['runs'])} run(s) and {done['evaluations']} evaluation(s) from {ns.to}/")
+        return 0
+    done = publish(ns.runs, ns.compare, ns.to, ns.min_seeds, ns.with_checkpoints)
     size = sum(p.stat().st_size for p in (ns.to / "models").rglob("*.zip")) if (ns.to / "models").exists() else 0
-    print(f"published {len(done['runs'])} finished run(s), {done['evaluations']} evaluation(s), models of "
+    print(f"published {len(done['runs'])} finished run(s), {len(done['interrupted'])} interrupted one(s) with "
+          f"their newest checkpoint, {done['evaluations']} evaluation(s), models of "
           f"{len(done['models'])} (row, method) pair(s) ({size / 1e6:.1f} MB of models) to {ns.to}/")
     return 0
 

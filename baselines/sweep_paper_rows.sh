@@ -7,6 +7,10 @@
 #
 #   RUNS=runs/paper OUT=results/compare_paper bash baselines/sweep_paper_rows.sh
 #   python baselines/publish_results.py --runs runs/paper --compare results/compare_paper --to results/paper_rows
+#
+# The published folder carries the sweep between machines: publish with --with-checkpoints (interrupted
+# runs keep their newest checkpoint) and commit; on the next machine, first
+#   python baselines/publish_results.py --runs runs/paper --compare results/compare_paper --to results/paper_rows --restore
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNS=${RUNS:-runs/paper}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 from pathlib import Path
@@ -51,3 +52,43 @@ def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(t
         assert shipped == (runs / f"ppo_{config}_s{seed}" / "best_model.zip").read_bytes()
     table = (to / "table.md").read_text()
     assert "| n5_m2_dt120 | ppo |" in table
+
+
+def test_an_interrupted_run_published_with_its_checkpoint_resumes_after_restore(tmp_path):
+    """--with-checkpoints keeps only the newest checkpoint; --restore brings the run back to a fresh
+    runs folder, where training resumes from that checkpoint and finishes."""
+    from containergym_marl.training.runs import checkpoints, run_status
+
+    publish_results = _publish_module()
+    runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
+    run = runs / "ppo_n5_m2_dt120_s1"
+    args = TrainArgs(algo="ppo", config="n5_m2_dt120", seed=1, timesteps=1536, n_envs=2, out=str(run),
+                     progress_bar=False, checkpoint_every=512, hyperparams={"n_steps": 128},
+                     overrides={"episode_length_steps": 40})
+    train(args)
+    assert len(checkpoints(run)) >= 2
+    newest = checkpoints(run)[0][0]
+    # Cut short after its last checkpoint: what a kill before the final save leaves.
+    (run / "final_model.zip").unlink()
+    (run / "run.json").unlink()
+    (out / "evaluations").mkdir(parents=True)
+
+    done = publish_results.publish(runs, out, to, with_checkpoints=True)
+    assert done["interrupted"] == [run.name] and done["runs"] == []
+    published = to / "runs" / run.name
+    assert [s for s, _ in checkpoints(published)] == [newest]
+    assert not (published / "final_model.zip").exists()
+
+    fresh_runs, fresh_out = tmp_path / "fresh_runs", tmp_path / "fresh_cmp"
+    assert publish_results.restore(to, fresh_runs, fresh_out)["runs"] == [run.name]
+    resumed = fresh_runs / run.name
+    train(dataclasses.replace(args, out=str(resumed), resume=True))
+    assert run_status(resumed) == "finished"
+    assert json.loads((resumed / "run.json").read_text())["resumed_from"] == newest
+
+    # Published again once finished: the checkpoint goes, the policies come.
+    publish_results.publish(fresh_runs, fresh_out, to, with_checkpoints=True)
+    assert not (published / "checkpoints").exists()
+    assert (published / "final_model.zip").read_bytes() == (resumed / "final_model.zip").read_bytes()
+    # A restore never replaces a run that is further trained where it is restored to.
+    assert publish_results.restore(to, fresh_runs, fresh_out)["runs"] == []
