@@ -33,7 +33,7 @@ class PlantSimulator:
     """
 
     def __init__(self, config: PlantConfig, batch_size: int = 1, arbitration: str = "fullest"):
-        get_rule(arbitration)  # validated once, before anything is built
+        self._rule = get_rule(arbitration)  # validated once, before anything is built
         if (isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer))
                 or not 1 <= batch_size <= MAX_BATCH_SIZE):
             raise ValueError(f"batch_size: expected an integer in [1, {MAX_BATCH_SIZE}], got {batch_size!r}")
@@ -124,22 +124,6 @@ class PlantSimulator:
         self.finished[idx] = False
         self._any_finished = bool(self.finished.any())
 
-    def _check_requests(self, requests) -> np.ndarray:
-        """(B, n) bool requests; integer 0/1 entries are accepted, anything else is refused."""
-        if type(requests) is np.ndarray and requests.dtype == np.bool_:
-            out = requests
-        else:
-            out = np.asarray(requests)
-            if out.dtype != np.bool_:
-                if not np.issubdtype(out.dtype, np.integer) or ((out != 0) & (out != 1)).any():
-                    raise ValueError(f"requests: expected booleans (or integers 0/1), got dtype {out.dtype}"
-                                     + ("" if np.issubdtype(out.dtype, np.integer) else f": {out!r}"))
-                out = out.astype(bool)
-        shape = (self.batch_size, self.params.n_containers)
-        if out.shape != shape:
-            raise ValueError(f"requests: expected shape {shape}, got {out.shape}")
-        return out
-
     def step(self, requests: np.ndarray) -> StepOutcome:
         """Step every simulation by one δ with a (B, n) boolean request matrix."""
         if self._any_finished:
@@ -148,10 +132,10 @@ class PlantSimulator:
                 f"simulation(s) {bad} finished their episode (overflow or time limit); "
                 f"call reset() before stepping again"
             )
-        requests = self._check_requests(requests)  # before a random row is consumed
+        requests = dynamics.check_requests(requests, self.state.volumes.shape)  # before a random row is used
         normals, uniforms = self._streams.next_rows()
-        self.state, outcome = dynamics.step(self.state, requests, self.params, normals, uniforms, self.arbitration)
-        self.previous_requests = outcome.requested.copy()
+        self.state, outcome = dynamics.step_checked(self.state, requests, self.params, normals, uniforms, self._rule)
+        self.previous_requests = outcome.requested  # a fresh array every step, never written again
         finished = self.finished = outcome.terminated | outcome.truncated
         # a Python bool for the check above (ndarray.any() costs ~1 µs, a tenth of a small step)
         self._any_finished = finished.item(0) if finished.size == 1 else bool(np.logical_or.reduce(finished))
