@@ -178,7 +178,7 @@ def extreme_states(plant: Plant, rng: np.random.Generator, rows: int):
 
 def _sim_snapshot(sim: PlantSimulator):
     st = sim.state
-    gens = [copy.deepcopy(sim.generator(i).bit_generator.state) for i in range(min(sim.batch_size, 4))]
+    gens = [copy.deepcopy(sim.generator(i).bit_generator.state) for i in range(min(sim.num_sims, 4))]
     return (st.volumes.copy(), st.pu_timers_s.copy(), st.step_count.copy(), sim.previous_requests.copy(),
             sim._streams._cursor.copy(), gens)
 
@@ -224,7 +224,7 @@ def stress_core(plant: Plant, rule: str, steps: int, batch: int, seed: int, chk:
                 z: ZStats) -> int:
     """``steps`` simulation steps (rounded up to whole batches) with one arbitration rule."""
     n, m = plant.n, plant.m
-    sim = PlantSimulator(plant.cfg, batch_size=batch, arbitration=rule)
+    sim = PlantSimulator(plant.cfg, num_sims=batch, arbitration=rule)
     rng = np.random.default_rng([seed, 1])
     sim.reset(generators=[np.random.default_rng(s) for s in np.random.SeedSequence([seed, 2]).spawn(batch)])
     calls = -(-steps // batch)
@@ -341,7 +341,7 @@ def _in_box(x: np.ndarray, low: np.ndarray, high: np.ndarray) -> bool:
 def _maybe_inject(sim: PlantSimulator, plant: Plant, rng, p: float = 0.005, keep_count: bool = True) -> None:
     if rng.random() >= p:
         return
-    rows = np.arange(sim.batch_size) if sim.batch_size == 1 else rng.choice(sim.batch_size, 1)
+    rows = np.arange(sim.num_sims) if sim.num_sims == 1 else rng.choice(sim.num_sims, 1)
     vol, tim, cnt = extreme_states(plant, rng, rows.size)
     st = sim.state
     v_, p_, c_ = st.volumes.copy(), st.pu_timers_s.copy(), st.step_count.copy()

@@ -34,7 +34,7 @@ longest PU time             β + λ·⌊v_max / b⌋ ≤ 1e12 s (named as λ's e
 reward_peaks (v*_k)         0 < v*_k ≤ v_max, at least one                        –
 reward_heights (h_k)        0 < h_k ≤ 1                                           –
 reward_widths (w_k)         1e-3 ≤ w_k ≤ 1e12                                     MIN/MAX_VOLUME
-batch size B                integer, 1 ≤ B ≤ 2**24 (checked by PlantSimulator     MAX_BATCH_SIZE
+simulations B (num_sims)   integer, 1 ≤ B ≤ 2**24 (checked by PlantSimulator     MAX_SIMS
                             and the vector envs: ValueError naming the argument)
 ==========================  ====================================================  ==================
 
@@ -60,7 +60,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 __all__ = [
-    "MAX_BATCH_SIZE",
+    "MAX_SIMS",
     "MAX_CONTAINERS",
     "MAX_EPISODE_LENGTH_STEPS",
     "MAX_PROCESSING_UNITS",
@@ -93,8 +93,8 @@ MAX_RATE = 1e12
 MAX_PU_DURATION_S = 1e9
 #: largest PU busy time β + λ·⌊v_max / b⌋ (s)
 MAX_PU_TIME_S = 1e12
-#: largest batch size B of a simulator or vector env (checked there, not in the config)
-MAX_BATCH_SIZE = 2**24
+#: largest number of simulations B (num_sims) of a simulator or vector env (checked there, not in the config)
+MAX_SIMS = 2**24
 
 
 class ConfigError(ValueError):

@@ -120,7 +120,7 @@ def test_random_arbitration_is_fair_and_seeded():
     standard errors); the same seed reproduces the same winners."""
     cfg = load_config("n5_m2_dt120", num_processing_units=1)
     sims = 3000
-    sim = PlantSimulator(cfg, batch_size=sims, arbitration="random")
+    sim = PlantSimulator(cfg, num_sims=sims, arbitration="random")
     sim.reset(generators=[np.random.default_rng(s) for s in range(sims)])
     req = np.zeros((sims, cfg.n_containers), bool)
     req[:, :3] = True
@@ -129,7 +129,7 @@ def test_random_arbitration_is_fair_and_seeded():
     assert wins.sum() == sims
     se = np.sqrt(sims * (1 / 3) * (2 / 3))
     assert np.all(np.abs(wins - sims / 3) < 5 * se), wins
-    sim2 = PlantSimulator(cfg, batch_size=sims, arbitration="random")
+    sim2 = PlantSimulator(cfg, num_sims=sims, arbitration="random")
     sim2.reset(generators=[np.random.default_rng(s) for s in range(sims)])
     np.testing.assert_array_equal(sim2.step(req).granted, out.granted)
 

@@ -16,7 +16,7 @@ import pytest
 
 from containergym_marl import load_config
 from containergym_marl.config import (
-    MAX_BATCH_SIZE,
+    MAX_SIMS,
     MAX_CONTAINERS,
     MAX_PROCESSING_UNITS,
     ConfigError,
@@ -316,7 +316,7 @@ def test_numbers_at_the_bounds_are_accepted_and_stay_finite():
     params = PlantParams.from_config(cfg)
     for bounds in (global_state_bounds(params), agent_observation_bounds(params)):
         assert all(np.isfinite(b).all() for b in bounds)
-    sim = PlantSimulator(cfg, batch_size=4)
+    sim = PlantSimulator(cfg, num_sims=4)
     sim.reset(generators=[np.random.default_rng(s) for s in range(4)])
     out = sim.step(np.ones((4, 5), bool))
     assert np.isfinite(sim.state.volumes).all() and np.isfinite(out.container_reward).all()
@@ -359,16 +359,16 @@ def test_bounds_table_is_in_the_config_docstring():
     for field in ("num_processing_units", "timestep_s", "episode_length_steps", "max_volume",
                   "product_size", "fill_rate_per_s", "fill_noise_per_sqrt_s", "pu_offset_s",
                   "pu_time_per_product_s", "reward_peaks", "reward_heights", "reward_widths",
-                  "overflow_reward", "batch size"):
+                  "overflow_reward", "num_sims"):
         assert field in doc, field
 
 
-# ---- batch sizes and vector-env seeds ---------------------------------------------------------
-@pytest.mark.parametrize("size", [0, -1, 2.7, 3.0, "3", True, MAX_BATCH_SIZE + 1])
-def test_batch_sizes_are_integers_within_bounds(size):
+# ---- numbers of simulations and vector-env seeds ---------------------------------------------------------
+@pytest.mark.parametrize("size", [0, -1, 2.7, 3.0, "3", True, MAX_SIMS + 1])
+def test_simulation_counts_are_integers_within_bounds(size):
     cfg = load_config(CFG)
-    with pytest.raises(ValueError, match="batch_size"):
-        PlantSimulator(cfg, batch_size=size)
+    with pytest.raises(ValueError, match="num_sims"):
+        PlantSimulator(cfg, num_sims=size)
     with pytest.raises(ValueError, match="num_envs"):
         ContainerGymVecEnv(CFG, num_envs=size)
     with pytest.raises(ValueError, match="num_sims"):

@@ -24,7 +24,7 @@ def test_batch_of_B_equals_B_single_runs(rule):
     action_rng = np.random.default_rng(99)
     requests = action_rng.random((steps, B, cfg.n_containers)) < 0.15
 
-    batch = PlantSimulator(cfg, batch_size=B, arbitration=rule)
+    batch = PlantSimulator(cfg, num_sims=B, arbitration=rule)
     batch.reset(generators=[np.random.default_rng(s) for s in seeds])
     singles = [PlantSimulator(cfg, arbitration=rule) for _ in range(B)]
     for s, sim in zip(seeds, singles):
@@ -50,9 +50,9 @@ def test_batch_of_B_equals_B_single_runs(rule):
 
 def test_reseeding_one_simulation_leaves_the_others_alone():
     cfg = load_config("n5_m2_dt120")
-    a = PlantSimulator(cfg, batch_size=3)
+    a = PlantSimulator(cfg, num_sims=3)
     a.reset(generators=[np.random.default_rng(s) for s in (1, 2, 3)])
-    b = PlantSimulator(cfg, batch_size=3)
+    b = PlantSimulator(cfg, num_sims=3)
     b.reset(generators=[np.random.default_rng(s) for s in (1, 2, 3)])
     no = np.zeros((3, cfg.n_containers), bool)
     for _ in range(5):
@@ -69,7 +69,7 @@ def test_reseeding_one_simulation_leaves_the_others_alone():
 
 def test_independent_seeds_give_independent_streams():
     cfg = load_config("n11_m2_dt120")
-    sim = PlantSimulator(cfg, batch_size=64)
+    sim = PlantSimulator(cfg, num_sims=64)
     sim.reset(generators=[np.random.default_rng(s) for s in range(64)])
     v0 = sim.state.volumes
     # no two simulations share initial volumes, and the correlation across simulations is ~0

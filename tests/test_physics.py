@@ -146,7 +146,7 @@ def test_fill_increments_match_random_walk_statistics():
     statistical bounds (5 standard errors), for δ = 60 and 120."""
     for name in ("n5_m2_dt60", "n5_m2_dt120"):
         cfg = load_config(name, initial_volume_min=15.0, initial_volume_max=15.0)
-        sim = PlantSimulator(cfg, batch_size=20_000)
+        sim = PlantSimulator(cfg, num_sims=20_000)
         sim.reset(generators=[np.random.default_rng(s) for s in range(20_000)])
         before = sim.state.volumes.copy()
         sim.step(np.zeros((20_000, cfg.n_containers), bool))
@@ -245,7 +245,7 @@ def test_simulator_refuses_to_step_a_finished_episode():
 
 def test_reset_draws_uniform_initial_volumes_and_free_pus():
     cfg = load_config("n11_m2_dt120")
-    sim = PlantSimulator(cfg, batch_size=5000)
+    sim = PlantSimulator(cfg, num_sims=5000)
     sim.reset(generators=[np.random.default_rng(s) for s in range(5000)])
     v = sim.state.volumes
     assert v.min() >= 0.0 and v.max() <= 30.0

@@ -32,7 +32,7 @@ def test_branching_leaves_the_original_trajectory_bit_identical():
     trajectory of a twin with the same seed and requests that is never branched."""
     cfg = load_config("n5_m2_dt120", episode_length_steps=80)
     requests = np.random.default_rng(5).random((40, 2, cfg.n_containers)) < 0.1
-    planned, plain = PlantSimulator(cfg, batch_size=2), PlantSimulator(cfg, batch_size=2)
+    planned, plain = PlantSimulator(cfg, num_sims=2), PlantSimulator(cfg, num_sims=2)
     planned.reset(generators=[np.random.default_rng(s) for s in (1, 2)])
     plain.reset(generators=[np.random.default_rng(s) for s in (1, 2)])
     for t in range(40):  # crosses a refill of the random blocks (32 rows)

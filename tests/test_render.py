@@ -117,7 +117,7 @@ def test_ansi_reports_the_last_steps_granted_and_denied_requests():
 
 
 def test_ansi_of_one_simulation_of_a_batch():
-    sim = PlantSimulator(load_config(CFG), batch_size=2)
+    sim = PlantSimulator(load_config(CFG), num_sims=2)
     sim.reset(generators=[np.random.default_rng(1), np.random.default_rng(2)])
     for b in range(2):
         text = render_ansi(sim, b)
@@ -291,7 +291,7 @@ def test_close_releases_the_figure_and_rendering_can_resume(view):
 
 
 def test_a_renderer_draws_the_simulation_it_is_given():
-    sim = PlantSimulator(load_config(CFG), batch_size=2)
+    sim = PlantSimulator(load_config(CFG), num_sims=2)
     sim.reset(generators=[np.random.default_rng(1), np.random.default_rng(2)])
     frames = [PlantRenderer(sim, index=b).rgb_array() for b in range(2)]
     assert not np.array_equal(*frames)

@@ -62,7 +62,7 @@ class PlantState(NamedTuple):
     step_count: np.ndarray  # (B,) int64, steps taken in the current episode
 
     @property
-    def batch_size(self) -> int:
+    def num_sims(self) -> int:
         return self.volumes.shape[0]
 
     def select(self, sims: np.ndarray) -> "PlantState":

@@ -61,7 +61,7 @@ class NoiseStreams:
         self._make_block_views()
 
     @property
-    def batch_size(self) -> int:
+    def num_sims(self) -> int:
         return len(self._generators)
 
     def generator(self, index: int) -> np.random.Generator:

@@ -10,7 +10,7 @@ from typing import Sequence
 
 import numpy as np
 
-from containergym_marl.config import MAX_BATCH_SIZE, PlantConfig
+from containergym_marl.config import MAX_SIMS, PlantConfig
 from containergym_marl.core import dynamics
 from containergym_marl.core.dynamics import PlantState, StepOutcome, get_rule
 from containergym_marl.core.observations import global_state
@@ -27,29 +27,29 @@ class PlantSimulator:
 
     Args:
         config: the plant.
-        batch_size: number of simulations B.
+        num_sims: number of simulations B.
         arbitration: how competing requests are ranked, a name of
             :data:`~containergym_marl.core.dynamics.ARBITRATION_RULES`.
     """
 
-    def __init__(self, config: PlantConfig, batch_size: int = 1, arbitration: str = "fullest"):
+    def __init__(self, config: PlantConfig, num_sims: int = 1, arbitration: str = "fullest"):
         self._rule = get_rule(arbitration)  # validated once, before anything is built
-        if (isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer))
-                or not 1 <= batch_size <= MAX_BATCH_SIZE):
-            raise ValueError(f"batch_size: expected an integer in [1, {MAX_BATCH_SIZE}], got {batch_size!r}")
+        if (isinstance(num_sims, bool) or not isinstance(num_sims, (int, np.integer))
+                or not 1 <= num_sims <= MAX_SIMS):
+            raise ValueError(f"num_sims: expected an integer in [1, {MAX_SIMS}], got {num_sims!r}")
         self.config = config
         self.params = PlantParams.from_config(config)
         self.arbitration = arbitration
-        self.batch_size = int(batch_size)
+        self.num_sims = int(num_sims)
         n, m = self.params.n_containers, self.params.n_pus
         self._streams: NoiseStreams | None = None
         self.state = PlantState(
-            np.zeros((self.batch_size, n)),
-            np.zeros((self.batch_size, m)),
-            np.zeros(self.batch_size, dtype=np.int64),
+            np.zeros((self.num_sims, n)),
+            np.zeros((self.num_sims, m)),
+            np.zeros(self.num_sims, dtype=np.int64),
         )
-        self.previous_requests = np.zeros((self.batch_size, n), dtype=bool)
-        self.finished = np.ones(self.batch_size, dtype=bool)  # nothing to step before a reset
+        self.previous_requests = np.zeros((self.num_sims, n), dtype=bool)
+        self.finished = np.ones(self.num_sims, dtype=bool)  # nothing to step before a reset
         self._any_finished = True
         self.last_outcome: StepOutcome | None = None
 
@@ -61,7 +61,7 @@ class PlantSimulator:
         if len(generators) != len(sims):
             raise ValueError(f"generators: expected {len(sims)}, got {len(generators)}")
         if self._streams is None:
-            if len(sims) != self.batch_size:
+            if len(sims) != self.num_sims:
                 raise ValueError("the first reset must provide a generator for every simulation")
             order = np.argsort(sims)
             self._streams = NoiseStreams([generators[i] for i in order], self.params.n_containers)
@@ -82,10 +82,10 @@ class PlantSimulator:
         for comparing decisions). :func:`containergym_marl.core.whatif.simulate_futures` is the
         allocation-free form a planner uses: K copies × C first decisions in one batch.
         """
-        if not 0 <= int(sim) < self.batch_size:
-            raise IndexError(f"sim: {sim} out of range for a batch of {self.batch_size}")
+        if not 0 <= int(sim) < self.num_sims:
+            raise IndexError(f"sim: {sim} out of range for a batch of {self.num_sims}")
         copies = len(generators)
-        new = PlantSimulator(self.config, batch_size=copies, arbitration=self.arbitration)
+        new = PlantSimulator(self.config, num_sims=copies, arbitration=self.arbitration)
         rows = np.full(copies, int(sim))
         new.state = self.state.select(rows)  # fancy indexing: new arrays
         new.previous_requests = self.previous_requests[rows]
@@ -104,13 +104,13 @@ class PlantSimulator:
 
         Without generators each simulation continues its own random stream.
         """
-        idx = np.arange(self.batch_size) if sims is None else np.asarray(sims, dtype=np.int64)
+        idx = np.arange(self.num_sims) if sims is None else np.asarray(sims, dtype=np.int64)
         if generators is not None:
             self._set_generators(idx, generators)
         if self._streams is None:
             raise RuntimeError("the first reset needs one np.random.Generator per simulation")
-        everyone = sims is None or (idx.size == self.batch_size
-                                    and np.array_equal(idx, np.arange(self.batch_size)))
+        everyone = sims is None or (idx.size == self.num_sims
+                                    and np.array_equal(idx, np.arange(self.num_sims)))
         _, uniforms = self._streams.next_rows(None if everyone else idx, normals=False)
         fresh = dynamics.reset_state(self.params, uniforms)
         if everyone:

@@ -106,7 +106,7 @@ class ContainerGymEnv(gym.Env):
             )
         self.config = load_config(config, protocol=protocol, **overrides)
         self.render_mode = render_mode
-        self._sim = PlantSimulator(self.config, batch_size=1)
+        self._sim = PlantSimulator(self.config, num_sims=1)
         self._renderer = EnvRenderer(self._sim, render_mode, view="centralised")
         params = self._sim.params
         self.n_containers, self.n_pus = params.n_containers, params.n_pus

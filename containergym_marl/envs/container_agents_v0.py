@@ -178,7 +178,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self.state_mode = state_mode
         self.agent_names = agent_names
         self.render_mode = render_mode
-        self._sim = PlantSimulator(self.config, batch_size=1, arbitration=arbitration)
+        self._sim = PlantSimulator(self.config, num_sims=1, arbitration=arbitration)
         self._renderer = EnvRenderer(self._sim, render_mode, view="decentralised")
         params = self._sim.params
 

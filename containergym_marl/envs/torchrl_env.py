@@ -134,7 +134,7 @@ class ContainerAgentsTorchRLEnv(EnvBase):
         self.reward_mode = reward_mode
         self.categorical_actions = bool(categorical_actions)
         super().__init__(device=device, batch_size=torch.Size([self.num_envs]))
-        self._sim = PlantSimulator(self.config, batch_size=self.num_envs, arbitration=arbitration)
+        self._sim = PlantSimulator(self.config, num_sims=self.num_envs, arbitration=arbitration)
         params = self._sim.params
         self.n_agents = params.n_containers
         #: agent names of the group, as TorchRL's multi-agent envs expose them

@@ -17,7 +17,7 @@ anything else (``2.7``, ``"5"``, True) is refused with a ValueError rather than 
 env's ``reset(seed=...)`` also takes B seeds, one per simulation, as a list, tuple or 1-D integer
 array (``reset(seed=np.arange(B))`` seeds simulation b with b).
 
-Sizes: ``num_envs`` / ``num_sims`` must be integers in [1, ``MAX_BATCH_SIZE``] (2**24); floats are
+Sizes: ``num_envs`` / ``num_sims`` must be integers in [1, ``MAX_SIMS``] (2**24); floats are
 refused.
 
 Autoreset: when simulation b ends, the returned observation is the first of its next episode; the
@@ -45,7 +45,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from containergym_marl.config import MAX_BATCH_SIZE, PlantConfig, load_config
+from containergym_marl.config import MAX_SIMS, PlantConfig, load_config
 from containergym_marl.core.dynamics import StepOutcome
 from containergym_marl.core.observations import (
     agent_observation_bounds,
@@ -101,7 +101,7 @@ class _AutoresetBatch:
     """B simulations with per-simulation seeds and automatic reset (shared by all vector envs)."""
 
     def __init__(self, config: PlantConfig, num_sims: int, arbitration: str = "fullest"):
-        self.sim = PlantSimulator(config, batch_size=num_sims, arbitration=arbitration)
+        self.sim = PlantSimulator(config, num_sims=num_sims, arbitration=arbitration)
         self.params = self.sim.params
         self.num_sims = num_sims
 
@@ -130,10 +130,10 @@ def _is_integer(value) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
-def _batch_size(value, name: str) -> int:
-    """A number of simulations: an integer in [1, MAX_BATCH_SIZE] (floats are refused, not cast)."""
-    if not _is_integer(value) or not 1 <= value <= MAX_BATCH_SIZE:
-        raise ValueError(f"{name}: expected an integer in [1, {MAX_BATCH_SIZE}], got {value!r}")
+def _num_sims(value, name: str) -> int:
+    """A number of simulations: an integer in [1, MAX_SIMS] (floats are refused, not cast)."""
+    if not _is_integer(value) or not 1 <= value <= MAX_SIMS:
+        raise ValueError(f"{name}: expected an integer in [1, {MAX_SIMS}], got {value!r}")
     return int(value)
 
 
@@ -268,7 +268,7 @@ class ContainerGymVecEnv(_SB3Base):
         _require_sb3(type(self).__name__)
         cfg = load_config(config, protocol=protocol, **overrides)
         low, high = global_state_bounds(PlantParams.from_config(cfg))
-        num_envs = _batch_size(num_envs, "num_envs")
+        num_envs = _num_sims(num_envs, "num_envs")
         self._init_sb3(cfg, num_envs, "fullest", num_envs,
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(cfg.n_containers + 1))
 
@@ -314,7 +314,7 @@ class ContainerAgentsVecEnv(_SB3Base):
         self.reward_mode = reward_mode
         self.n_agents = cfg.n_containers
         low, high = agent_observation_bounds(PlantParams.from_config(cfg))
-        num_sims = _batch_size(num_sims, "num_sims")
+        num_sims = _num_sims(num_sims, "num_sims")
         self._init_sb3(cfg, num_sims, arbitration, num_sims * cfg.n_containers,
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(2))
 
@@ -373,7 +373,7 @@ class ContainerGymVectorEnv(VectorEnv):
         if render_mode is not None:
             raise ValueError("render_mode: the vector env does not render; render a single env instead")
         self.config = load_config(config, protocol=protocol, **overrides)
-        self.num_envs = _batch_size(num_envs, "num_envs")
+        self.num_envs = _num_sims(num_envs, "num_envs")
         self._batch = _AutoresetBatch(self.config, self.num_envs)
         params = self._batch.params
         low, high = global_state_bounds(params)
