@@ -1,4 +1,5 @@
-"""Plant configurations: frozen, validated, loaded from our TOML files or the reference JSON format.
+"""Plant configurations: frozen, validated, loaded from our TOML files or the reference JSON format
+(read by :mod:`containergym_marl.reference_format`).
 
 A :class:`PlantConfig` is the immutable description of one plant (the paper's "instance"):
 its containers, its processing units (PUs) and the episode settings. The physics core never reads
@@ -70,7 +71,7 @@ __all__ = [
     "PAPER_TEST_PROTOCOL",
     "load_config",
     "list_configs",
-    "config_from_reference_json",
+    "config_from_dict",
 ]
 
 #: The paper's test protocol (section 6.1): every policy is evaluated with δ = 120 s and T = 600.
@@ -101,6 +102,12 @@ class ConfigError(ValueError):
     """An invalid plant configuration. The message names the offending field and container."""
 
 
+def _field(toml_comment: str):
+    """A required numeric field; its comment (symbol and unit) is written beside it by ``to_toml``.
+    (Required: ``dataclasses.MISSING`` default, so a field left out is a TypeError, as without it.)"""
+    return dataclasses.field(metadata={"toml": toml_comment})
+
+
 @dataclass(frozen=True)
 class ContainerSpec:
     """One container and how its material is processed.
@@ -119,15 +126,15 @@ class ContainerSpec:
     """
 
     name: str
-    fill_rate_per_s: float
-    fill_noise_per_sqrt_s: float
-    max_volume: float
-    product_size: float
-    pu_offset_s: float
-    pu_time_per_product_s: float
-    reward_peaks: tuple[float, ...]
-    reward_heights: tuple[float, ...]
-    reward_widths: tuple[float, ...]
+    fill_rate_per_s: float = _field("mu, volume units per second")
+    fill_noise_per_sqrt_s: float = _field("sigma; a step adds N(mu*delta, sigma^2*delta)")
+    max_volume: float = _field("v_max, volume units")
+    product_size: float = _field("b, volume units per product")
+    pu_offset_s: float = _field("beta, seconds to actuate a PU")
+    pu_time_per_product_s: float = _field("lambda, seconds per product")
+    reward_peaks: tuple[float, ...] = _field("optimal emptying volumes v*")
+    reward_heights: tuple[float, ...] = _field("h in (0, 1]")
+    reward_widths: tuple[float, ...] = _field("w > 0")
 
     @property
     def target_volume(self) -> float:
@@ -146,13 +153,13 @@ class PlantConfig:
 
     name: str
     containers: tuple[ContainerSpec, ...]
-    num_processing_units: int
-    timestep_s: float
-    episode_length_steps: int
-    initial_volume_min: float
-    initial_volume_max: float
-    overflow_reward: float
-    penalty_reward: float
+    num_processing_units: int = _field("m, identical PUs")
+    timestep_s: float = _field("delta, seconds per step")
+    episode_length_steps: int = _field("T, steps before truncation")
+    initial_volume_min: float = _field("v(0) ~ U[min, max], volume units")
+    initial_volume_max: float = _field("must be below every max_volume")
+    overflow_reward: float = _field("r_min, reward when a container reaches max_volume")
+    penalty_reward: float = _field("r_pen, emptying with no free PU or an empty container")
     description: str = ""
 
     def __post_init__(self) -> None:
@@ -179,16 +186,9 @@ class PlantConfig:
             raise ConfigError(
                 f"unknown config override(s) {unknown}; valid names: {sorted(allowed)}"
             )
-        cast = {}
-        for key, value in overrides.items():
-            if key in _INT_FIELDS:
-                cast[key] = _as_int(value, key)
-            elif key in _FLOAT_FIELDS:
-                cast[key] = _as_float(value, key)
-            elif key == "containers":
-                cast[key] = tuple(value)
-            else:
-                cast[key] = str(value)
+        types = _field_types(PlantConfig)
+        cast = {key: tuple(value) if key == "containers" else _cast(types[key], value, key)
+                for key, value in overrides.items()}
         return dataclasses.replace(self, **cast)
 
     def to_toml(self) -> str:
@@ -199,55 +199,45 @@ class PlantConfig:
         def floats(xs) -> str:
             return "[" + ", ".join(_fmt(x) for x in xs) + "]"
 
+        def rows(obj) -> list[str]:
+            out = []
+            for f in dataclasses.fields(obj):
+                value = getattr(obj, f.name)
+                if "toml" in f.metadata:
+                    text = floats(value) if isinstance(value, tuple) else (
+                        str(value) if isinstance(value, int) else _fmt(value))
+                    out.append(row(f.name, text, f.metadata["toml"]))
+                elif isinstance(value, str):
+                    out.append(f"{f.name} = {_toml_str(value)}")
+            return out
+
         # A TOML comment ends at a line break and may not hold control characters.
         header = "".join(ch if ch.isprintable() else " " for ch in self.description)
         lines = [f"# {header}" if header else "# plant configuration", ""]
-        lines += [
-            f"name = {_toml_str(self.name)}",
-            f"description = {_toml_str(self.description)}",
-            row("num_processing_units", str(self.num_processing_units), "m, identical PUs"),
-            row("timestep_s", _fmt(self.timestep_s), "delta, seconds per step"),
-            row("episode_length_steps", str(self.episode_length_steps), "T, steps before truncation"),
-            row("initial_volume_min", _fmt(self.initial_volume_min), "v(0) ~ U[min, max], volume units"),
-            row("initial_volume_max", _fmt(self.initial_volume_max), "must be below every max_volume"),
-            row("overflow_reward", _fmt(self.overflow_reward), "r_min, reward when a container reaches max_volume"),
-            row("penalty_reward", _fmt(self.penalty_reward), "r_pen, emptying with no free PU or an empty container"),
-        ]
+        plant = rows(self)
+        lines += [plant[0], plant[-1], *plant[1:-1]]  # name and description first
         for c in self.containers:
-            lines += [
-                "",
-                "[[containers]]",
-                f"name = {_toml_str(c.name)}",
-                row("fill_rate_per_s", _fmt(c.fill_rate_per_s), "mu, volume units per second"),
-                row("fill_noise_per_sqrt_s", _fmt(c.fill_noise_per_sqrt_s), "sigma; a step adds N(mu*delta, sigma^2*delta)"),
-                row("max_volume", _fmt(c.max_volume), "v_max, volume units"),
-                row("product_size", _fmt(c.product_size), "b, volume units per product"),
-                row("pu_offset_s", _fmt(c.pu_offset_s), "beta, seconds to actuate a PU"),
-                row("pu_time_per_product_s", _fmt(c.pu_time_per_product_s), "lambda, seconds per product"),
-                row("reward_peaks", floats(c.reward_peaks), "optimal emptying volumes v*"),
-                row("reward_heights", floats(c.reward_heights), "h in (0, 1]"),
-                row("reward_widths", floats(c.reward_widths), "w > 0"),
-            ]
+            lines += ["", "[[containers]]", *rows(c)]
         return "\n".join(lines) + "\n"
 
 
-_INT_FIELDS = {"num_processing_units", "episode_length_steps"}
-_FLOAT_FIELDS = {
-    "timestep_s",
-    "initial_volume_min",
-    "initial_volume_max",
-    "overflow_reward",
-    "penalty_reward",
-}
-_CONTAINER_FLOAT_FIELDS = (
-    "fill_rate_per_s",
-    "fill_noise_per_sqrt_s",
-    "max_volume",
-    "product_size",
-    "pu_offset_s",
-    "pu_time_per_product_s",
-)
-_CONTAINER_LIST_FIELDS = ("reward_peaks", "reward_heights", "reward_widths")
+def _field_types(cls) -> dict[str, str]:
+    """Field name -> its annotation as written (``int``, ``float``, ``str``, ``tuple[float, ...]``):
+    the one list of fields that reading, casting and writing configs use."""
+    return {f.name: f.type for f in dataclasses.fields(cls)}
+
+
+def _cast(type_name: str, value: Any, where: str) -> Any:
+    """``value`` as a field of type ``type_name`` (a ConfigError naming ``where`` otherwise)."""
+    if type_name == "int":
+        return _as_int(value, where)
+    if type_name == "float":
+        return _as_float(value, where)
+    if type_name == "tuple[float, ...]":
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where} must be a list of numbers, got {value!r}")
+        return tuple(_as_float(v, where) for v in value)
+    return str(value)
 
 
 def _fmt(x: float) -> str:
@@ -339,8 +329,9 @@ def _validate(cfg: PlantConfig) -> None:
     for c in cfg.containers:
         if not isinstance(c, ContainerSpec):
             raise ConfigError(f"containers: expected ContainerSpec entries, got {type(c).__name__}")
-    for key in _FLOAT_FIELDS:
-        _check_finite(getattr(cfg, key), key)
+    for key, type_name in _field_types(PlantConfig).items():
+        if type_name == "float":
+            _check_finite(getattr(cfg, key), key)
     names = [c.name for c in cfg.containers]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -386,9 +377,10 @@ def _validate_container(c: ContainerSpec) -> None:
     where = f"container {c.name!r}"
     if not isinstance(c.name, str) or not c.name:
         raise ConfigError(f"name: container names must be non-empty strings, got {c.name!r}")
-    for key in _CONTAINER_FLOAT_FIELDS:
+    types = _field_types(ContainerSpec)
+    for key in (k for k, t in types.items() if t == "float"):
         _check_finite(getattr(c, key), f"{where}: {key}")
-    for key in _CONTAINER_LIST_FIELDS:
+    for key in (k for k, t in types.items() if t.startswith("tuple")):
         if not isinstance(getattr(c, key), (tuple, list)):
             raise ConfigError(f"{where}: {key} must be a sequence of numbers, got {getattr(c, key)!r}")
         for x in getattr(c, key):
@@ -413,7 +405,7 @@ def _validate_container(c: ContainerSpec) -> None:
             f"{where}: pu_time_per_product_s: the longest PU time pu_offset_s + pu_time_per_product_s "
             f"* floor(max_volume / product_size) = {longest!r} s exceeds {MAX_PU_TIME_S!r} s"
         )
-    lengths = {k: len(getattr(c, k)) for k in _CONTAINER_LIST_FIELDS}
+    lengths = {k: len(getattr(c, k)) for k, t in _field_types(ContainerSpec).items() if t.startswith("tuple")}
     if lengths["reward_peaks"] == 0:
         raise ConfigError(f"{where}: reward_peaks must list at least one optimum")
     if len(set(lengths.values())) != 1:
@@ -439,31 +431,23 @@ def _validate_container(c: ContainerSpec) -> None:
 
 
 # ---- building from mappings ----------------------------------------------------------------
-_PLANT_KEYS = {
-    "name",
-    "description",
-    "num_processing_units",
-    "timestep_s",
-    "episode_length_steps",
-    "initial_volume_min",
-    "initial_volume_max",
-    "overflow_reward",
-    "penalty_reward",
-    "containers",
-}
-_CONTAINER_KEYS = {"name", *_CONTAINER_FLOAT_FIELDS, *_CONTAINER_LIST_FIELDS}
+def _check_keys(data: Mapping[str, Any], cls, where: str, what: str, optional: set[str]) -> dict[str, str]:
+    """The field types of ``cls`` once ``data`` holds every required one and nothing else."""
+    types = _field_types(cls)
+    unknown = sorted(set(data) - set(types))
+    if unknown:
+        raise ConfigError(f"{where}unknown {what}key(s) {unknown}; valid keys: {sorted(types)}")
+    missing = sorted(set(types) - optional - set(data))
+    if missing:
+        raise ConfigError(f"{where}missing {what}key(s) {missing}")
+    return types
 
 
 def config_from_dict(data: Mapping[str, Any], *, default_name: str = "custom") -> PlantConfig:
     """Build a config from a mapping in our format (the TOML files' structure)."""
     if not isinstance(data, Mapping):
         raise ConfigError(f"config: expected a table/mapping, got {type(data).__name__}")
-    unknown = sorted(set(data) - _PLANT_KEYS)
-    if unknown:
-        raise ConfigError(f"unknown config key(s) {unknown}; valid keys: {sorted(_PLANT_KEYS)}")
-    missing = sorted(_PLANT_KEYS - {"name", "description"} - set(data))
-    if missing:
-        raise ConfigError(f"missing config key(s) {missing}")
+    types = _check_keys(data, PlantConfig, "", "config ", {"name", "description"})
     raw_containers = data["containers"]
     if not isinstance(raw_containers, (list, tuple)):
         raise ConfigError("containers: expected a list of container tables")
@@ -471,138 +455,13 @@ def config_from_dict(data: Mapping[str, Any], *, default_name: str = "custom") -
     for i, rc in enumerate(raw_containers):
         if not isinstance(rc, Mapping):
             raise ConfigError(f"containers[{i}]: expected a table, got {type(rc).__name__}")
-        cname = rc.get("name", f"#{i}")
-        where = f"container {cname!r}"
-        unknown = sorted(set(rc) - _CONTAINER_KEYS)
-        if unknown:
-            raise ConfigError(f"{where}: unknown key(s) {unknown}; valid keys: {sorted(_CONTAINER_KEYS)}")
-        missing = sorted(_CONTAINER_KEYS - set(rc))
-        if missing:
-            raise ConfigError(f"{where}: missing key(s) {missing}")
-        kwargs: dict[str, Any] = {"name": str(rc["name"])}
-        for key in _CONTAINER_FLOAT_FIELDS:
-            kwargs[key] = _as_float(rc[key], f"{where}: {key}")
-        for key in _CONTAINER_LIST_FIELDS:
-            values = rc[key]
-            if not isinstance(values, (list, tuple)):
-                raise ConfigError(f"{where}: {key} must be a list of numbers, got {values!r}")
-            kwargs[key] = tuple(_as_float(v, f"{where}: {key}") for v in values)
-        containers.append(ContainerSpec(**kwargs))
-    return PlantConfig(
-        name=str(data.get("name", default_name)),
-        description=str(data.get("description", "")),
-        containers=tuple(containers),
-        num_processing_units=_as_int(data["num_processing_units"], "num_processing_units"),
-        timestep_s=_as_float(data["timestep_s"], "timestep_s"),
-        episode_length_steps=_as_int(data["episode_length_steps"], "episode_length_steps"),
-        initial_volume_min=_as_float(data["initial_volume_min"], "initial_volume_min"),
-        initial_volume_max=_as_float(data["initial_volume_max"], "initial_volume_max"),
-        overflow_reward=_as_float(data["overflow_reward"], "overflow_reward"),
-        penalty_reward=_as_float(data["penalty_reward"], "penalty_reward"),
-    )
-
-
-_REFERENCE_KEYS = {
-    "MAX_EPISODE_LENGTH",
-    "TIMESTEP",
-    "ENABLED_CONTAINERS",
-    "N_PRESSES",
-    "MIN_STARTING_VOLUME",
-    "MAX_STARTING_VOLUME",
-    "FAILURE_PENALTY",
-    "RW_MUS",
-    "RW_SIGMAS",
-    "MAX_VOLUMES",
-    "BALE_SIZES",
-    "PRESS_OFFSETS",
-    "PRESS_SLOPES",
-    "REWARD_PARAMS",
-    "MIN_REWARD",
-}
-_REFERENCE_PER_CONTAINER = {
-    "RW_MUS": "fill_rate_per_s",
-    "RW_SIGMAS": "fill_noise_per_sqrt_s",
-    "MAX_VOLUMES": "max_volume",
-    "BALE_SIZES": "product_size",
-    "PRESS_OFFSETS": "pu_offset_s",
-    "PRESS_SLOPES": "pu_time_per_product_s",
-}
-
-
-def config_from_reference_json(data: Mapping[str, Any], *, name: str = "reference") -> PlantConfig:
-    """Build a config from the earlier reference implementation's JSON format.
-
-    ``ENABLED_CONTAINERS`` is either a list of names (per-container fields are then dicts keyed by
-    name) or a count (per-container fields are then lists in container order). Every key is
-    required: the reference code's silent defaults are not reproduced.
-    """
-    unknown = sorted(set(data) - _REFERENCE_KEYS)
-    if unknown:
-        raise ConfigError(f"unknown reference-format key(s) {unknown}")
-    missing = sorted(_REFERENCE_KEYS - set(data))
-    if missing:
-        raise ConfigError(f"missing reference-format key(s) {missing}")
-    enabled = data["ENABLED_CONTAINERS"]
-    if isinstance(enabled, list):
-        names = [str(x) for x in enabled]
-        keyed = True
-    elif isinstance(enabled, int) and not isinstance(enabled, bool) and 0 < enabled <= MAX_CONTAINERS:
-        names = [f"C{i + 1}" for i in range(enabled)]
-        keyed = False
-    else:
-        raise ConfigError(f"ENABLED_CONTAINERS: expected a list of names or a count in "
-                          f"[1, {MAX_CONTAINERS}], got {enabled!r}")
-
-    def per_container(key: str, idx: int, cname: str) -> Any:
-        table = data[key]
-        if keyed:
-            if not isinstance(table, Mapping):
-                raise ConfigError(f"{key}: expected a mapping from container name to value")
-            if cname not in table:
-                raise ConfigError(f"{key}: missing value for container {cname!r}")
-            return table[cname]
-        if not isinstance(table, (list, tuple)) or len(table) != len(names):
-            raise ConfigError(
-                f"{key}: expected a list of {len(names)} values (one per container), got {table!r}"
-            )
-        return table[idx]
-
-    containers = []
-    for i, cname in enumerate(names):
-        entry: dict[str, Any] = {"name": cname}
-        for key, ours in _REFERENCE_PER_CONTAINER.items():
-            entry[ours] = per_container(key, i, cname)
-        rp = per_container("REWARD_PARAMS", i, cname)
-        if isinstance(rp, Mapping):
-            try:
-                entry["reward_peaks"], entry["reward_heights"], entry["reward_widths"] = (
-                    rp["peaks"], rp["heights"], rp["widths"])
-            except KeyError as exc:
-                raise ConfigError(f"REWARD_PARAMS: container {cname!r} lacks {exc.args[0]!r}") from None
-        elif isinstance(rp, (list, tuple)):  # [(peak, height, width), ...]
-            if not all(isinstance(t, (list, tuple)) and len(t) == 3 for t in rp):
-                raise ConfigError(f"REWARD_PARAMS: container {cname!r}: expected a list of "
-                                  f"(peak, height, width) triples, got {rp!r}")
-            entry["reward_peaks"] = [t[0] for t in rp]
-            entry["reward_heights"] = [t[1] for t in rp]
-            entry["reward_widths"] = [t[2] for t in rp]
-        else:
-            raise ConfigError(f"REWARD_PARAMS: container {cname!r}: unreadable entry {rp!r}")
-        containers.append(entry)
-    return config_from_dict(
-        {
-            "name": name,
-            "description": f"read from reference-format JSON {name!r}",
-            "num_processing_units": data["N_PRESSES"],
-            "timestep_s": data["TIMESTEP"],
-            "episode_length_steps": data["MAX_EPISODE_LENGTH"],
-            "initial_volume_min": data["MIN_STARTING_VOLUME"],
-            "initial_volume_max": data["MAX_STARTING_VOLUME"],
-            "overflow_reward": data["FAILURE_PENALTY"],
-            "penalty_reward": data["MIN_REWARD"],
-            "containers": containers,
-        }
-    )
+        where = f"container {rc.get('name', f'#{i}')!r}: "
+        container_types = _check_keys(rc, ContainerSpec, where, "", set())
+        containers.append(ContainerSpec(**{key: _cast(t, rc[key], f"{where}{key}")
+                                           for key, t in container_types.items()}))
+    plant = {key: _cast(t, data[key], key) for key, t in types.items()
+             if key in data and key not in ("containers", "name")}
+    return PlantConfig(name=str(data.get("name", default_name)), containers=tuple(containers), **plant)
 
 
 # ---- files and built-ins -------------------------------------------------------------------
@@ -634,6 +493,8 @@ def _read_file(path: Path) -> PlantConfig:
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(f"config file {str(path)!r} is not valid {path.suffix[1:].upper()}: {exc}") from exc
     if isinstance(data, Mapping) and "ENABLED_CONTAINERS" in data:
+        from containergym_marl.reference_format import config_from_reference_json
+
         return config_from_reference_json(data, name=path.stem)
     return config_from_dict(data, default_name=path.stem)
 

@@ -286,7 +286,7 @@ def test_too_many_containers_named():
 
 
 def test_reference_format_container_count_is_bounded_before_anything_is_built():
-    from containergym_marl.config import config_from_reference_json
+    from containergym_marl.reference_format import config_from_reference_json
 
     data = {"MAX_EPISODE_LENGTH": 10, "TIMESTEP": 60, "ENABLED_CONTAINERS": 10**9, "N_PRESSES": 1,
             "MIN_STARTING_VOLUME": 0, "MAX_STARTING_VOLUME": 10, "FAILURE_PENALTY": -1,
