@@ -67,8 +67,10 @@ class SweepError(RuntimeError):
 
 
 def ray_missing_message() -> str:
+    from containergym_marl.extras import INSTALL
+
     return ("containergym-marl compare runs its training and evaluation on Ray, which is not installed: "
-            "pip install 'containergym-marl[train,sweep]' (./run setup installs it)")
+            f"{INSTALL['sweep']} (./run setup installs it)")
 
 
 # ---- what a training run is --------------------------------------------------------------------

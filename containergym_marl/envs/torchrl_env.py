@@ -62,9 +62,9 @@ from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.observations import agent_observation_bounds, agent_observations
 from containergym_marl.core.simulator import PlantSimulator
 from containergym_marl.envs._common import normalised_state_bounds, normalised_state_scale
+from containergym_marl.extras import missing_extra
 
 #: How to get this module's optional dependencies; named by the error raised without them.
-CLIENTS_EXTRA_HINT = "pip install 'containergym-marl[clients]'"
 #: The group of the container agents (also the group TorchRL's ``PettingZooWrapper`` forms from
 #: ``agent_names="indexed"``).
 GROUP = "container"
@@ -88,10 +88,8 @@ else:
 
 def _require_torchrl(cls_name: str) -> None:
     if _TORCHRL_IMPORT_ERROR is not None:
-        raise ImportError(
-            f"{cls_name} is a TorchRL environment and needs torchrl, which is not installed "
-            f"({_TORCHRL_IMPORT_ERROR}); install the clients extra: {CLIENTS_EXTRA_HINT}"
-        ) from _TORCHRL_IMPORT_ERROR
+        raise missing_extra(f"{cls_name} is a TorchRL environment and", "clients",
+                            _TORCHRL_IMPORT_ERROR) from _TORCHRL_IMPORT_ERROR
 
 
 class ContainerAgentsTorchRLEnv(EnvBase):

@@ -54,9 +54,9 @@ from containergym_marl.core.observations import (
 )
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.simulator import PlantSimulator
+from containergym_marl.extras import missing_extra
 
 #: How to get the SB3 VecEnvs' optional dependency; named by the error raised without it.
-TRAIN_EXTRA_HINT = "pip install 'containergym-marl[train]'"
 
 try:  # SB3 is an optional (training) dependency
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv
@@ -72,10 +72,8 @@ else:
 
 def _require_sb3(cls_name: str) -> None:
     if _SB3_IMPORT_ERROR is not None:
-        raise ImportError(
-            f"{cls_name} is a stable-baselines3 VecEnv and needs stable-baselines3, which is not "
-            f"installed ({_SB3_IMPORT_ERROR}); install the training extra: {TRAIN_EXTRA_HINT}"
-        ) from _SB3_IMPORT_ERROR
+        raise missing_extra(f"{cls_name} is a stable-baselines3 VecEnv and", "train",
+                            _SB3_IMPORT_ERROR) from _SB3_IMPORT_ERROR
 
 
 class _ReadOnlyEmptyInfo(dict):

@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 
 from containergym_marl.envs._common import normalised_state_bounds, normalised_state_scale
-from containergym_marl.envs.torchrl_env import CLIENTS_EXTRA_HINT, GROUP
+from containergym_marl.envs.torchrl_env import GROUP
+from containergym_marl.extras import missing_extra
 
 
 class TorchRLAgentsPolicy:
@@ -49,8 +50,7 @@ class TorchRLAgentsPolicy:
             from tensordict import TensorDict
             from torchrl.envs.utils import ExplorationType, set_exploration_type
         except ImportError as error:
-            raise ImportError(f"TorchRLAgentsPolicy needs torchrl ({error}); install the clients "
-                              f"extra: {CLIENTS_EXTRA_HINT}") from error
+            raise missing_extra("TorchRLAgentsPolicy", "clients", error) from error
         self.policy, self.name, self.group, self.deterministic = policy, name, group, deterministic
         self._torch, self._TensorDict = torch, TensorDict
         mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from containergym_marl.extras import MissingExtraError, missing_extra
 from containergym_marl.policies import (
     CentralisedModelPolicy,
     RuleBasedAgents,
@@ -25,12 +26,6 @@ from containergym_marl.policies import (
 
 #: Samples per policy update of the rollout algorithms (the paper's n_steps with one environment).
 ROLLOUT_SAMPLES = 6144
-#: The command that installs the training dependencies.
-TRAIN_EXTRA = "pip install 'containergym-marl[train]'"
-
-
-class MissingExtraError(ImportError):
-    """An optional dependency of training / model evaluation (torch, SB3…) is not installed."""
 
 
 def paper_budget(n_containers: int) -> int:
@@ -191,7 +186,4 @@ def require_training_extra(modules: tuple[str, ...] = ()) -> None:
         try:
             importlib.import_module(module)
         except ImportError as exc:
-            raise MissingExtraError(
-                f"{module} is not installed; training and evaluating trained models need the "
-                f"training extra: {TRAIN_EXTRA} ({exc})"
-            ) from exc
+            raise missing_extra("training and evaluating trained models", "train", exc) from exc

@@ -49,10 +49,9 @@ try:  # benchmarl is an optional dependency (the clients extra)
     from torchrl.data import Composite
     from torchrl.envs import EnvBase
 except ImportError as error:  # a clear message instead of a bare ModuleNotFoundError
-    raise ImportError(
-        f"containergym_marl.training.benchmarl_task needs benchmarl, which is not installed ({error}); "
-        f"install the clients extra: pip install 'containergym-marl[clients]'"
-    ) from error
+    from containergym_marl.extras import missing_extra
+
+    raise missing_extra("containergym_marl.training.benchmarl_task", "clients", error) from error
 
 from containergym_marl.envs.torchrl_env import GROUP, ContainerAgentsTorchRLEnv
 
