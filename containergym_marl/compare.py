@@ -79,10 +79,10 @@ from containergym_marl.files import atomic_write_text
 class Method:
     """A method of the comparison: a rule-based controller (``policy``, a class of
     containergym_marl.policies) or a training algorithm (``algo``, TrainArgs.algo) with its
-    ``train`` settings; ``counterpart`` is the centralised method a decentralised one is compared with."""
+    ``train`` settings; ``counterpart`` is the centralised method a decentralised one is compared with.
+    Its view is the policy's or the algorithm's own (``training.algorithms.view_of``)."""
 
     name: str
-    view: str
     algo: str | None = None
     policy: str | None = None
     train: tuple[tuple[str, Any], ...] = ()
@@ -95,17 +95,17 @@ class Method:
 
 #: The methods compare knows, by name.
 METHODS: dict[str, Method] = {m.name: m for m in (
-    Method("rule_based", "centralised", policy="RuleBasedController"),
-    Method("rule_based_agents", "decentralised", policy="RuleBasedAgents", counterpart="rule_based"),
-    Method("planner", "centralised", policy="RolloutPlanner"),
-    Method("planner_agents", "decentralised", policy="PlannerAgents", counterpart="planner"),
-    Method("ppo", "centralised", algo="ppo"),
-    Method("trpo", "centralised", algo="trpo"),
-    Method("dqn", "centralised", algo="dqn"),
-    Method("maskable_ppo", "centralised", algo="maskable_ppo"),
-    Method("shared_ppo", "decentralised", algo="shared_ppo", train=(("reward_mode", "individual"),),
+    Method("rule_based", policy="RuleBasedController"),
+    Method("rule_based_agents", policy="RuleBasedAgents", counterpart="rule_based"),
+    Method("planner", policy="RolloutPlanner"),
+    Method("planner_agents", policy="PlannerAgents", counterpart="planner"),
+    Method("ppo", algo="ppo"),
+    Method("trpo", algo="trpo"),
+    Method("dqn", algo="dqn"),
+    Method("maskable_ppo", algo="maskable_ppo"),
+    Method("shared_ppo", algo="shared_ppo", train=(("reward_mode", "individual"),),
            counterpart="ppo"),
-    Method("shared_ppo_team", "decentralised", algo="shared_ppo", train=(("reward_mode", "team"),),
+    Method("shared_ppo_team", algo="shared_ppo", train=(("reward_mode", "team"),),
            counterpart="ppo"),
 )}
 #: (decentralised, centralised) pairs whose probability of improvement the table reports.
