@@ -36,7 +36,7 @@ def test_method_registry_names_runs_and_gives_the_paper_budget(tmp_path):
     assert (ta.algo, ta.config, ta.seed, ta.reward_mode, ta.resume, ta.torch_threads, ta.progress_bar) == (
         "shared_ppo", "n11_m2_dt60", 1, "team", True, 1, False)
     assert specs["ppo_n5_m2_dt120_s1"].train_args(False).reward_mode == "individual"
-    assert METHODS["shared_ppo_team"].view == METHODS["shared_ppo"].view == "decentralised"
+    assert METHODS["shared_ppo_team"].algo == METHODS["shared_ppo"].algo == "shared_ppo"
     assert {("shared_ppo", "ppo"), ("shared_ppo_team", "ppo"), ("rule_based_agents", "rule_based")} <= set(PAIRS)
     explicit = run_specs(CompareArgs(methods=["ppo"], seeds=[3], timesteps=4096), tmp_path)
     assert [(s.name, s.timesteps) for s in explicit] == [("ppo_n5_m2_dt120_s3", 4096)]
