@@ -82,6 +82,31 @@ def _print_training_end(run) -> None:
         print(f"next: containergym-marl evaluate {shlex.quote(str(run))} --model final  (or train longer)")
 
 
+class _EpisodeProgress:
+    """``on_episode`` of an evaluation: episodes done, on stderr; redrawn in place on a terminal, one
+    line per episode otherwise."""
+
+    def __init__(self, total: int, stream=None):
+        import time
+
+        self.total, self.stream = total, stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.t0, self.clock = time.perf_counter(), time.perf_counter
+        if self.tty:
+            print(f"evaluating: 0/{total} episodes", end="", file=self.stream, flush=True)
+
+    def __call__(self, done: int, episode) -> None:
+        from containergym_marl.sweep import format_duration
+
+        text = (f"evaluating: {done}/{self.total} episodes done ({format_duration(self.clock() - self.t0)}; "
+                f"seed {episode.seed}: return {episode.cumulative_reward:.2f}"
+                + (", overflow" if episode.overflow else "") + ")")
+        if self.tty:
+            print("\r\033[K" + text, end="\n" if done == self.total else "", file=self.stream, flush=True)
+        else:
+            print(text, file=self.stream, flush=True)
+
+
 def _evaluate_target(target: str, config: str | None, episodes: int, which: str, arbitration: str | None = None):
     import warnings
     from pathlib import Path
@@ -95,14 +120,16 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
     if target in built_in:
         plant = load_config(config or "n5_m2_dt120")
         policy = built_in[target](PlantParams.from_config(plant))
-        return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest")
+        return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest",
+                        on_episode=_EpisodeProgress(protocol.episodes))
     if Path(target).is_dir():
         from containergym_marl.evaluation.runs import evaluate_run
         from containergym_marl.training.runs import RunWarning
 
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", RunWarning)
-            result = evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration)
+            result = evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration,
+                                  on_episode=_EpisodeProgress(protocol.episodes))
         for w in caught:
             if issubclass(w.category, RunWarning):
                 print(f"note: {w.message}", file=sys.stderr)
