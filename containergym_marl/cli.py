@@ -5,7 +5,8 @@
     containergym-marl evaluate runs/ppo_n5_m2_dt120_s1            # the run's best model, paper protocol
     containergym-marl evaluate rule_based --config n11_m2_dt120 --episodes 15
     containergym-marl evaluate planner --config n11_m2_dt120      # the rollout planner (planner_agents: per container)
-    containergym-marl compare                                   # the benchmark's main job
+    containergym-marl compare                                   # the main job: the shipped policies, evaluated
+    containergym-marl compare --train                           # ... or trained here (--timesteps paper: hours)
 """
 
 from __future__ import annotations
@@ -236,13 +237,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     from containergym_marl.compare import _HelpFormatter, add_arguments
 
-    c = sub.add_parser("compare", help="train/reuse, evaluate and compare methods on Ray; tables and figures",
-                       formatter_class=_HelpFormatter,
-                       description="The benchmark's main job; training and evaluation run on Ray (a local\n"
-                                   "instance, or a cluster with --address). With no arguments: a quick look at\n"
-                                   "n5_m2_dt120, rule-based controllers against PPO and shared PPO trained for\n"
-                                   "30k samples, far below the paper's budget (--timesteps paper for that).\n"
-                                   "Cluster recipe and storage: see containergym_marl/compare.py.")
+    c = sub.add_parser("compare", help="evaluate the shipped policies (or train, --train) and compare methods; "
+                                       "tables and figures", formatter_class=_HelpFormatter,
+                       description="The benchmark's main job; evaluation and training run on Ray (a local\n"
+                                   "instance, or a cluster with --address). With no arguments it trains nothing: it\n"
+                                   "evaluates the shipped policies (the best seed of each learned method on each\n"
+                                   "paper row with finished runs in results/paper_rows/runs) and the rule-based\n"
+                                   "controllers on every paper row with the paper's test protocol (a few minutes).\n"
+                                   "--train trains instead: 30k samples per run, a quick look far below the\n"
+                                   "paper's budget (--timesteps paper for that, hours). Cluster recipe and\n"
+                                   "storage: see containergym_marl/compare.py.")
     add_arguments(c)
     c.set_defaults(func=_cmd_compare)
     return parser
