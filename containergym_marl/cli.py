@@ -5,7 +5,8 @@
     containergym-marl evaluate runs/ppo_n5_m2_dt120_s1            # the run's best model, paper protocol
     containergym-marl evaluate rule_based --config n11_m2_dt120 --episodes 15
     containergym-marl evaluate planner --config n11_m2_dt120      # the rollout planner (planner_agents: per container)
-    containergym-marl compare                                   # the benchmark's main job
+    containergym-marl compare                                   # the main job: the shipped policies, evaluated
+    containergym-marl compare --train                           # ... or trained here (--timesteps paper: hours)
 """
 
 from __future__ import annotations
@@ -82,6 +83,31 @@ def _print_training_end(run) -> None:
         print(f"next: containergym-marl evaluate {shlex.quote(str(run))} --model final  (or train longer)")
 
 
+class _EpisodeProgress:
+    """``on_episode`` of an evaluation: episodes done, on stderr; redrawn in place on a terminal, one
+    line per episode otherwise."""
+
+    def __init__(self, total: int, stream=None):
+        import time
+
+        self.total, self.stream = total, stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.t0, self.clock = time.perf_counter(), time.perf_counter
+        if self.tty:
+            print(f"evaluating: 0/{total} episodes", end="", file=self.stream, flush=True)
+
+    def __call__(self, done: int, episode) -> None:
+        from containergym_marl.sweep import format_duration
+
+        text = (f"evaluating: {done}/{self.total} episodes done ({format_duration(self.clock() - self.t0)}; "
+                f"seed {episode.seed}: return {episode.cumulative_reward:.2f}"
+                + (", overflow" if episode.overflow else "") + ")")
+        if self.tty:
+            print("\r\033[K" + text, end="\n" if done == self.total else "", file=self.stream, flush=True)
+        else:
+            print(text, file=self.stream, flush=True)
+
+
 def _evaluate_target(target: str, config: str | None, episodes: int, which: str, arbitration: str | None = None):
     import warnings
     from pathlib import Path
@@ -95,14 +121,16 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
     if target in built_in:
         plant = load_config(config or "n5_m2_dt120")
         policy = built_in[target](PlantParams.from_config(plant))
-        return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest")
+        return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest",
+                        on_episode=_EpisodeProgress(protocol.episodes))
     if Path(target).is_dir():
         from containergym_marl.evaluation.runs import evaluate_run
         from containergym_marl.training.runs import RunWarning
 
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", RunWarning)
-            result = evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration)
+            result = evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration,
+                                  on_episode=_EpisodeProgress(protocol.episodes))
         for w in caught:
             if issubclass(w.category, RunWarning):
                 print(f"note: {w.message}", file=sys.stderr)
@@ -209,13 +237,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     from containergym_marl.compare import _HelpFormatter, add_arguments
 
-    c = sub.add_parser("compare", help="train/reuse, evaluate and compare methods on Ray; tables and figures",
-                       formatter_class=_HelpFormatter,
-                       description="The benchmark's main job; training and evaluation run on Ray (a local\n"
-                                   "instance, or a cluster with --address). With no arguments: a quick look at\n"
-                                   "n5_m2_dt120, rule-based controllers against PPO and shared PPO trained for\n"
-                                   "30k samples, far below the paper's budget (--timesteps paper for that).\n"
-                                   "Cluster recipe and storage: see containergym_marl/compare.py.")
+    c = sub.add_parser("compare", help="evaluate the shipped policies (or train, --train) and compare methods; "
+                                       "tables and figures", formatter_class=_HelpFormatter,
+                       description="The benchmark's main job; evaluation and training run on Ray (a local\n"
+                                   "instance, or a cluster with --address). With no arguments it trains nothing: it\n"
+                                   "evaluates the shipped policies (the best seed of each learned method on each\n"
+                                   "paper row with finished runs in results/paper_rows/runs) and the rule-based\n"
+                                   "controllers on every paper row with the paper's test protocol (a few minutes).\n"
+                                   "--train trains instead: 30k samples per run, a quick look far below the\n"
+                                   "paper's budget (--timesteps paper for that, hours). Cluster recipe and\n"
+                                   "storage: see containergym_marl/compare.py.")
     add_arguments(c)
     c.set_defaults(func=_cmd_compare)
     return parser

@@ -1,12 +1,28 @@
 """The benchmark's main job: compare decentralised and centralised policies, with tables and figures.
 
-    containergym-marl compare                                   # a quick look: 30k samples per run, minutes
+    containergym-marl compare                                   # the shipped policies, evaluated: minutes
+    containergym-marl compare --train                           # a quick training look: 30k samples per run
     containergym-marl compare --configs n5_m2_dt120 n11_m2_dt120 --methods rule_based rule_based_agents \\
         ppo shared_ppo shared_ppo_team --seeds 1 2 3 --timesteps paper   # the paper's budgets: hours
 
-For every configuration it trains (or reuses) each learned method for each seed, evaluates every
+**Shipped policies** (the default: no ``--train`` and no training option, that is none of
+``--timesteps``, ``--seeds``, ``--runs``, ``--n-envs``, ``--hp``, ``--checkpoint-every``): nothing is
+trained. The repository publishes the comparison's runs in ``results/paper_rows/runs/``
+(``baselines/publish_results.py``; ``--shipped`` names another such folder, which is only read).
+On every row of :data:`PAPER_ROWS` it evaluates the rule-based controllers and, for each learned
+method of :data:`PAPER_METHODS` with finished shipped runs (a readable ``final_model.zip``; runs
+published with only a checkpoint are still training and are skipped), the best model of its best
+seed, ranked by the published evaluations (``<shipped>/evaluations/``); a seed without a published
+evaluation of the same model, plant and protocol is evaluated too. The other seeds' published
+evaluations complete the table (median, IQM), so it reads as the sweep's own. Rows without shipped
+policies are named.
+
+**Training** (``--train``, or any training option): for every configuration it trains (or reuses)
+each learned method for each seed, evaluates every
 policy with the paper's test protocol (δ = 120 s, T = 600, ``--episodes`` episodes, best model of
-each run) and writes, to ``--out``:
+each run) and writes the same files. Before it trains it says how long that will take.
+
+Both write, to ``--out``:
 
 * ``table.md`` / ``table.csv`` / ``table.json``: the paper's Table 1 shape plus the IQM over seeds
   with a bootstrap CI and the probability that each decentralised method beats its centralised
@@ -64,11 +80,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from containergym_marl.config import load_config
 from containergym_marl.evaluation import table as tables
@@ -110,8 +129,16 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 )}
 #: (decentralised, centralised) pairs whose probability of improvement the table reports.
 PAIRS = tuple((m.name, m.counterpart) for m in METHODS.values() if m.counterpart)
-#: The samples per run of the quick default of the ``compare`` command (a look in minutes, not a result).
+#: The samples per run of ``compare --train`` (a look in minutes, not a result).
 QUICK_TIMESTEPS = 30_000
+#: The rows of the comparison the repository publishes (baselines/sweep_paper_rows.sh): the paper's
+#: eight configurations and the 16-container plant, in the table's order.
+PAPER_ROWS = ("n5_m2_dt60", "n5_m2_dt120", "n5_m5_dt60", "n5_m5_dt120", "n11_m2_dt60", "n11_m2_dt120",
+              "n11_m11_dt60", "n11_m11_dt120", "n16_m2_dt120")
+#: Its methods: the rule-based controllers, centralised PPO and shared PPO (individual and team rewards).
+PAPER_METHODS = ("rule_based", "rule_based_agents", "ppo", "shared_ppo", "shared_ppo_team")
+#: Where the repository publishes the comparison's runs and evaluations (baselines/publish_results.py).
+SHIPPED = "results/paper_rows"
 
 
 @dataclass
@@ -121,6 +148,11 @@ class CompareArgs:
     ``timesteps`` None: the paper's budget of each config (2M samples for n = 5, 5M for n >= 11).
     ``n_envs`` None: each algorithm's default. ``address`` None: ``$RAY_ADDRESS`` if set, else a
     local Ray instance with ``num_cpus`` CPUs (None: all cores).
+
+    ``shipped`` set (a folder that baselines/publish_results.py wrote, e.g. :data:`SHIPPED`): train
+    nothing and evaluate the finished runs published there instead (see the module docstring);
+    ``timesteps``, ``seeds``, ``runs``, ``n_envs``, ``checkpoint_every`` and ``hyperparams`` are then
+    unused (each run was trained as its args.json says), and ``timesteps`` must stay None.
     """
 
     configs: list[str] = field(default_factory=lambda: ["n5_m2_dt120"])
@@ -139,6 +171,7 @@ class CompareArgs:
     num_cpus: int | None = None
     max_retries: int = 3
     hyperparams: dict = field(default_factory=dict)  # extra SB3 arguments for every learned method
+    shipped: str | None = None  # evaluate the finished runs published in this folder; train nothing
 
 
 def _validate(args: CompareArgs) -> None:
@@ -152,7 +185,15 @@ def _validate(args: CompareArgs) -> None:
             raise ValueError(f"{what}: {', '.join(map(str, repeated))} given more than once")
     for c in args.configs:
         load_config(c)  # ConfigError for unknown names, before any work
-    if any(METHODS[m].learned for m in args.methods) and not args.seeds:
+    if args.shipped is not None:
+        if args.timesteps is not None or args.runs is not None:
+            raise ValueError("shipped: the shipped policies are evaluated as they were trained; "
+                             "timesteps and runs are for training (leave shipped unset to train)")
+        if not Path(args.shipped).is_dir():
+            raise FileNotFoundError(
+                f"shipped policies: no folder {args.shipped!r} (the repository publishes them in {SHIPPED}/; "
+                f"run from the repository's root, name the folder with --shipped, or train with --train)")
+    elif any(METHODS[m].learned for m in args.methods) and not args.seeds:
         raise ValueError("seeds: at least one training seed is needed")
     if args.timesteps is not None and args.timesteps <= 0:
         raise ValueError(f"timesteps: expected a positive budget, got {args.timesteps}")
@@ -192,13 +233,17 @@ def run_specs(args: CompareArgs, runs: Path) -> list:
     return sorted(specs, key=lambda s: -s.timesteps)
 
 
-def _fingerprint(args: CompareArgs, config: str, method: Method, run: str | None, model_sha: str | None) -> dict:
-    """What an evaluation depends on besides the code: stored with it, compared to reuse it."""
+def _fingerprint(args: CompareArgs, config: str, method: Method, run: str | None, model_sha: str | None,
+                 timesteps: int | None = None) -> dict:
+    """What an evaluation depends on besides the code: stored with it, compared to reuse it.
+    ``timesteps``: the run's budget (default: this comparison's budget of ``config``)."""
     from containergym_marl.evaluation import EvalProtocol
     from containergym_marl.sweep import sha256
 
     plant = EvalProtocol(episodes=args.episodes).plant(config)
-    return {"run": run, "timesteps": budget(args, config) if method.learned else None,
+    if method.learned and timesteps is None:
+        timesteps = budget(args, config)
+    return {"run": run, "timesteps": timesteps if method.learned else None,
             "model_sha256": model_sha, "plant_sha256": sha256(plant.to_toml().encode()),
             "arbitration": dict(method.train).get("arbitration", "fullest")}
 
@@ -245,6 +290,9 @@ class _Plan:
     to_train: list  # RunSpecs to start or resume
     evaluations: dict[tuple[str, str], dict]  # (config, file stem) -> reused evaluation JSON
     to_evaluate: list  # (EvalSpec, source): source a RunSpec to wait for, a finished run's files, or None
+    seeds: dict[tuple[str, str], list[int]] = field(default_factory=dict)  # (config, learned method) -> its seeds
+    budgets: dict[str, int] = field(default_factory=dict)  # run name -> its budget in samples
+    shipped: "_Shipped | None" = None  # what the shipped folder offers (shipped policies only)
 
 
 def _eval_spec(args: CompareArgs, config: str, name: str, seed: int | None):
@@ -268,7 +316,9 @@ def _plan(args: CompareArgs, out: Path, runs: Path) -> _Plan:
     specs = run_specs(args, runs)
     finished = {s.name for s in specs if check_budget(s)}  # raises for a finished run with another budget
     by_run = {s.name: s for s in specs}
-    plan = _Plan(specs, finished, [s for s in specs if s.name not in finished], {}, [])
+    plan = _Plan(specs, finished, [s for s in specs if s.name not in finished], {}, [],
+                 seeds={(c, m): list(args.seeds) for c in args.configs for m in args.methods if METHODS[m].learned},
+                 budgets={s.name: s.timesteps for s in specs})
     for config in args.configs:
         for name in args.methods:
             method = METHODS[name]
@@ -291,12 +341,142 @@ def _plan(args: CompareArgs, out: Path, runs: Path) -> _Plan:
     return plan
 
 
-def _save_evaluation(args: CompareArgs, out: Path, spec, result, model_sha: str | None) -> dict:
+# ---- the shipped policies -------------------------------------------------------------------------
+@dataclass
+class _Shipped:
+    """What a shipped folder offers a comparison, from its files alone."""
+
+    folder: Path
+    learned: dict[str, dict[str, list[int]]] = field(default_factory=dict)  # config -> method -> finished seeds
+    best: dict[tuple[str, str], int] = field(default_factory=dict)  # (config, method) -> best published seed
+    published: dict[tuple[str, str], dict] = field(default_factory=dict)  # (config, key) -> published evaluation
+    training: list[str] = field(default_factory=list)  # runs published unfinished (skipped), with how far
+    unusable: list[str] = field(default_factory=list)  # finished runs that cannot be evaluated, with why
+    missing: list[str] = field(default_factory=list)  # configs without any shipped learned policy
+    copied: list[str] = field(default_factory=list)  # published evaluations copied into --out by this call
+
+    def lines(self, methods: list[str]) -> list[str]:
+        """What is shipped, skipped and missing, in words."""
+        out = []
+        for config, by_method in self.learned.items():
+            what = []
+            for method, seeds in by_method.items():
+                best = self.best.get((config, method))
+                what.append(f"{method} (seed{'s' * (len(seeds) > 1)} {', '.join(map(str, seeds))}"
+                            + (f"; best s{best}" if best is not None and len(seeds) > 1 else "") + ")")
+            out.append(f"shipped policies on {config}: {', '.join(what)}")
+        if self.training:
+            out.append("skipped, still training (published with a checkpoint, no final model yet): "
+                       + ", ".join(self.training))
+        if self.unusable:
+            out.append("skipped: " + "; ".join(self.unusable))
+        learned = [m for m in methods if METHODS[m].learned]
+        if learned and self.missing:
+            rule_based = [m for m in methods if not METHODS[m].learned]
+            out.append(f"no shipped policies yet on {', '.join(self.missing)}"
+                       + (f" ({' and '.join(rule_based)} only)" if rule_based else "")
+                       + ": the paper-rows sweep is still training them")
+        return out
+
+
+def _shipped_runs(folder: Path, config: str, method: str) -> list[tuple[int, Path]]:
+    """(seed, run directory) of ``method`` on ``config`` in ``folder/runs``, by seed."""
+    pattern = re.compile(rf"^{re.escape(method)}_{re.escape(_stem(config))}_s(\d+)$")
+    runs = folder / "runs"
+    found = [(int(m.group(1)), p) for p in (runs.iterdir() if runs.is_dir() else []) if p.is_dir()
+             and (m := pattern.match(p.name))]
+    return sorted(found)
+
+
+def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
+    """The evaluations of the shipped policies: every rule-based controller; for each learned
+    method, the best published seed and every finished seed without a published evaluation of the
+    same model, plant and protocol are evaluated, the other seeds' published evaluations reused.
+    Reads the shipped folder only."""
+    from containergym_marl.evaluation import EvalProtocol
+    from containergym_marl.sweep import finished_budget, sha256
+    from containergym_marl.training.runs import checkpoints
+
+    folder = Path(args.shipped)
+    protocol = asdict(EvalProtocol(episodes=args.episodes))
+    shipped = _Shipped(folder)
+    plan = _Plan([], set(), [], {}, [], shipped=shipped)
+
+    def use(config: str, spec, fingerprint: dict, source, published: dict | None = None) -> None:
+        path = out / "evaluations" / _stem(config) / f"{spec.key}.json"
+        cached = None if args.reevaluate else _cached(path, fingerprint, protocol)
+        if cached is not None:
+            plan.evaluations[(config, spec.key)] = cached
+        elif published is not None:  # a published evaluation of this very model: copied into --out
+            data = {**published, "copied_from": str(folder / "evaluations" / _stem(config) / f"{spec.key}.json")}
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+            plan.evaluations[(config, spec.key)] = data
+            shipped.copied.append(f"{_stem(config)}/{spec.key}")
+        else:
+            plan.to_evaluate.append((spec, source))
+
+    for config in args.configs:
+        stem = _stem(config)
+        for name in args.methods:
+            method = METHODS[name]
+            if not method.learned:
+                use(config, _eval_spec(args, config, name, None), _fingerprint(args, config, method, None, None), None)
+                continue
+            found = []  # (seed, files, fingerprint, published evaluation or None)
+            for seed, run in _shipped_runs(folder, config, name):
+                trained = finished_budget(run)
+                if trained is None:
+                    ckpt = checkpoints(run)
+                    try:
+                        of = f" of {int(json.loads((run / 'args.json').read_text())['timesteps']):,}"
+                    except (OSError, ValueError, KeyError, TypeError):
+                        of = ""
+                    shipped.training.append(f"{run.name}" + (f" ({ckpt[0][0]:,}{of} samples)" if ckpt else ""))
+                    continue
+                saved = json.loads((run / "args.json").read_text())
+                if saved.get("algo") != method.algo:
+                    shipped.unusable.append(f"{run.name} was trained as {saved.get('algo')}, not as {name}")
+                    continue
+                if (differ := [f"{k}={saved.get(k)}" for k, v in method.train if saved.get(k) != v]):
+                    shipped.unusable.append(f"{run.name} was trained with {', '.join(differ)}, not as {name}")
+                    continue
+                if not (run / "best_model.zip").is_file():
+                    shipped.unusable.append(f"{run.name} has no best model (no training episode finished)")
+                    continue
+                files = _run_files(run)
+                fingerprint = _fingerprint(args, config, method, run.name, sha256(files["files"]["best_model.zip"]),
+                                           timesteps=trained)
+                published = _cached(folder / "evaluations" / stem / f"{name}_s{seed}.json", fingerprint, protocol)
+                found.append((seed, files, fingerprint, published))
+                plan.budgets[run.name] = trained
+            if not found:
+                continue
+            shipped.learned.setdefault(stem, {})[name] = [seed for seed, *_ in found]
+            plan.seeds[(config, name)] = [seed for seed, *_ in found]
+            plan.finished |= {f"{name}_{stem}_s{seed}" for seed, *_ in found}
+            means = {seed: float(np.mean([e["cumulative_reward"] for e in p["episodes"]]))
+                     for seed, _, _, p in found if p is not None}
+            best = max(means, key=lambda s: (means[s], -s)) if means else None  # the table's rule: ties -> first seed
+            if best is not None:
+                shipped.best[(stem, name)] = best
+            for seed, files, fingerprint, published in found:
+                spec = _eval_spec(args, config, name, seed)
+                if published is not None:
+                    shipped.published[(config, spec.key)] = published
+                use(config, spec, fingerprint, files, None if seed == best or args.reevaluate else published)
+        if not shipped.learned.get(stem):
+            shipped.missing.append(stem)
+    return plan
+
+
+def _save_evaluation(args: CompareArgs, out: Path, spec, result, model_sha: str | None,
+                     timesteps: int | None = None) -> dict:
     """The evaluation as JSON (EvaluationResult.to_json plus compare's fingerprint), written to
     ``<out>/evaluations/<config>/<key>.json``."""
     run = None if spec.seed is None else f"{spec.method}_{_stem(spec.config)}_s{spec.seed}"
     data = json.loads(result.to_json())
-    data["compare"] = _fingerprint(args, spec.config, METHODS[spec.method], run, model_sha)
+    data["compare"] = _fingerprint(args, spec.config, METHODS[spec.method], run, model_sha, timesteps)
     path = out / "evaluations" / _stem(spec.config) / f"{spec.key}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, json.dumps(data, indent=2) + "\n")
@@ -306,7 +486,9 @@ def _save_evaluation(args: CompareArgs, out: Path, spec, result, model_sha: str 
 def compare(args: CompareArgs, stream=None) -> dict:
     """Run the comparison; returns the table rows, the improvements and what the sweep did (also
     written to ``args.out``: table.*, sweep.json, evaluations/, figures/). Raises SweepError when
-    tasks failed after Ray's retries; KeyboardInterrupt leaves every run resumable."""
+    tasks failed after Ray's retries; KeyboardInterrupt leaves every run resumable.
+
+    With ``args.shipped`` it trains nothing and evaluates the shipped policies (module docstring)."""
     from containergym_marl.sweep import Cluster, SweepError, estimate_rate, execute, format_duration, write_files
 
     stream = stream or sys.stdout
@@ -317,17 +499,34 @@ def compare(args: CompareArgs, stream=None) -> dict:
     _validate(args)
     start = time.perf_counter()
     out = Path(args.out).resolve()
-    runs = Path(args.runs).resolve() if args.runs else out / "runs"
-    plan = _plan(args, out, runs)  # 1. from the files alone
+    if args.shipped is not None:  # 1. from the files alone
+        plan = _shipped_plan(args, out)
+        runs = Path(args.shipped).resolve() / "runs"
+        say(f"compare: the shipped policies of {args.shipped}/, evaluated with the paper's test protocol "
+            f"({args.episodes} episodes each); nothing is trained (--train trains, see --help)")
+        for line in plan.shipped.lines(args.methods):
+            say(f"  {line}")
+        copied = len(plan.shipped.copied)
+        say(f"compare: {len(args.configs)} config(s) × {len(args.methods)} method(s); "
+            f"{len(plan.to_evaluate) + len(plan.evaluations)} evaluation(s): {len(plan.to_evaluate)} to run, "
+            f"{len(plan.evaluations) - copied} reused from {args.out}/, {copied} published ones of the "
+            f"shipped runs that are not their row's best")
+    else:
+        runs = Path(args.runs).resolve() if args.runs else out / "runs"
+        plan = _plan(args, out, runs)
+        started = sum(Path(s.run_dir).is_dir() for s in plan.to_train)
+        say(f"compare: {len(args.configs)} config(s) × {len(args.methods)} method(s); {len(plan.specs)} training "
+            f"run(s): {len(plan.finished)} finished, {len(plan.to_train)} to train ({started} of them started "
+            f"before); {len(plan.to_evaluate) + len(plan.evaluations)} evaluation(s), {len(plan.evaluations)} reused")
     evaluations = dict(plan.evaluations)
-    started = sum(Path(s.run_dir).is_dir() for s in plan.to_train)
-    say(f"compare: {len(args.configs)} config(s) × {len(args.methods)} method(s); {len(plan.specs)} training "
-        f"run(s): {len(plan.finished)} finished, {len(plan.to_train)} to train ({started} of them started before); "
-        f"{len(plan.to_evaluate) + len(evaluations)} evaluation(s), {len(evaluations)} reused")
     out.mkdir(parents=True, exist_ok=True)
     report: dict[str, Any] = {"ray": None, "trained": [], "reused": sorted(plan.finished), "evaluated": [],
                               "evaluations_reused": sorted(f"{_stem(c)}/{k}" for c, k in evaluations)}
     records: dict[str, dict[str, list]] = {}
+    # Shipped policies: the evaluations keep their episode records for the figures (mostly one per
+    # (config, method)); a training sweep evaluates every seed, so its figures evaluate the best again.
+    keep = args.figures and args.shipped is not None
+    kept: dict[tuple[str, str], list] = {}
 
     cluster = Cluster(args.address, args.num_cpus, args.max_retries)
     try:  # 2. the job graph on Ray: trainings, their evaluations, then the figures' records
@@ -339,12 +538,17 @@ def compare(args: CompareArgs, stream=None) -> dict:
                 rate, slots = estimate_rate(runs), min(cluster.cpus(), len(plan.to_train))
                 say(f"training: {samples:,} samples in {len(plan.to_train)} run(s), about "
                     f"{format_duration(samples / (rate * slots))} at ~{rate:,.0f} samples/s per run, {slots} at a time")
+
             def save(spec, value) -> None:  # each evaluation is written as it lands
                 result, model_sha = value
-                evaluations[(spec.config, spec.key)] = _save_evaluation(args, out, spec, result, model_sha)
+                run = None if spec.seed is None else f"{spec.method}_{_stem(spec.config)}_s{spec.seed}"
+                evaluations[(spec.config, spec.key)] = _save_evaluation(args, out, spec, result, model_sha,
+                                                                        plan.budgets.get(run))
                 report["evaluated"].append(f"{_stem(spec.config)}/{spec.key}")
+                if keep:
+                    kept[(spec.config, spec.key)] = result.records
 
-            done = execute(cluster, plan.to_train, plan.to_evaluate, stream=stream,
+            done = execute(cluster, plan.to_train, plan.to_evaluate, stream=stream, keep_records=keep,
                            on_run_done=lambda spec, result: write_files(spec.run_dir, result["files"]),
                            on_evaluation_done=save)
             for name, result in done.runs.items():
@@ -354,12 +558,16 @@ def compare(args: CompareArgs, stream=None) -> dict:
                 raise SweepError(f"{len(done.failures)} task(s) failed: "
                                  + "; ".join(f"{k}: {v}" for k, v in done.failures.items())
                                  + ". Finished runs and evaluations are kept; rerun the same command to retry.")
-        groups = _groups(args, evaluations)
+        groups = _groups(args, evaluations, plan.seeds)
         if args.figures:
-            records = _figure_records(args, groups, runs, cluster, stream)
+            records = _figure_records(args, groups, runs, cluster, stream, kept)
     except KeyboardInterrupt:
-        say(f"\ninterrupted: finished runs are kept, the others resume from their last checkpoint when the "
-            f"same command runs again (runs: {runs}/)")
+        if plan.shipped is not None:
+            say(f"\ninterrupted: the evaluations done so far are kept in {out / 'evaluations'}/ and reused when "
+                f"the same command runs again")
+        else:
+            say(f"\ninterrupted: finished runs are kept, the others resume from their last checkpoint when the "
+                f"same command runs again (runs: {runs}/)")
         raise
     finally:
         cluster.close()
@@ -370,18 +578,69 @@ def compare(args: CompareArgs, stream=None) -> dict:
     paths = table.write(out, meta)
     figures = [str(p) for p in _figures(records, out)] if args.figures else []
     report["wall_s"] = round(time.perf_counter() - start, 1)
+    if plan.shipped is not None:
+        report["shipped"] = _shipped_report(plan.shipped, evaluations, report["evaluated"])
     atomic_write_text(out / "sweep.json", json.dumps({**meta, **report}, indent=2) + "\n")
     say()
-    say(table.markdown)
-    say(f"table: {paths[0]} (also table.csv, table.json); what the sweep did: {out / 'sweep.json'}; "
-        f"evaluations: {out / 'evaluations'}/"
-        + (f"; figures: {out / 'figures'}/ ({len(figures)} figures, PNG and SVG)" if figures else "")
-        + f"; runs: {runs}/")
-    say(f"compare took {format_duration(report['wall_s'])}: {len(report['trained'])} run(s) trained or resumed, "
-        f"{len(plan.finished)} reused, {len(report['evaluated'])} evaluation(s) run, "
-        f"{len(report['evaluations_reused'])} reused")
+    tables.print_table(table, stream, shipped=plan.shipped is not None)
+    if plan.shipped is not None:
+        say()
+        for line in _shipped_summary(plan.shipped, report["shipped"], args.methods):
+            say(line)
+    n_evaluations = len(list((out / "evaluations").glob("*/*.json")))
+    say()
+    say(f"files ({out}/):")
+    say(f"  table: {paths[0]} (also table.csv, table.json)")
+    say(f"  evaluations: {out / 'evaluations'}/ ({n_evaluations} files, one per policy and row)")
+    if figures:
+        say(f"  figures: {out / 'figures'}/ ({len(figures)} figures, PNG and SVG)")
+    say(f"  what this call did: {out / 'sweep.json'}")
+    if plan.shipped is None:
+        say(f"  runs: {runs}/")
+    elif plan.finished:
+        say(f"  shipped runs (only read): {runs}/")
+    if plan.shipped is not None:
+        say(f"compare took {format_duration(report['wall_s'])}: {len(report['evaluated'])} evaluation(s) run, "
+            f"{len(report['evaluations_reused'])} reused; nothing trained")
+    else:
+        say(f"compare took {format_duration(report['wall_s'])}: {len(report['trained'])} run(s) trained or resumed, "
+            f"{len(plan.finished)} reused, {len(report['evaluated'])} evaluation(s) run, "
+            f"{len(report['evaluations_reused'])} reused")
     return {**meta, "rows": table.rows, "improvements": table.improvements, "seed_means": table.seed_means,
             "figures": figures, "sweep": report}
+
+
+def _shipped_report(shipped: _Shipped, evaluations: dict[tuple[str, str], dict], evaluated: list[str]) -> dict:
+    """What the shipped folder offered, and whether the policies evaluated now return what their
+    published evaluations say (the same returns, episode by episode)."""
+    fresh = {f"{_stem(c)}/{k}": (c, k) for c, k in evaluations}
+    reproduced, differ = [], []
+    for name in evaluated:
+        key = fresh.get(name)
+        if key is None or key not in shipped.published:
+            continue
+        now = [e["cumulative_reward"] for e in evaluations[key]["episodes"]]
+        then = [e["cumulative_reward"] for e in shipped.published[key]["episodes"]]
+        (reproduced if np.allclose(now, then, rtol=0, atol=1e-6) else differ).append(name)
+    return {"folder": str(shipped.folder), "policies": shipped.learned,
+            "best_seeds": {f"{c}/{m}": s for (c, m), s in shipped.best.items()},
+            "still_training": shipped.training, "unusable": shipped.unusable,
+            "without_shipped_policies": shipped.missing, "reproduced": reproduced, "differ": differ}
+
+
+def _shipped_summary(shipped: _Shipped, report: dict, methods: list[str]) -> list[str]:
+    lines = []
+    if (n := len(report["reproduced"])) == 1:
+        lines.append("The 1 shipped policy evaluated now returns what its published evaluation says, "
+                     "episode by episode.")
+    elif n:
+        lines.append(f"The {n} shipped policies evaluated now return what their published evaluations say, "
+                     f"episode by episode.")
+    if report["differ"]:
+        lines.append(f"Evaluated now, {', '.join(report['differ'])} return(s) other than the published evaluation "
+                     f"(in {shipped.folder}/evaluations/): the simulator or the libraries changed since.")
+    lines += [line[0].upper() + line[1:] + "." for line in shipped.lines(methods) if not line.startswith("shipped")]
+    return lines
 
 
 def _resume_point(spec) -> int:
@@ -395,45 +654,74 @@ def _jsonable(x):
     return json.loads(json.dumps(x, default=str))
 
 
-def _groups(args: CompareArgs, evaluations: dict[tuple[str, str], dict]) -> list[tables.MethodEvaluations]:
+def _groups(args: CompareArgs, evaluations: dict[tuple[str, str], dict],
+            seeds: dict[tuple[str, str], list[int]]) -> list[tables.MethodEvaluations]:
+    """The table's groups: a learned method with the seeds it has on a config (none: no row)."""
     groups = []
     for config in args.configs:
         for name in args.methods:
             if METHODS[name].learned:
-                found = [(s, evaluations[(config, f"{name}_s{s}")]) for s in sorted(args.seeds)]
-                groups.append(tables.MethodEvaluations(_stem(config), name, [s for s, _ in found],
-                                                       [d for _, d in found]))
+                found = [(s, evaluations[(config, f"{name}_s{s}")]) for s in sorted(seeds.get((config, name), []))]
+                if found:
+                    groups.append(tables.MethodEvaluations(_stem(config), name, [s for s, _ in found],
+                                                           [d for _, d in found]))
             else:
                 groups.append(tables.MethodEvaluations(_stem(config), name, [], [evaluations[(config, name)]]))
     return groups
 
 
-def _figure_records(args: CompareArgs, groups, runs: Path, cluster, stream) -> dict[str, dict[str, list]]:
-    """Episode records of the best policy of each (config, method), evaluated again on Ray with records kept."""
+def _figure_records(args: CompareArgs, groups, runs: Path, cluster, stream,
+                    kept: dict[tuple[str, str], list] | None = None) -> dict[str, dict[str, list]]:
+    """Episode records of the best policy of each (config, method): those ``kept`` from this call's
+    evaluations, the others evaluated again on Ray with records kept."""
     from containergym_marl.sweep import SweepError, execute
 
     config_of = {_stem(c): c for c in args.configs}
-    jobs = []
+    kept = kept or {}
+    jobs, records = [], {}
     for g in groups:
         seed = g.seeds[g.best] if g.seeds else None
+        spec = _eval_spec(args, config_of[g.config], g.method, seed)
+        if kept.get((spec.config, spec.key)):
+            records.setdefault(spec.config, {})[spec.method] = kept[(spec.config, spec.key)]
+            continue
         source = None if seed is None else _run_files(runs / f"{g.method}_{g.config}_s{seed}")
-        jobs.append((_eval_spec(args, config_of[g.config], g.method, seed), source))
+        jobs.append((spec, source))
+    if not jobs:
+        return _in_table_order(groups, records)
     print(f"figures: evaluating the best policy of {len(jobs)} (config, method) pair(s) again, keeping the records",
           file=stream, flush=True)
     done = execute(cluster, [], jobs, keep_records=True, stream=stream)
     if done.failures:
         raise SweepError("figure evaluations failed: " + "; ".join(f"{k}: {v}" for k, v in done.failures.items()))
-    records: dict[str, dict[str, list]] = {}
     for spec, _ in jobs:
         result, _sha = done.evaluations[(spec.config, spec.key)]
         records.setdefault(spec.config, {})[spec.method] = result.records
-    return records
+    return _in_table_order(groups, records)
+
+
+def _in_table_order(groups, records: dict[str, dict[str, list]]) -> dict[str, dict[str, list]]:
+    """``records[config][method]`` with configs and methods in the order of ``groups``."""
+    config_of = {_stem(c): c for c in records}
+    ordered: dict[str, dict[str, list]] = {}
+    for g in groups:
+        config = config_of.get(g.config)
+        if config is not None and g.method in records[config]:
+            ordered.setdefault(config, {})[g.method] = records[config][g.method]
+    return ordered
 
 
 # ---- the command line (containergym-marl compare) -----------------------------------------------
-def _timesteps(text: str) -> int | None:
-    if text == "paper":
-        return None
+#: What ``--timesteps paper`` gives on the command line (CompareArgs.timesteps None: the paper's budget).
+PAPER_BUDGET = "paper"
+#: The options that train: any of them (or --train) makes ``compare`` train instead of evaluating the
+#: shipped policies (argparse destinations).
+TRAINING_OPTIONS = ("timesteps", "seeds", "runs", "n_envs", "hp", "checkpoint_every")
+
+
+def _timesteps(text: str) -> int | str:
+    if text == PAPER_BUDGET:
+        return PAPER_BUDGET
     try:
         value = int(float(text)) if "e" in text.lower() else int(text)
     except ValueError:
@@ -456,43 +744,77 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from containergym_marl.config import list_configs
 
     d = CompareArgs()
-    parser.add_argument("--configs", nargs="+", default=d.configs, metavar="CONFIG",
-                        help=f"plant configurations: built-in ({', '.join(list_configs())}) or paths")
-    parser.add_argument("--methods", nargs="+", default=d.methods, choices=list(METHODS), metavar="METHOD",
-                        help=f"methods to compare, from: {', '.join(METHODS)}")
-    parser.add_argument("--seeds", nargs="+", type=int, default=d.seeds, metavar="SEED",
-                        help="training seeds of every learned method (distinct)")
-    parser.add_argument("--timesteps", type=_timesteps, default=QUICK_TIMESTEPS, metavar="N|paper",
-                        help="samples per training run; 'paper' = the paper's budget of each config "
-                             "(2M for n=5, 5M for n>=11); the default, %(default)s, is a quick look in minutes, "
-                             "far from a result")
-    parser.add_argument("--episodes", type=int, default=d.episodes, help="test episodes per evaluation")
-    parser.add_argument("--out", default=d.out, help="tables, evaluations and figures")
-    parser.add_argument("--runs", default=None,
-                        help="run directories (default <out>/runs); on a cluster, a path every node reaches")
-    parser.add_argument("--address", default=None,
-                        help="Ray cluster to run on (default: $RAY_ADDRESS, else a new local Ray instance)")
-    parser.add_argument("--num-cpus", type=int, default=None,
-                        help="CPUs of the local Ray instance, one training at a time each (default: all cores)")
-    parser.add_argument("--max-retries", type=int, default=d.max_retries,
-                        help="Ray retries of a task whose worker dies (a retried training resumes)")
-    parser.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every,
-                        help="samples between checkpoints (what an interruption can lose)")
-    parser.add_argument("--n-envs", type=int, default=None, help="parallel simulations per run (default: "
-                                                                 "the algorithm's, 8; DQN 1)")
-    parser.add_argument("--hp", nargs="*", default=[], metavar="KEY=VALUE",
-                        help="extra SB3 hyperparameters for every learned method")
-    parser.add_argument("--bootstrap-reps", type=int, default=d.bootstrap_reps,
-                        help="bootstrap replicates of every confidence interval")
-    parser.add_argument("--reevaluate", action="store_true",
-                        help="evaluate again even where an evaluation of the same model, plant and protocol exists")
-    parser.add_argument("--no-figures", action="store_true", help="write no figures (they are on by default)")
+    what = parser.add_argument_group(
+        "what to compare", "without --train or a training option, compare evaluates the shipped policies")
+    what.add_argument("--configs", nargs="+", default=None, metavar="CONFIG",
+                      help=f"plant configurations: built-in ({', '.join(list_configs())}) or paths (default: the "
+                           f"paper rows, {' '.join(PAPER_ROWS)}, for the shipped policies; {' '.join(d.configs)} "
+                           f"with --train)")
+    what.add_argument("--methods", nargs="+", default=None, choices=list(METHODS), metavar="METHOD",
+                      help=f"methods to compare, from: {', '.join(METHODS)} (default: {' '.join(PAPER_METHODS)} "
+                           f"for the shipped policies; {' '.join(d.methods)} with --train)")
+    what.add_argument("--episodes", type=int, default=d.episodes, help="test episodes per evaluation")
+    what.add_argument("--out", default=d.out, help="tables, evaluations and figures")
+    what.add_argument("--shipped", default=None, metavar="DIR",
+                      help=f"the folder of published runs whose policies are evaluated, only read (default: "
+                           f"{SHIPPED}, the repository's; baselines/publish_results.py writes such folders)")
+    train = parser.add_argument_group(
+        "training", "--train, or any of these options, trains (or reuses the finished runs of --runs) instead\n"
+                    "of evaluating the shipped policies; compare says how long it will take before it starts")
+    train.add_argument("--train", action="store_true",
+                       help=f"train the learned methods: {QUICK_TIMESTEPS:,} samples per run unless --timesteps, "
+                            f"a quick look in minutes, far from a result (default: evaluate the shipped policies)")
+    train.add_argument("--timesteps", type=_timesteps, default=None, metavar="N|paper",
+                       help="samples per training run; 'paper' = the paper's budget of each config "
+                            f"(2M for n=5, 5M for n>=11) (default with --train: {QUICK_TIMESTEPS})")
+    train.add_argument("--seeds", nargs="+", type=int, default=None, metavar="SEED",
+                       help=f"training seeds of every learned method, distinct "
+                            f"(default: {' '.join(map(str, d.seeds))})")
+    train.add_argument("--runs", default=None,
+                       help="run directories (default <out>/runs); on a cluster, a path every node reaches")
+    train.add_argument("--checkpoint-every", type=int, default=None,
+                       help=f"samples between checkpoints, what an interruption can lose (default: "
+                            f"{d.checkpoint_every})")
+    train.add_argument("--n-envs", type=int, default=None, help="parallel simulations per run (default: "
+                                                                "the algorithm's, 8; DQN 1)")
+    train.add_argument("--hp", nargs="*", default=None, metavar="KEY=VALUE",
+                       help="extra SB3 hyperparameters for every learned method (default: none)")
+    ray = parser.add_argument_group("execution")
+    ray.add_argument("--address", default=None,
+                     help="Ray cluster to run on (default: $RAY_ADDRESS, else a new local Ray instance)")
+    ray.add_argument("--num-cpus", type=int, default=None,
+                     help="CPUs of the local Ray instance, one training at a time each (default: all cores)")
+    ray.add_argument("--max-retries", type=int, default=d.max_retries,
+                     help="Ray retries of a task whose worker dies (a retried training resumes)")
+    ray.add_argument("--bootstrap-reps", type=int, default=d.bootstrap_reps,
+                     help="bootstrap replicates of every confidence interval")
+    ray.add_argument("--reevaluate", action="store_true",
+                     help="evaluate again even where an evaluation of the same model, plant and protocol exists")
+    ray.add_argument("--no-figures", action="store_true", help="write no figures (they are on by default)")
+
+
+def training_requested(ns: argparse.Namespace) -> bool:
+    """Whether a parsed ``compare`` command line trains: --train or any of :data:`TRAINING_OPTIONS`."""
+    return bool(ns.train) or any(getattr(ns, name) is not None for name in TRAINING_OPTIONS)
 
 
 def args_from_namespace(ns: argparse.Namespace, hyperparams: dict) -> CompareArgs:
-    return CompareArgs(configs=ns.configs, methods=ns.methods, seeds=ns.seeds, timesteps=ns.timesteps,
-                       episodes=ns.episodes, out=ns.out, runs=ns.runs, n_envs=ns.n_envs,
-                       checkpoint_every=ns.checkpoint_every, bootstrap_reps=ns.bootstrap_reps,
-                       figures=not ns.no_figures, reevaluate=ns.reevaluate, address=ns.address,
-                       num_cpus=ns.num_cpus, max_retries=ns.max_retries, hyperparams=hyperparams)
-
+    """CompareArgs of a parsed ``compare`` command line: the shipped policies, or training when
+    :func:`training_requested` (each unset option then keeps CompareArgs' default)."""
+    d = CompareArgs()
+    common = dict(episodes=ns.episodes, out=ns.out, bootstrap_reps=ns.bootstrap_reps, figures=not ns.no_figures,
+                  reevaluate=ns.reevaluate, address=ns.address, num_cpus=ns.num_cpus, max_retries=ns.max_retries)
+    if not training_requested(ns):
+        return CompareArgs(configs=ns.configs or list(PAPER_ROWS), methods=ns.methods or list(PAPER_METHODS),
+                           timesteps=None, shipped=ns.shipped or SHIPPED, **common)
+    if ns.shipped is not None:
+        given = ["--train"] * bool(ns.train) + [f"--{n.replace('_', '-')}" for n in TRAINING_OPTIONS
+                                                if getattr(ns, n) is not None]
+        raise ValueError(f"--shipped evaluates published runs and trains nothing; drop {', '.join(given)} "
+                         f"or --shipped")
+    timesteps = ns.timesteps if ns.timesteps is not None else QUICK_TIMESTEPS
+    return CompareArgs(configs=ns.configs or d.configs, methods=ns.methods or d.methods,
+                       seeds=ns.seeds if ns.seeds is not None else d.seeds,
+                       timesteps=None if timesteps == PAPER_BUDGET else timesteps, runs=ns.runs, n_envs=ns.n_envs,
+                       checkpoint_every=ns.checkpoint_every if ns.checkpoint_every is not None else d.checkpoint_every,
+                       hyperparams=hyperparams, **common)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from containergym_marl.cli import build_parser, main
-from containergym_marl.compare import METHODS, PAIRS, CompareArgs, compare, run_specs
+from containergym_marl.compare import METHODS, PAIRS, CompareArgs, args_from_namespace, compare, run_specs
 from containergym_marl.evaluation import table as tables
 from containergym_marl.sweep import MetricsReporter, Progress, RunSpec, measured_rate, prepare_run, small_files
 
@@ -66,14 +66,15 @@ def test_compare_help_shows_the_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["compare", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    for expected in ("--timesteps N|paper", "the default, 30000, is a quick look", "(default: [1, 2, 3])",
-                     "(default: 15)", "(default: results/compare)", "(default: ['n5_m2_dt120'])",
-                     "(default: 200000)", "(default: 3)", "(default: 2000)", "$RAY_ADDRESS", "shared_ppo_team"):
+    for expected in ("--timesteps N|paper", "(default with --train: 30000)", "(default: 1 2 3)",
+                     "(default: 15)", "(default: results/compare)", "; n5_m2_dt120 with --train)",
+                     "(default: results/paper_rows,", "(default: 200000)", "(default: 3)", "(default: 2000)",
+                     "$RAY_ADDRESS", "shared_ppo_team"):
         assert expected in text, expected
     parse = build_parser().parse_args
-    assert parse(["compare"]).timesteps == 30_000
-    assert parse(["compare", "--timesteps", "paper"]).timesteps is None
-    assert parse(["compare", "--timesteps", "2e6"]).timesteps == 2_000_000
+    assert parse(["compare"]).timesteps is None  # not given: the shipped policies, nothing trained
+    assert args_from_namespace(parse(["compare", "--timesteps", "paper"]), {}).timesteps is None  # paper budget
+    assert args_from_namespace(parse(["compare", "--timesteps", "2e6"]), {}).timesteps == 2_000_000
 
 
 def _zip(path, payload=b"x"):
@@ -302,3 +303,20 @@ def test_the_table_is_regenerated_from_the_evaluation_files(tmp_path, capsys):
     assert "n11_m2_dt120" not in one_config and "| n5_m2_dt120 | shared_ppo | decentralised | 5 |" in one_config
     with pytest.raises(FileNotFoundError, match="no evaluation files"):
         tables.load_evaluations(tmp_path / "again")
+
+
+def test_the_terminal_table_drops_the_view_and_iqm_columns_where_they_do_not_fit(tmp_path):
+    _results(tmp_path, np.random.default_rng(5))
+    table = tables.build_table(tables.load_evaluations(tmp_path), reps=200)
+    wide, narrow = io.StringIO(), io.StringIO()
+    tables.print_table(table, wide)
+    tables.print_table(table, narrow, width=100)
+    for text, width in ((wide.getvalue(), 140), (narrow.getvalue(), 100)):
+        lines = text.splitlines()
+        assert all(len(line) <= width and line == line.rstrip() for line in lines)
+        assert "…" not in text  # nothing cut short
+        assert "P(" in text
+    assert "IQM [95 % CI]" in wide.getvalue() and "decentralised" in wide.getvalue()
+    assert "IQM [95 % CI]" not in narrow.getvalue() and "(views, IQM, TRPO" in " ".join(narrow.getvalue().split())
+    row = tables.table_rows(tables.load_evaluations(tmp_path), reps=200)[0]
+    assert f"{row['best_mean']:.2f} ± {row['best_std']:.2f}" in narrow.getvalue()

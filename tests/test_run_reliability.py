@@ -281,6 +281,17 @@ def test_train_ends_with_the_training_return_and_the_next_command(tmp_path, caps
     assert printed.rstrip().endswith(f"next: containergym-marl evaluate {out}")
 
 
+def test_train_shows_samples_per_second_and_the_latest_training_return_while_it_runs(tmp_path, capsys):
+    out = tmp_path / "r"
+    assert cli_main(["train", "--algo", "ppo", "--timesteps", "256", "--n-envs", "2", "--hp", "n_steps=64",
+                     "--out", str(out), "--override", "episode_length_steps=20"]) == 0
+    bar = capsys.readouterr().err.replace("\r", "\n").splitlines()
+    last = [line for line in bar if line.startswith("ppo s1:")][-1]
+    summary = read_run_summary(out)
+    assert "256/256" in last and "samples/s" in last
+    assert f"training return {summary['train_return_mean100']:.2f}" in last
+
+
 # ---- one writer per run directory -----------------------------------------------------------------
 def test_a_second_writer_fails_fast_naming_the_holder(tmp_path):
     out = tmp_path / "r"

@@ -32,6 +32,9 @@ def test_tiny_sweep_on_local_ray_then_a_rerun_trains_nothing(tmp_path, capsys):
                                           "n5_m2_dt120/rule_based_agents"]
     printed = capsys.readouterr().out
     assert "runs 0/2 done" in printed and f"done {RUNS[0]}: trained, 1,024 samples" in printed
+    # how long the training will take, said before it starts
+    assert printed.index("training: 2,048 samples in 2 run(s), about ") < printed.index(f"done {RUNS[0]}")
+    assert " ppo " in printed and "P(rule_based_agents > rule_based)" in printed  # the table, in the terminal
     assert f"table: {out / 'table.md'}" in printed and f"figures: {out / 'figures'}/" in printed
 
     for run in RUNS:

@@ -148,8 +148,11 @@ def evaluate(
     arbitration: str = "fullest",
     keep_records: bool = True,
     on_step: Callable[[Any], None] | None = None,
+    on_episode: Callable[[int, EpisodeMetrics], None] | None = None,
 ) -> EvaluationResult:
     """Run ``policy`` for ``protocol.episodes`` episodes through its view; one seed per episode.
+    ``on_step(env)`` is called after every step, ``on_episode(episodes done, metrics)`` after every
+    episode (progress).
 
     The decentralised view is stepped with ``reward_mode="team"`` only to read the plant reward;
     the policy's own observations do not depend on the reward mode.
@@ -193,6 +196,8 @@ def evaluate(
         episodes.append(EpisodeMetrics.from_record(record))
         if keep_records:
             records.append(record)
+        if on_episode:
+            on_episode(len(episodes), episodes[-1])
     return EvaluationResult(policy.name, policy.view, plant.name, protocol, episodes, records)
 
 

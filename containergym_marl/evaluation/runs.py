@@ -32,15 +32,16 @@ def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = 
 
 
 def evaluate_run(run: str | Path, config: str | None = None, which: str = "best", protocol=None,
-                 arbitration: str | None = None, write: bool = True):
+                 arbitration: str | None = None, write: bool = True, on_episode=None):
     """Evaluate a run's model with the paper's test protocol (on its own config by default);
-    writes ``RUN/evaluation_<which>.json`` (crash-safe) unless ``write`` is False."""
+    writes ``RUN/evaluation_<which>.json`` (crash-safe) unless ``write`` is False. ``on_episode``:
+    see :func:`~containergym_marl.evaluation.evaluate`."""
     from containergym_marl.evaluation import PAPER, evaluate
 
     saved = run_args(run)
     policy = policy_from_run(run, which)
     result = evaluate(policy, config or saved["config"], protocol or PAPER,
-                      arbitration=arbitration or saved.get("arbitration", "fullest"))
+                      arbitration=arbitration or saved.get("arbitration", "fullest"), on_episode=on_episode)
     if write:
         atomic_write_text(Path(run) / f"evaluation_{which}.json", result.to_json())
     return result

@@ -36,7 +36,7 @@ import sys
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Sequence, TextIO
 
 import numpy as np
 
@@ -294,6 +294,7 @@ class Table:
     improvements: list[dict]
     markdown: str
     seed_means: dict[str, list[float]]
+    protocol: str = ""  # e.g. "paper protocol: δ = 120 s, T = 600, 15 episodes"
 
     def write(self, out: str | Path, meta: dict | None = None) -> list[Path]:
         """Write ``table.md``, ``table.csv`` and ``table.json`` into ``out``; returns their paths."""
@@ -324,8 +325,77 @@ def build_table(groups: Sequence[MethodEvaluations], pairs: Iterable[tuple[str, 
     rows = table_rows(groups, reps)
     imps = improvements(groups, pairs, reps)
     return Table(rows, imps, markdown(rows, imps, groups),
-                 {f"{g.config}/{g.method}": g.seed_means.tolist() for g in groups})
+                 {f"{g.config}/{g.method}": g.seed_means.tolist() for g in groups}, _protocol_text(groups))
 
+
+def print_table(table: Table, stream: TextIO | None = None, shipped: bool = False, width: int | None = None) -> None:
+    """``table`` in the terminal (rich): one section per config with the paper's PPO below it, then
+    the probabilities of improvement. ``shipped``: the caption says how the shipped policies'
+    rows were made. A terminal too narrow for every column gets the table without the view and
+    IQM columns; without a terminal: no colours, ``width`` (default 140) columns, no trailing blanks."""
+    import io
+
+    from rich.console import Console
+
+    stream = stream or sys.stdout
+    tty = bool(getattr(stream, "isatty", lambda: False)())
+    console = Console(file=stream if tty else io.StringIO(), width=width or (None if tty else 140), highlight=False,
+                      markup=False, emoji=False, force_terminal=None if tty else False)
+    out = _rich_table(table, shipped, narrow=False)
+    if console.measure(out, options=console.options.update_width(10_000)).maximum > console.width:
+        out = _rich_table(table, shipped, narrow=True)
+    console.print(out)
+    if table.improvements:
+        console.print("\nProbability of improvement (decentralised over centralised) [95 % bootstrap CI]:")
+        for i in table.improvements:
+            console.print(f"  {i['config']}: P({i['decentralised']} > {i['centralised']}) = {i['probability']:.2f} "
+                          f"[{i['low']:.2f}, {i['high']:.2f}] (over {i['unit']})")
+    if not tty:
+        print("\n".join(line.rstrip() for line in console.file.getvalue().splitlines()), file=stream, flush=True)
+
+
+def _rich_table(table: Table, shipped: bool, narrow: bool):
+    """The rich table of :func:`print_table`; ``narrow``: without the view and IQM columns."""
+    from rich import box
+    from rich.table import Table as RichTable
+
+    out = RichTable(title=f"Test cumulative reward ({table.protocol or 'paper protocol'})", box=box.SIMPLE_HEAD,
+                    title_justify="left", caption_justify="left", pad_edge=False)
+    columns = ["config", "method", "view", "seeds", "best", "median", "IQM [95 % CI]", "overflow", "samples"]
+    if narrow:
+        columns = [c for c in columns if c not in ("view", "IQM [95 % CI]")]
+    for name in columns:
+        out.add_column(name, justify="left" if name in ("config", "method", "view") else "right", no_wrap=True)
+
+    def add(cells: dict[str, str], **style) -> None:
+        out.add_row(*(cells[c] for c in columns), **style)
+
+    configs = list(dict.fromkeys(r["config"] for r in table.rows))
+    for i, config in enumerate(configs):
+        for j, r in enumerate(r for r in table.rows if r["config"] == config):
+            add({"config": config if j == 0 else "", "method": r["method"], "view": r["view"],
+                 "seeds": str(r["seeds"] or "–"), "best": f"{r['best_mean']:.2f} ± {r['best_std']:.2f}",
+                 "median": f"{r['median_mean']:.2f} ± {r['median_std']:.2f}",
+                 "IQM [95 % CI]": f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}]" if r["seeds"] else "–",
+                 "overflow": _num(r["overflow_rate"]), "samples": _samples(r["samples"])})
+        if "ppo" in PAPER_TABLE_1.get(config, {}):
+            best, median = PAPER_TABLE_1[config]["ppo"]
+            add({"config": "", "method": "paper PPO", "view": "centralised", "seeds": "15",
+                 "best": f"{best[0]:.2f} ± {best[1]:.2f}", "median": f"{median[0]:.2f} ± {median[1]:.2f}",
+                 "IQM [95 % CI]": "–", "overflow": "–", "samples": "2M" if config.startswith("n5_") else "5M"},
+                style="dim")
+        if i < len(configs) - 1:
+            out.add_section()
+    out.caption = (
+        "best / median: the best and the median policy over training seeds (by mean test return), mean ± std over "
+        "the test episodes; " + ("" if narrow else "IQM: interquartile mean of the per-seed means; ")
+        + "overflow: share of the best policy's test episodes that end in an overflow; samples: training budget "
+        "per run. Paper PPO: Table 1 of the paper ("
+        + ("views, IQM, " if narrow else "") + "TRPO, DQN and more columns in table.md)."
+        + (" Learned methods: their finished shipped seeds; the best seed's policy (and any seed without a "
+           "published evaluation) is evaluated now, the other seeds' numbers are their published evaluations."
+           if shipped and any(r["seeds"] for r in table.rows) else ""))
+    return out
 
 def markdown_table(results: str | Path, reps: int = 2000) -> str:
     """The Markdown table of the evaluation files under ``results`` (see :func:`load_evaluations`)."""
