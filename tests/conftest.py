@@ -30,3 +30,19 @@ def make_state(volumes, timers, step_count=0) -> PlantState:
 @pytest.fixture
 def cfg5():
     return load_config("n5_m2_dt120")
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _sb3_logs_in_a_pytest_folder(tmp_path_factory):
+    """Tests that call SB3's ``learn`` directly (not through the package's training loop, which sets
+    its own logger) would each leave an empty ``SB3-<date>`` folder in the system temp directory:
+    SB3 creates one when no logger is configured, unless $SB3_LOGDIR names a folder."""
+    import os
+
+    previous = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logs"))
+    yield
+    if previous is None:
+        os.environ.pop("SB3_LOGDIR", None)
+    else:
+        os.environ["SB3_LOGDIR"] = previous
