@@ -205,3 +205,134 @@ def test_ctrl_c_leaves_every_run_resumable_and_the_same_command_finishes_the_swe
     for run in (RUN1, RUN2):
         assert json.loads((out / "runs" / run / "args.json").read_text())["timesteps"] == 12288
     assert (out / "table.md").is_file()
+
+
+# ---- SIGKILL of the whole compare at random moments ---------------------------------------------
+def _processes_with(marker: str) -> list[int]:
+    """Pids of live processes whose environment holds ``marker`` (the compare and every Ray process it
+    started inherit it; nothing else on the machine does)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            with contextlib.suppress(OSError):
+                if marker.encode() in (proc / "environ").read_bytes():
+                    found.append(int(proc.name))
+    return found
+
+
+def _wait_gone(marker: str, timeout_s: float = 60.0) -> None:
+    _wait(lambda: not _processes_with(marker), timeout_s, "the killed compare's processes to end")
+
+
+def _check_every_file_readable(root: Path) -> None:
+    """What a later compare may read is whole: every JSON parses, every model zip is intact, every
+    complete metrics row is well formed. Files still being written are only ever *.tmp names (the
+    package writes through a temporary file and a rename); logs, pid files, locks and TensorBoard
+    event files are not read back."""
+    import zipfile
+
+    from containergym_marl.training.runs import read_metrics
+
+    for path in root.rglob("*"):
+        if not path.is_file() or path.suffix == ".tmp" or ".tmp" in path.name or "tb" in path.parts:
+            continue
+        if path.suffix == ".json":
+            json.loads(path.read_text())
+        elif path.suffix == ".zip":
+            with zipfile.ZipFile(path) as z:
+                assert z.testzip() is None, path
+        elif path.name == "metrics.csv":
+            rows = read_metrics(path.parent)
+            assert all(r["timesteps"] > 0 for r in rows), path
+
+
+def _table_rows(out: Path) -> dict[tuple[str, str], dict]:
+    rows = json.loads((out / "table.json").read_text())["rows"]
+    return {(r["config"], r["method"]): r for r in rows}
+
+
+def test_compare_killed_at_random_moments_then_rerun_ends_as_an_uninterrupted_compare(tmp_path):
+    """SIGKILL to compare's whole process tree (driver, Ray, training and evaluation workers) at
+    random moments, then the same command again, several times. After every kill every file a
+    rerun would read is intact; the last rerun finishes; its table equals an uninterrupted run's for
+    everything that does not depend on where a run was cut: the rule-based row, and every learned
+    run that never resumed from a checkpoint (a run killed before its first checkpoint starts
+    again from scratch, so it is bit-identical). A run that resumed draws fresh simulation seeds
+    (seed + samples, see training/loop.py), so its numbers legitimately differ; for it the test
+    checks that it completed its budget with consistent metrics."""
+    from containergym_marl.training.runs import load_model, read_metrics
+
+    rng = np.random.default_rng(0)
+    args = ("--methods", "rule_based", "ppo", "--seeds", "1", "2", "--timesteps", "8192", "--checkpoint-every",
+            "1024", "--hp", "n_steps=256", "batch_size=64", "--no-figures", "--num-cpus", "2")
+    out = tmp_path / "cmp"
+    marker = f"CONTAINERGYM_SOAK_{secrets.token_hex(8)}"
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {marker: "1"}
+    kills = 0
+    for _ in range(8):
+        proc = subprocess.Popen(_compare_cmd(out, *args), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                env=env, start_new_session=True)
+        try:
+            proc.wait(timeout=float(rng.uniform(4.0, 30.0)))
+        except subprocess.TimeoutExpired:
+            for pid in _processes_with(marker):  # the whole tree, Ray's own process groups included
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            proc.wait()
+            _wait_gone(marker)
+            kills += 1
+            _check_every_file_readable(out)
+            continue
+        assert proc.returncode == 0
+        break
+    assert kills >= 3
+
+    final = subprocess.run(_compare_cmd(out, *args), capture_output=True, text=True, env=env, timeout=900)
+    assert final.returncode == 0, final.stdout[-3000:] + final.stderr[-3000:]
+    _check_every_file_readable(out)
+    reference = tmp_path / "reference"
+    uninterrupted = subprocess.run(_compare_cmd(reference, *args), capture_output=True, text=True, env=env,
+                                   timeout=900)
+    assert uninterrupted.returncode == 0, uninterrupted.stderr[-3000:]
+
+    ours, theirs = _table_rows(out), _table_rows(reference)
+    assert ours.keys() == theirs.keys()
+    assert ours[("n5_m2_dt120", "rule_based")] == theirs[("n5_m2_dt120", "rule_based")]
+    resumed = set()
+    for seed in (1, 2):
+        run = f"ppo_n5_m2_dt120_s{seed}"
+        log = (out / "runs" / ".sweep" / f"{run}.log").read_text()
+        rows = read_metrics(out / "runs" / run)
+        assert [r["timesteps"] for r in rows] == sorted({r["timesteps"] for r in rows})  # no duplicated rows
+        assert load_model(out / "runs" / run / "final_model.zip", "ppo").num_timesteps == 8192
+        evaluation = json.loads((out / "evaluations" / "n5_m2_dt120" / f"ppo_s{seed}.json").read_text())
+        expected = json.loads((reference / "evaluations" / "n5_m2_dt120" / f"ppo_s{seed}.json").read_text())
+        if "resume from" in log:
+            resumed.add(run)
+        else:  # started over from nothing each time it was cut: the same run as the uninterrupted one
+            assert evaluation["episodes"] == expected["episodes"], run
+            assert _metrics(out / "runs" / run) == _metrics(reference / "runs" / run), run
+    if not resumed:
+        assert ours[("n5_m2_dt120", "ppo")] == theirs[("n5_m2_dt120", "ppo")]
+
+
+def test_ctrl_c_under_load_ends_compare_quickly_and_leaves_no_process(tmp_path):
+    """Ctrl-C while two trainings keep both cores busy: compare ends within 30 s with exit status 130,
+    and none of the processes it started (Ray's included) outlives it."""
+    out = tmp_path / "cmp"
+    marker = f"CONTAINERGYM_CTRLC_{secrets.token_hex(8)}"
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {marker: "1"}
+    proc = subprocess.Popen(_compare_cmd(out, *KILL_ARGS), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=env, start_new_session=True)
+    try:
+        _wait_for_checkpoint(out, RUN1, proc)
+        started = time.monotonic()
+        os.killpg(proc.pid, signal.SIGINT)
+        output, _ = proc.communicate(timeout=120)
+        elapsed = time.monotonic() - started
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, output[-3000:]
+    assert elapsed < 30, f"compare took {elapsed:.0f} s to stop after Ctrl-C"
+    _wait_gone(marker, timeout_s=30)
