@@ -187,7 +187,10 @@ def _summary_value(evaluation: dict, key: str) -> float:
 
 
 def _budget(group: MethodEvaluations) -> int | None:
-    budgets = {e.get("compare", {}).get("timesteps") for e in group.evaluations}
+    """Training samples per run (plant steps): compare's record, or the training record a script
+    such as baselines/train_mappo.py writes."""
+    budgets = {e.get("compare", {}).get("timesteps") or e.get("training", {}).get("plant_steps")
+               for e in group.evaluations}
     return budgets.pop() if len(budgets) == 1 else None
 
 
