@@ -304,13 +304,22 @@ def _eval_spec(args: CompareArgs, config: str, name: str, seed: int | None):
 
 
 def _run_files(run_dir: str | Path) -> dict[str, dict[str, bytes]]:
+    from containergym_marl.evaluation.runs import evaluated_files
+
     run = Path(run_dir)
-    return {"files": {f: (run / f).read_bytes() for f in ("args.json", "best_model.zip")}}
+    return {"files": {f: (run / f).read_bytes() for f in evaluated_files(run)}}
+
+
+def _model_sha(source: dict[str, dict[str, bytes]]) -> str:
+    from containergym_marl.evaluation.runs import evaluated_model
+    from containergym_marl.sweep import sha256
+
+    return sha256(evaluated_model(source["files"]))
 
 
 def _plan(args: CompareArgs, out: Path, runs: Path) -> _Plan:
     from containergym_marl.evaluation import EvalProtocol
-    from containergym_marl.sweep import check_budget, sha256
+    from containergym_marl.sweep import check_budget
 
     protocol = asdict(EvalProtocol(episodes=args.episodes))
     specs = run_specs(args, runs)
@@ -328,7 +337,7 @@ def _plan(args: CompareArgs, out: Path, runs: Path) -> _Plan:
                     fingerprint, source = _fingerprint(args, config, method, None, None), None
                 elif (run := by_run[f"{name}_{_stem(config)}_s{seed}"]).name in finished:
                     source = _run_files(run.run_dir)
-                    model_sha = sha256(source["files"]["best_model.zip"])
+                    model_sha = _model_sha(source)
                     fingerprint = _fingerprint(args, config, method, run.name, model_sha)
                 else:
                     fingerprint, source = None, run  # trained in this sweep: evaluated after

@@ -372,12 +372,13 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
         model_sha = None
         result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
     else:
-        from containergym_marl.evaluation.runs import policy_from_run
+        from containergym_marl.evaluation.runs import evaluated_model, policy_from_run
 
-        files = run["files"]
-        model_sha = sha256(files["best_model.zip"])
+        files = run["files"]  # evaluation.runs.evaluated_files of the run
+        model_sha = sha256(evaluated_model(files))
         with tempfile.TemporaryDirectory(prefix="cgm-eval-") as tmp:
-            write_files(tmp, {k: files[k] for k in ("args.json", "best_model.zip")})
+            write_files(tmp, {k: files[k] for k in ("args.json", "run.json", "best_model.zip", "final_model.zip")
+                              if k in files})
             policy = policy_from_run(tmp, "best")
             result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
     return result, model_sha

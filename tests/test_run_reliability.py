@@ -269,6 +269,16 @@ def test_a_run_without_a_finished_episode_says_so(tmp_path, capsys):
     assert cli_main(["evaluate", str(out), "--episodes", "1"]) == 0
     assert "no training episode finished" in capsys.readouterr().err
 
+    # compare evaluates such a run too (its final model, named so), from the files it ships to a worker
+    from containergym_marl.compare import _run_files
+    from containergym_marl.sweep import EvalSpec, evaluate_policy, sha256
+
+    source = _run_files(out)
+    assert sorted(source["files"]) == ["args.json", "final_model.zip", "run.json"]
+    with pytest.warns(RunWarning, match="no training episode finished"):
+        result, model_sha = evaluate_policy(EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", 1, seed=1), source)
+    assert model_sha == sha256((out / "final_model.zip").read_bytes()) and len(result.returns) == 1
+
 
 def test_train_ends_with_the_training_return_and_the_next_command(tmp_path, capsys):
     out = tmp_path / "r"

@@ -9,6 +9,20 @@ from containergym_marl.training.algorithms import get_algorithm
 from containergym_marl.training.runs import RunWarning, atomic_write_text, load_model, read_run_summary, run_args
 
 
+def evaluated_files(run: str | Path) -> tuple[str, ...]:
+    """The files of a finished run that its evaluation reads (``policy_from_run(run, "best")``):
+    ``args.json`` and ``best_model.zip``, or, when no training episode finished (so no best model),
+    ``args.json``, ``run.json`` and ``final_model.zip``."""
+    if (Path(run) / "best_model.zip").is_file():
+        return "args.json", "best_model.zip"
+    return "args.json", "run.json", "final_model.zip"
+
+
+def evaluated_model(files: dict[str, bytes]) -> bytes:
+    """The model among ``files`` (from :func:`evaluated_files`) that the evaluation uses."""
+    return files["best_model.zip"] if "best_model.zip" in files else files["final_model.zip"]
+
+
 def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = True):
     """The evaluation policy of a run directory (``which`` = "best" or "final").
 
