@@ -20,7 +20,7 @@ SNIPPETS = {m.group(1).split(":")[0].strip(): m.group(0)[len("```python\n"):-len
             for m in re.finditer(r"```python\n# ([^\n]+)\n.*?```", SECTION, flags=re.S)}
 NEEDS = {"TorchRL": "torchrl", "BenchMARL": "benchmarl", "RLlib": "ray.rllib", "Tianshou": "tianshou",
          "SB3": "stable_baselines3"}
-SLOW = {"RLlib", "BenchMARL"}  # a local Ray instance; two MAPPO iterations of 6,000 frames
+SLOW = {"RLlib", "BenchMARL", "SB3"}  # Ray; two MAPPO iterations of 6,000 frames; SB3 (the training extra is in the default venv too)
 
 
 def test_the_section_has_a_snippet_for_each_library():
