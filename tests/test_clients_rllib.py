@@ -3,8 +3,8 @@ agents trains one iteration on the Dict observation with action masks, and its l
 n × the plant return in team mode (RLlib sums the agents' returns).
 
 RLlib's action-masking module (``ActionMaskingTorchRLModule`` from its examples) reads the features
-under ``"observations"``; :class:`ContainerActionMasking` below takes ours (``"observation"``), the
-few lines the README shows. Needs ``ray[rllib]`` (the ``clients`` extra) and starts a local Ray
+under ``"observations"``; :class:`ContainerActionMasking` below takes ours (``"observation"``); the
+README's RLlib block points here for it. Needs ``ray[rllib]`` (the ``clients`` extra) and starts a local Ray
 instance (~30 s): ``slow``.
 """
 
