@@ -141,7 +141,9 @@ def _wait_for_checkpoint(out: Path, run: str, proc: subprocess.Popen) -> int:
 
 def test_a_killed_training_worker_is_retried_and_resumes_the_others_are_identical(tmp_path):
     from containergym_marl.evaluation import EvalProtocol, evaluate
-    from containergym_marl.training.runs import load_model, policy_from_run, train
+    from containergym_marl.evaluation.runs import policy_from_run
+    from containergym_marl.training import train
+    from containergym_marl.training.runs import load_model
 
     out = tmp_path / "cmp"
     proc = subprocess.Popen(_compare_cmd(out, *KILL_ARGS), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
