@@ -30,6 +30,16 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     return path
 
 
+def temporary_target(name: str) -> str | None:
+    """The file name that a temporary file of :func:`atomic_write` (``.<name>.<random>.tmp``) was
+    to become, or None for any other name. A temporary file that outlives its writer (killed
+    before the rename) is never read: no reader's name pattern matches it."""
+    if not (name.startswith(".") and name.endswith(".tmp")):
+        return None
+    target, dot, _random = name[1:-len(".tmp")].rpartition(".")
+    return target if dot and target else None
+
+
 def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write(path, lambda tmp: tmp.write_text(text))
 

@@ -19,12 +19,12 @@ What Ray does here, and what this module adds:
   evaluations, ETA, samples/s of every running run).
 
 Storage: a training task writes its run directory at the same absolute path on whichever node runs
-it, and returns the run's small files (everything except ``checkpoints/`` and ``tb/``: args,
-config, metrics, best and final model, ~0.5 MB) to the driver, which writes them into its own copy
-when they differ. With a filesystem shared by all nodes nothing is copied; without one the driver
-still gets every file the table, the figures and a later rerun need, while checkpoints stay on the
-node that trained (a run interrupted there resumes only if Ray schedules it on that node again,
-otherwise it starts over).
+it, and returns the run's small files (everything except ``checkpoints/``, ``tb/``, the lock and
+temporary files: args, config, metrics, best and final model, ~0.5 MB) to the driver, which writes
+them into its own copy (crash-safe) when they differ. With a filesystem shared by all nodes nothing
+is copied; without one the driver still gets every file the table, the figures and a later rerun
+need, while checkpoints stay on the node that trained (a run interrupted there resumes only if Ray
+schedules it on that node again, otherwise it starts over).
 
 Each training task also holds ``<runs>/.sweep/<run>.pid`` (its worker's process id, locked while it
 trains and removed when it ends, so two sweeps never train one run at once) and appends one line
@@ -162,28 +162,33 @@ def prepare_run(spec: RunSpec) -> tuple[str, int]:
 
 
 def small_files(run: str | Path) -> dict[str, bytes]:
-    """The run directory's files except :data:`NODE_LOCAL` folders, as ``{relative path: bytes}``."""
+    """The run directory's files except :data:`NODE_LOCAL` folders, the lock file and temporary files
+    of writes cut short, as ``{relative path: bytes}``."""
+    from containergym_marl.files import temporary_target
+    from containergym_marl.training.runs import LOCK_NAME
+
     run = Path(run)
     out = {}
     for path in sorted(run.rglob("*")):
         rel = path.relative_to(run)
-        if path.is_file() and rel.parts[0] not in NODE_LOCAL:
+        if (path.is_file() and rel.parts[0] not in NODE_LOCAL and path.name != LOCK_NAME
+                and temporary_target(path.name) is None):
             out[rel.as_posix()] = path.read_bytes()
     return out
 
 
 def write_files(run: str | Path, files: dict[str, bytes]) -> int:
-    """Write ``files`` into ``run`` where they differ from what is there; returns how many were written."""
+    """Write ``files`` into ``run`` where they differ from what is there, each crash-safe
+    (:func:`containergym_marl.files.atomic_write`); returns how many were written."""
+    from containergym_marl.files import atomic_write
+
     run = Path(run)
     written = 0
     for rel, data in files.items():
         path = run / rel
         if path.is_file() and path.read_bytes() == data:
             continue
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.part")
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
+        atomic_write(path, lambda tmp, data=data: tmp.write_bytes(data))
         written += 1
     return written
 

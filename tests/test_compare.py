@@ -146,6 +146,41 @@ def test_a_training_task_returns_what_a_driver_without_shared_storage_needs(tmp_
     assert (again["state"], again["samples"]) == ("finished", 0) and again["files"] == result["files"]
 
 
+def test_a_run_returns_to_the_driver_neither_temporary_files_nor_its_lock(tmp_path):
+    """What a training task ships to the driver is the run's files, not the temporary file of a
+    write a kill cut short, nor the lock file of the process that trained it."""
+    run = tmp_path / "run"
+    _zip(run / "final_model.zip")
+    (run / "args.json").write_text("{}")
+    (run / ".lock").write_text("pid 4242 on host node-2\n")
+    (run / ".best_model.zip.k1ll3d_0.tmp").write_bytes(b"PK\x03\x04 cut short by a kill")
+    (run / "checkpoints").mkdir()
+    _zip(run / "checkpoints" / "ckpt_128_steps.zip")
+    assert sorted(small_files(run)) == ["args.json", "final_model.zip"]
+
+
+def test_the_driver_writes_a_run_s_files_crash_safe(tmp_path, monkeypatch):
+    """write_files goes through a temporary file that is renamed: when the write fails (or the driver
+    is killed) the old file stays whole and no part of the new one is left behind."""
+    import os
+
+    from containergym_marl.sweep import write_files
+
+    run = tmp_path / "run"
+    write_files(run, {"args.json": b'{"timesteps": 1}'})
+    real = os.replace
+
+    def disk_full(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", disk_full)
+    with pytest.raises(OSError, match="No space"):
+        write_files(run, {"args.json": b'{"timesteps": 2}', "best_model.zip": b"PK"})
+    monkeypatch.setattr(os, "replace", real)
+    assert sorted(p.name for p in run.iterdir()) == ["args.json"]
+    assert (run / "args.json").read_bytes() == b'{"timesteps": 1}'
+
+
 def test_two_sweeps_never_train_one_run_at_once(tmp_path):
     fcntl = pytest.importorskip("fcntl")
     from containergym_marl.sweep import train_run

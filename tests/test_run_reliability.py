@@ -251,6 +251,78 @@ def test_training_leaves_nothing_in_the_temp_dir(tmp_path, monkeypatch, algo):
     assert sorted(p.name for p in (run / "tb").iterdir()) == ["run_1"]
 
 
+class _Killed(BaseException):
+    """Stands for SIGKILL in the middle of a checkpoint (a BaseException: nothing may catch it)."""
+
+
+def _metrics_without_wall_time(run: Path) -> list[dict]:
+    return [{k: v for k, v in r.items() if k != "wall_time_s"} for r in read_metrics(run)]
+
+
+@pytest.mark.parametrize("writes_done", [0, 1, 2])
+def test_a_kill_while_the_first_checkpoint_is_saved_never_loses_the_episode_window(
+        base_run, tmp_path, monkeypatch, writes_done):
+    """Killed after each file write of the first checkpoint (best model snapshot, model, progress):
+    the rerun must not resume from a checkpoint that lacks its progress file. (With the model
+    written before the progress file, a kill between the two left a first checkpoint that --resume
+    took for one from before progress files: the 100-episode window and the best return were lost.)
+    With no complete checkpoint the rerun starts over, so it is the uninterrupted run exactly."""
+    from containergym_marl.training import loop
+    from containergym_marl.training import runs as runs_module
+
+    saved = loop.save_checkpoint
+    count = {"writes": 0}
+
+    def killed_while_saving(*args, **kwargs):
+        def dies_after(real):
+            def write(*a, **k):
+                if count["writes"] == writes_done:
+                    raise _Killed
+                count["writes"] += 1
+                return real(*a, **k)
+            return write
+
+        monkeypatch.setattr(runs_module, "atomic_write", dies_after(runs_module.atomic_write))
+        monkeypatch.setattr(runs_module, "atomic_write_text", dies_after(runs_module.atomic_write_text))
+        return saved(*args, **kwargs)
+
+    monkeypatch.setattr(loop, "save_checkpoint", killed_while_saving)
+    run = tmp_path / "run"
+    args = dict(algo="ppo", out=str(run), timesteps=512, checkpoint_every=128, **TINY)
+    with pytest.raises(_Killed):
+        train(TrainArgs(**args))
+    monkeypatch.undo()
+    assert not (run / "final_model.zip").exists()
+
+    train(TrainArgs(**args, resume=True))
+    assert read_run_summary(run)["resumed_from"] is None  # no complete checkpoint: started over
+    assert _metrics_without_wall_time(run) == _metrics_without_wall_time(base_run)
+    from containergym_marl.training.runs import load_model
+
+    a, b = (load_model(r / "final_model.zip", "ppo").policy.state_dict() for r in (run, base_run))
+    assert all(np.array_equal(a[k].numpy(), b[k].numpy()) for k in a)
+
+
+def test_the_next_writer_removes_the_temporary_files_killed_writers_left(run_copy):
+    """A kill while a file is written leaves its temporary file (a hidden name no reader takes);
+    the next process that trains the run (it holds the run's lock) removes those of the training's
+    files. A half-written replay buffer or model would otherwise stay forever."""
+    run = run_copy
+    (run / "final_model.zip").unlink()
+    stale = [run / ".best_model.zip.k1ll3d_0.tmp", run / ".metrics.csv.k1ll3d_1.tmp",
+             run / "checkpoints" / ".ckpt_512_steps.zip.k1ll3d_2.tmp",
+             run / "checkpoints" / ".ckpt_replay_buffer_512_steps.pkl.k1ll3d_3.tmp"]
+    for path in stale:
+        path.write_bytes(b"PK\x03\x04 cut short by a kill")
+    # `containergym-marl evaluate RUN` writes into the run without its lock: not the trainer's to remove
+    evaluation = run / ".evaluation_best.json.k1ll3d_4.tmp"
+    evaluation.write_text("{")
+    train(TrainArgs(algo="ppo", out=str(run), timesteps=512, resume=True, **TINY))
+    assert [p.name for p in stale if p.exists()] == []
+    assert evaluation.exists()
+    assert (run / "final_model.zip").is_file()
+
+
 # ---- no training episode finished ----------------------------------------------------------------
 def test_a_run_without_a_finished_episode_says_so(tmp_path, capsys):
     out = tmp_path / "r"

@@ -66,3 +66,71 @@ def test_tiny_sweep_on_local_ray_then_a_rerun_trains_nothing(tmp_path, capsys):
     assert sorted(again["sweep"]["reused"]) == list(RUNS)
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
     assert json.dumps(again["rows"]) == json.dumps(report["rows"])  # (NaN shares compare equal as JSON)
+
+
+def test_compare_killed_once_then_the_same_command_resumes_and_finishes(tmp_path):
+    """The short variant of test_sweep_slow.py's random kills: SIGKILL to every process of a running
+    compare (driver, Ray, workers) once its run has a checkpoint. Nothing of it lives on, every file a
+    rerun reads is whole, and the same command resumes the run from its checkpoint and finishes.
+    The run's history up to that checkpoint (metrics rows, the checkpoints' policies) is that of a
+    plain train() of the same run: training on one torch thread is deterministic (after the resume
+    the simulations get fresh seeds, so the rest differs, see test_sweep_slow.py). The evaluation
+    is of the run's best model as it ends, and no temporary file is left in the run."""
+    import dataclasses
+    import re
+    import subprocess
+    from pathlib import Path
+
+    import numpy as np
+
+    from containergym_marl.compare import run_specs
+    from containergym_marl.sweep import sha256
+    from containergym_marl.training import train
+    from containergym_marl.training.runs import checkpoints, load_model, read_metrics, read_run_summary
+    from tests import compare_kills as kills
+
+    budget, name = 2048, "ppo_n5_m2_dt120_s1"
+    argv = ("--methods", "rule_based", "ppo", "--seeds", "1", "--timesteps", str(budget), "--checkpoint-every",
+            "512", "--hp", "n_steps=128", "batch_size=64", "--no-figures", "--num-cpus", "2")
+    out = tmp_path / "cmp"
+    run = out / "runs" / name
+    marker, env = kills.marked_env()
+    proc = kills.start(out, argv, env, tmp_path / "killed.log")
+    try:
+        kills.wait(lambda: proc.poll() is not None or any((run / "checkpoints").glob("ckpt_*_steps.zip")), 300,
+                   "a checkpoint", every_s=0.05)
+        assert proc.poll() is None, (tmp_path / "killed.log").read_text()[-3000:]
+    finally:
+        kills.kill_tree(marker)
+        proc.wait()
+    kills.wait_gone(marker)
+    kills.check_intact(out)
+    assert not (run / "final_model.zip").exists()
+
+    again = subprocess.run(kills.compare_cmd(out, *argv), capture_output=True, text=True, env=env, timeout=600)
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    kills.check_intact(out)
+    assert kills.temporary_files(out / "runs") == []
+    point = read_run_summary(run)["resumed_from"]
+    assert f"resume {name} from its checkpoint at {point:,} samples" in again.stdout
+    assert re.findall(r"resume from (\d+) samples", (out / "runs" / ".sweep" / f"{name}.log").read_text()) == [
+        str(point)]
+    assert load_model(run / "final_model.zip", "ppo").num_timesteps == budget
+    evaluation = json.loads((out / "evaluations" / "n5_m2_dt120" / "ppo_s1.json").read_text())
+    assert evaluation["compare"]["model_sha256"] == sha256((run / "best_model.zip").read_bytes())
+
+    args = CompareArgs(methods=["ppo"], seeds=[1], timesteps=budget, n_envs=1, checkpoint_every=512,
+                       hyperparams={"n_steps": 128, "batch_size": 64})
+    (spec,) = run_specs(args, out / "runs")
+    plain = Path(train(dataclasses.replace(spec, run_dir=str(tmp_path / "plain")).train_args(False)))
+
+    def upto(rows):
+        return [{k: v for k, v in r.items() if k != "wall_time_s"} for r in rows if r["timesteps"] <= point]
+
+    # a row per rollout, as the plain run: none lost, none twice
+    assert [r["timesteps"] for r in read_metrics(run)] == [r["timesteps"] for r in read_metrics(plain)]
+    assert upto(read_metrics(run)) == upto(read_metrics(plain))
+    ours, theirs = dict(checkpoints(run)), dict(checkpoints(plain))
+    for s in (s for s in ours if s <= point):
+        a, b = (load_model(c[s], "ppo").policy.state_dict() for c in (ours, theirs))
+        assert all(np.array_equal(a[k].numpy(), b[k].numpy()) for k in a), s

@@ -13,6 +13,7 @@ import csv
 import dataclasses
 import json
 import os
+import re
 import secrets
 import signal
 import socket
@@ -27,6 +28,7 @@ import pytest
 pytest.importorskip("ray")
 
 from containergym_marl.compare import CompareArgs, run_specs  # noqa: E402
+from tests import compare_kills as kills  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -96,9 +98,7 @@ def two_node_cluster(tmp_path: Path):
                 latest.unlink()
 
 
-def _compare_cmd(out: Path, *extra: str) -> list[str]:
-    return [str(BIN / "containergym-marl"), "compare", "--out", str(out), "--episodes", "2", "--n-envs", "1",
-            "--bootstrap-reps", "200", *extra]
+_compare_cmd = kills.compare_cmd
 
 
 def test_the_tiny_sweep_on_a_two_node_cluster_through_address(tmp_path):
@@ -141,7 +141,9 @@ def _wait_for_checkpoint(out: Path, run: str, proc: subprocess.Popen) -> int:
 
 def test_a_killed_training_worker_is_retried_and_resumes_the_others_are_identical(tmp_path):
     from containergym_marl.evaluation import EvalProtocol, evaluate
-    from containergym_marl.training.runs import load_model, policy_from_run, train
+    from containergym_marl.evaluation.runs import policy_from_run
+    from containergym_marl.training import train
+    from containergym_marl.training.runs import load_model
 
     out = tmp_path / "cmp"
     proc = subprocess.Popen(_compare_cmd(out, *KILL_ARGS), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -207,125 +209,187 @@ def test_ctrl_c_leaves_every_run_resumable_and_the_same_command_finishes_the_swe
     assert (out / "table.md").is_file()
 
 
-# ---- SIGKILL of the whole compare at random moments ---------------------------------------------
-def _processes_with(marker: str) -> list[int]:
-    """Pids of live processes whose environment holds ``marker`` (the compare and every Ray process it
-    started inherit it; nothing else on the machine does)."""
-    found = []
-    for proc in Path("/proc").iterdir():
-        if proc.name.isdigit():
-            with contextlib.suppress(OSError):
-                if marker.encode() in (proc / "environ").read_bytes():
-                    found.append(int(proc.name))
-    return found
+# ---- SIGKILL of the whole compare at random moments, and Ctrl-C under load ------------------------
+SOAK_BUDGET = 8192
+SOAK_ARGS = ("--methods", "rule_based", "ppo", "--seeds", "1", "2", "--timesteps", str(SOAK_BUDGET),
+             "--checkpoint-every", "1024", "--hp", "n_steps=256", "batch_size=64", "--no-figures", "--num-cpus", "2")
+#: How a compare is killed: SIGKILL to all its processes at once ("tree"); to its process group only
+#: ("group", as ``kill -9 -PGID`` or a closed terminal: Ray's workers, in groups of their own, must
+#: end by themselves); or to all at once the moment a file is being written ("mid-write": a
+#: temporary file exists).
+KILL_WAYS = ("tree", "group", "mid-write")
 
 
-def _wait_gone(marker: str, timeout_s: float = 60.0) -> None:
-    _wait(lambda: not _processes_with(marker), timeout_s, "the killed compare's processes to end")
+def _kill_at_a_random_moment(out: Path, env: dict, marker: str, rng: np.random.Generator, horizon_s: float,
+                             log: Path) -> str | None:
+    """Start compare and kill it after a random share of ``horizon_s`` in one of :data:`KILL_WAYS`;
+    returns the way, or None when compare ended first (successfully: asserted)."""
+    proc = kills.start(out, SOAK_ARGS, env, log)
+    way = KILL_WAYS[int(rng.integers(len(KILL_WAYS)))]
+    delay = float(rng.uniform(0.05, 0.8)) * horizon_s
+    try:
+        proc.wait(timeout=delay)
+    except subprocess.TimeoutExpired:
+        if way == "mid-write":
+            before = set(kills.temporary_files(out))
+            with contextlib.suppress(TimeoutError):
+                kills.wait(lambda: proc.poll() is not None or bool(set(kills.temporary_files(out)) - before),
+                           10, "a file being written", every_s=0.002)
+        if way == "group":
+            kills.kill_group(proc)
+        else:
+            kills.kill_tree(marker)
+        proc.wait()
+    kills.wait_gone(marker, timeout_s=30)  # no process of the compare outlives it (no orphaned worker)
+    if proc.returncode == 0:
+        return None
+    assert proc.returncode == -signal.SIGKILL, log.read_text()[-3000:]
+    return way
 
 
-def _check_every_file_readable(root: Path) -> None:
-    """What a later compare may read is whole: every JSON parses, every model zip is intact, every
-    complete metrics row is well formed. Files still being written are only ever *.tmp names (the
-    package writes through a temporary file and a rename); logs, pid files, locks and TensorBoard
-    event files are not read back."""
-    import zipfile
+def _same_policy(a: Path, b: Path) -> bool:
+    from containergym_marl.training.runs import load_model
 
-    from containergym_marl.training.runs import read_metrics
-
-    for path in root.rglob("*"):
-        if not path.is_file() or path.suffix == ".tmp" or ".tmp" in path.name or "tb" in path.parts:
-            continue
-        if path.suffix == ".json":
-            json.loads(path.read_text())
-        elif path.suffix == ".zip":
-            with zipfile.ZipFile(path) as z:
-                assert z.testzip() is None, path
-        elif path.name == "metrics.csv":
-            rows = read_metrics(path.parent)
-            assert all(r["timesteps"] > 0 for r in rows), path
-
-
-def _table_rows(out: Path) -> dict[tuple[str, str], dict]:
-    rows = json.loads((out / "table.json").read_text())["rows"]
-    return {(r["config"], r["method"]): r for r in rows}
+    pa, pb = (load_model(p, "ppo").policy.state_dict() for p in (a, b))
+    return pa.keys() == pb.keys() and all(np.array_equal(pa[k].numpy(), pb[k].numpy()) for k in pa)
 
 
 def test_compare_killed_at_random_moments_then_rerun_ends_as_an_uninterrupted_compare(tmp_path):
-    """SIGKILL to compare's whole process tree (driver, Ray, training and evaluation workers) at
-    random moments, then the same command again, several times. After every kill every file a
-    rerun would read is intact; the last rerun finishes; its table equals an uninterrupted run's for
-    everything that does not depend on where a run was cut: the rule-based row, and every learned
-    run that never resumed from a checkpoint (a run killed before its first checkpoint starts
-    again from scratch, so it is bit-identical). A run that resumed draws fresh simulation seeds
-    (seed + samples, see training/loop.py), so its numbers legitimately differ; for it the test
-    checks that it completed its budget with consistent metrics."""
-    from containergym_marl.training.runs import load_model, read_metrics
+    """The issue's check of crash safety at the level of ``compare``: a tiny sweep (rule_based and
+    PPO, seeds 1 and 2, 8192 samples, a checkpoint every 1024) is SIGKILLed at random moments (a
+    fixed-seed generator draws when, as a share of an uninterrupted compare's duration, and how: the
+    whole process tree, the process group only, or the moment a file is being written), and the
+    same command is run again after each kill, at least 3 and up to 6 times, then once more to its
+    end. After every kill every file a rerun reads is whole (tests/compare_kills.check_intact) and
+    no process of the killed compare lives on.
 
-    rng = np.random.default_rng(0)
-    args = ("--methods", "rule_based", "ppo", "--seeds", "1", "2", "--timesteps", "8192", "--checkpoint-every",
-            "1024", "--hp", "n_steps=256", "batch_size=64", "--no-figures", "--num-cpus", "2")
-    out = tmp_path / "cmp"
-    marker = f"CONTAINERGYM_SOAK_{secrets.token_hex(8)}"
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {marker: "1"}
-    kills = 0
-    for _ in range(8):
-        proc = subprocess.Popen(_compare_cmd(out, *args), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                env=env, start_new_session=True)
-        try:
-            proc.wait(timeout=float(rng.uniform(4.0, 30.0)))
-        except subprocess.TimeoutExpired:
-            for pid in _processes_with(marker):  # the whole tree, Ray's own process groups included
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(pid, signal.SIGKILL)
-            proc.wait()
-            _wait_gone(marker)
-            kills += 1
-            _check_every_file_readable(out)
-            continue
-        assert proc.returncode == 0
-        break
-    assert kills >= 3
+    The last rerun is compared with an uninterrupted compare of the same command in another folder:
 
-    final = subprocess.run(_compare_cmd(out, *args), capture_output=True, text=True, env=env, timeout=900)
-    assert final.returncode == 0, final.stdout[-3000:] + final.stderr[-3000:]
-    _check_every_file_readable(out)
+    * the same table.json keys and arguments (but --out), the same rows with the same columns, the
+      rule-based row identical, the same evaluation files with the same protocol and test episodes,
+      the rule-based evaluation identical; table.md is the table of the evaluation files on disk,
+      and every learned evaluation is of the best model now in its run (sha256): no evaluation of a
+      model that a later resume replaced is reused;
+    * a run that never resumed (never killed, or killed before its first checkpoint, when it starts
+      over) is the uninterrupted run exactly: metrics (but wall time), every checkpoint, the best and
+      the final model, its evaluation. With torch on one thread training is deterministic, and when
+      no run resumed the whole table.json (but --out) is the uninterrupted one;
+    * a run that resumed cannot be identical: a checkpoint holds neither the simulations in the
+      middle of their episodes nor the random streams of the simulators and of the policy's
+      sampling, so a resume starts fresh episodes with fresh seeds (seed + samples,
+      training/loop.py) and what the run learns after it differs. For such a run the history up to
+      the first checkpoint it resumed from is the uninterrupted run's exactly (metrics rows, the
+      checkpoints' policies), and after it the run is consistent: no duplicated or missing metrics
+      rows, episode counts never decreasing, the full budget, run.json naming the last resume. Its
+      table row has the same shape and budget, not the same numbers.
+
+    Then no temporary file is left in any run directory: the process that resumed a run removed
+    those that killed writers had left."""
+    from containergym_marl.evaluation import table as tables
+    from containergym_marl.sweep import sha256
+    from containergym_marl.training.runs import checkpoints, load_model, read_metrics, read_run_summary
+
+    marker, env = kills.marked_env("CONTAINERGYM_SOAK")
     reference = tmp_path / "reference"
-    uninterrupted = subprocess.run(_compare_cmd(reference, *args), capture_output=True, text=True, env=env,
-                                   timeout=900)
-    assert uninterrupted.returncode == 0, uninterrupted.stderr[-3000:]
+    started = time.monotonic()
+    plain = subprocess.run(kills.compare_cmd(reference, *SOAK_ARGS), capture_output=True, text=True, env=env,
+                           timeout=900)
+    horizon = time.monotonic() - started
+    assert plain.returncode == 0, plain.stdout[-3000:] + plain.stderr[-3000:]
+    kills.wait_gone(marker)
 
-    ours, theirs = _table_rows(out), _table_rows(reference)
-    assert ours.keys() == theirs.keys()
-    assert ours[("n5_m2_dt120", "rule_based")] == theirs[("n5_m2_dt120", "rule_based")]
-    resumed = set()
+    rng = np.random.default_rng(14)
+    out, ways = tmp_path / "cmp", []
+    for attempt in range(10):
+        way = _kill_at_a_random_moment(out, env, marker, rng, horizon, tmp_path / f"attempt_{attempt}.log")
+        if way is None:
+            break
+        ways.append(way)
+        kills.check_intact(out)
+        if len(ways) == 6:
+            break
+    assert len(ways) >= 3, ways
+
+    final = subprocess.run(kills.compare_cmd(out, *SOAK_ARGS), capture_output=True, text=True, env=env,
+                           timeout=900)
+    assert final.returncode == 0, final.stdout[-3000:] + final.stderr[-3000:]
+    kills.check_intact(out)
+    assert kills.temporary_files(out / "runs") == []
+
+    # The table: the same shape; the rule-based row identical; the table of the evaluations on disk.
+    ours, theirs = (json.loads((d / "table.json").read_text()) for d in (out, reference))
+    assert (ours["args"].pop("out"), theirs["args"].pop("out")) == (str(out), str(reference))
+    assert ours.keys() == theirs.keys() and ours["args"] == theirs["args"]
+    rows, expected_rows = ({(r["config"], r["method"]): r for r in t["rows"]} for t in (ours, theirs))
+    assert rows.keys() == expected_rows.keys() and all(rows[k].keys() == expected_rows[k].keys() for k in rows)
+    assert rows[("n5_m2_dt120", "rule_based")] == expected_rows[("n5_m2_dt120", "rule_based")]
+    assert (rows[("n5_m2_dt120", "ppo")]["seeds"], rows[("n5_m2_dt120", "ppo")]["samples"]) == (2, SOAK_BUDGET)
+    assert ours["seed_means"].keys() == theirs["seed_means"].keys()
+    regenerated = tables.build_table(tables.load_evaluations(out), reps=200)
+    assert regenerated.markdown == (out / "table.md").read_text()
+
+    # The evaluations: the same files and test episodes; each learned one of its run's best model.
+    files = sorted(p.relative_to(out) for p in (out / "evaluations").glob("*/*.json"))
+    assert files == sorted(p.relative_to(reference) for p in (reference / "evaluations").glob("*/*.json"))
+    for rel in files:
+        mine, plain_eval = (json.loads((d / rel).read_text()) for d in (out, reference))
+        assert mine.keys() == plain_eval.keys() and mine["protocol"] == plain_eval["protocol"]
+        assert [e["seed"] for e in mine["episodes"]] == [e["seed"] for e in plain_eval["episodes"]]
+        run = mine["compare"]["run"]
+        if run is None:
+            assert mine == plain_eval, rel
+        else:
+            assert mine["compare"]["model_sha256"] == sha256((out / "runs" / run / "best_model.zip").read_bytes())
+            assert {**mine["compare"], "model_sha256": None} == {**plain_eval["compare"], "model_sha256": None}
+
+    # The runs.
+    resumed = {}
     for seed in (1, 2):
-        run = f"ppo_n5_m2_dt120_s{seed}"
-        log = (out / "runs" / ".sweep" / f"{run}.log").read_text()
-        rows = read_metrics(out / "runs" / run)
-        assert [r["timesteps"] for r in rows] == sorted({r["timesteps"] for r in rows})  # no duplicated rows
-        assert load_model(out / "runs" / run / "final_model.zip", "ppo").num_timesteps == 8192
-        evaluation = json.loads((out / "evaluations" / "n5_m2_dt120" / f"ppo_s{seed}.json").read_text())
-        expected = json.loads((reference / "evaluations" / "n5_m2_dt120" / f"ppo_s{seed}.json").read_text())
-        if "resume from" in log:
-            resumed.add(run)
-        else:  # started over from nothing each time it was cut: the same run as the uninterrupted one
-            assert evaluation["episodes"] == expected["episodes"], run
-            assert _metrics(out / "runs" / run) == _metrics(reference / "runs" / run), run
+        name = f"ppo_n5_m2_dt120_s{seed}"
+        run, plain_run = out / "runs" / name, reference / "runs" / name
+        log = (out / "runs" / ".sweep" / f"{name}.log").read_text()
+        points = [int(n) for n in re.findall(r"resume from (\d+) samples", log)]
+        rows_run, rows_plain = _metrics(run), _metrics(plain_run)
+        steps = [int(r["timesteps"]) for r in read_metrics(run)]
+        episodes = [r["episodes"] for r in read_metrics(run)]
+        assert steps == sorted(set(steps)) and steps[-1] == SOAK_BUDGET, name
+        assert all(b >= a for a, b in zip(episodes, episodes[1:])), name  # a rollout may end no episode
+        assert load_model(run / "final_model.zip", "ppo").num_timesteps == SOAK_BUDGET
+        assert read_run_summary(run)["resumed_from"] == (points[-1] if points else None), name
+        ours_ckpts, plain_ckpts = dict(checkpoints(run)), dict(checkpoints(plain_run))
+        if points:  # identical up to the first checkpoint it resumed from
+            resumed[name] = points
+            first = points[0]
+            assert [r for r in rows_run if int(r["timesteps"]) <= first] == \
+                [r for r in rows_plain if int(r["timesteps"]) <= first], name
+            assert first in ours_ckpts
+            assert all(_same_policy(ours_ckpts[s], plain_ckpts[s]) for s in ours_ckpts if s <= first), name
+        else:  # never resumed: the uninterrupted run exactly
+            assert rows_run == rows_plain, name
+            assert ours_ckpts.keys() == plain_ckpts.keys()
+            assert all(_same_policy(ours_ckpts[s], plain_ckpts[s]) for s in ours_ckpts), name
+            assert _same_policy(run / "final_model.zip", plain_run / "final_model.zip"), name
+            assert _same_policy(run / "best_model.zip", plain_run / "best_model.zip"), name
+            evaluation = f"evaluations/n5_m2_dt120/ppo_s{seed}.json"
+            assert json.loads((out / evaluation).read_text())["episodes"] == \
+                json.loads((reference / evaluation).read_text())["episodes"], name
     if not resumed:
-        assert ours[("n5_m2_dt120", "ppo")] == theirs[("n5_m2_dt120", "ppo")]
+        assert ours == theirs
+    print(f"kills: {ways}; resumed runs: {resumed or 'none'}; uninterrupted compare {horizon:.0f} s")
 
 
 def test_ctrl_c_under_load_ends_compare_quickly_and_leaves_no_process(tmp_path):
-    """Ctrl-C while two trainings keep both cores busy: compare ends within 30 s with exit status 130,
-    and none of the processes it started (Ray's included) outlives it."""
+    """Ctrl-C (SIGINT to the process group, as a terminal sends it) while two trainings keep both
+    cores busy: compare ends within 30 s with exit status 130 saying that the runs resume, and none
+    of the processes it started (Ray's included) outlives it by more than 30 s."""
     out = tmp_path / "cmp"
-    marker = f"CONTAINERGYM_CTRLC_{secrets.token_hex(8)}"
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {marker: "1"}
-    proc = subprocess.Popen(_compare_cmd(out, *KILL_ARGS), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+    marker, env = kills.marked_env("CONTAINERGYM_CTRLC")
+    proc = subprocess.Popen(kills.compare_cmd(out, *KILL_ARGS), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, env=env, start_new_session=True)
+    orphans = []
     try:
         _wait_for_checkpoint(out, RUN1, proc)
+        kills.wait(lambda: len(list((out / "runs" / ".sweep").glob("*.pid"))) == 2, 120, "both runs to train")
         started = time.monotonic()
         os.killpg(proc.pid, signal.SIGINT)
         output, _ = proc.communicate(timeout=120)
@@ -333,6 +397,12 @@ def test_ctrl_c_under_load_ends_compare_quickly_and_leaves_no_process(tmp_path):
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+        try:
+            kills.wait_gone(marker, timeout_s=30)
+        except TimeoutError:
+            orphans = kills.processes_with(marker)
+            kills.kill_tree(marker)  # so that a failed check leaves no process behind
     assert proc.returncode == 130, output[-3000:]
     assert elapsed < 30, f"compare took {elapsed:.0f} s to stop after Ctrl-C"
-    _wait_gone(marker, timeout_s=30)
+    assert "interrupted: finished runs are kept, the others resume from their last checkpoint" in output
+    assert orphans == [], f"processes of the compare outlived it by 30 s: {orphans}"

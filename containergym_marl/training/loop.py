@@ -202,8 +202,9 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env):
     """(model, samples, progress) from the newest intact checkpoint, the run directory made
     consistent with it; None when there is no intact checkpoint (the run directory is then cleared
     for a fresh start)."""
-    # Progress files are written last: a checkpoint without one, newer than one with one, was cut
-    # short (older ones without are from before progress files existed).
+    # A checkpoint's model file is written after its progress file (runs.save_checkpoint). Runs
+    # saved before that order may hold a model without its progress file after a kill: cut short
+    # when an older checkpoint has one; otherwise such checkpoints are from before progress files.
     first_with_progress = min((s for s, _ in checkpoints(run) if checkpoint_files(run, s)["progress"].is_file()),
                               default=math.inf)
     for steps, path in intact_checkpoints(run):

@@ -20,7 +20,9 @@ A run directory holds everything needed to inspect, resume and evaluate a run::
 
 Every file is written crash-safe: to a temporary file in the same directory, flushed to disk, then
 renamed over the target, so a reader sees the old or the new file, never a part (metrics.csv is
-appended one fsynced row at a time, and a partial last row is ignored with a warning). Readers
+appended one fsynced row at a time, and a partial last row is ignored with a warning); the
+temporary file of a write cut short by a kill has a hidden name no reader takes, and the next
+process that trains the run removes it (:func:`remove_stale_temporaries`). Readers
 treat an unreadable model file as broken and say so; --resume falls back to the newest intact
 checkpoint.
 
@@ -44,7 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from containergym_marl.files import atomic_write, atomic_write_text
+from containergym_marl.files import atomic_write, atomic_write_text, temporary_target
 from containergym_marl.training.algorithms import get_algorithm
 
 try:
@@ -193,6 +195,25 @@ class RunLock:
         self.release()
 
 
+#: The files of a run directory that training writes (checkpoints/ is the training's too).
+TRAINING_FILES = ("args.json", "config.toml", "metrics.csv", "best_model.zip", "final_model.zip", "run.json")
+
+
+def remove_stale_temporaries(run: str | Path) -> list[Path]:
+    """Remove the temporary files that writers of the run killed while writing left behind (a
+    hidden ``.<name>.<random>.tmp`` per file cut short, a half-written model or replay buffer among
+    them); returns them. Only for the process that holds the run's :class:`RunLock`: no other
+    writer of these files can be at work. Temporary files of other files (``containergym-marl
+    evaluate`` writes evaluation_*.json without the lock) are left alone."""
+    run = Path(run)
+    found = [p for p in (run.iterdir() if run.is_dir() else []) if temporary_target(p.name) in TRAINING_FILES]
+    ckpts = run / "checkpoints"
+    found += [p for p in (ckpts.iterdir() if ckpts.is_dir() else []) if temporary_target(p.name)]
+    for path in found:
+        path.unlink(missing_ok=True)
+    return found
+
+
 def _contents(run: Path) -> list[str]:
     """What a run directory holds, without the lock file and temporary files."""
     if not run.is_dir():
@@ -241,6 +262,7 @@ def prepare_run_dir(args: TrainArgs, plant) -> tuple[Path, RunLock]:
         raise RunError(f"--resume: run directory {str(run)!r} does not exist or is empty; nothing to resume")
     lock = RunLock(run).acquire()
     try:
+        remove_stale_temporaries(run)
         existing = _contents(run)
         if args.resume:
             saved = run_args(run)
@@ -403,17 +425,20 @@ def latest_checkpoint(run: str | Path) -> tuple[Path, int] | None:
 
 def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_buffer: bool = False) -> int:
     """Save a checkpoint at ``model.num_timesteps``: the best model so far (a hard link, or a copy),
-    the model, the replay buffer, then the progress sidecar, each crash-safe. The sidecar comes last:
-    a checkpoint without it is used as one from before sidecars existed."""
+    the replay buffer, the progress sidecar, then the model, each crash-safe. The model comes last:
+    it is what makes the checkpoint exist (:func:`checkpoints` lists model files), so a kill while
+    saving leaves no checkpoint rather than a model without its sidecar (which --resume would take
+    for a checkpoint from before sidecars existed, losing the episode window), and files of a
+    checkpoint that was never completed are overwritten by the next one at the same samples."""
     steps = int(model.num_timesteps)
     files = checkpoint_files(run, steps)
     best = Path(run) / "best_model.zip"
     if best.is_file():
         _link_or_copy(best, files["best"])
-    atomic_save_model(model, files["model"])
     if replay_buffer:
         atomic_write(files["replay_buffer"], lambda tmp: _save_via_file(model.save_replay_buffer, tmp))
     atomic_write_text(files["progress"], progress.to_json())
+    atomic_save_model(model, files["model"])
     return steps
 
 
@@ -492,6 +517,7 @@ __all__ = [
     "TrainingProgress", "append_metrics", "atomic_save_model", "atomic_write", "atomic_write_text",
     "check_model_file", "checkpoint_files", "checkpoint_interval", "checkpoints", "intact_checkpoints",
     "latest_checkpoint", "load_model", "prepare_run_dir", "read_metrics", "read_progress",
-    "read_run_summary", "run_args", "run_status", "save_checkpoint", "truncate_metrics",
+    "read_run_summary", "remove_stale_temporaries", "run_args", "run_status", "save_checkpoint",
+    "truncate_metrics",
 ]
 
