@@ -3,6 +3,7 @@
     containergym-marl train --algo ppo --config n5_m2_dt120 --seed 1 --timesteps 2000000
     containergym-marl train --algo shared_ppo --config n5_m2_dt120 --seed 1 --out runs/x --resume
     containergym-marl evaluate runs/ppo_n5_m2_dt120_s1            # the run's best model, paper protocol
+    containergym-marl evaluate runs/mappo_n5_m2_dt120_s1          # a MAPPO run (baselines/train_mappo.py)
     containergym-marl evaluate rule_based --config n11_m2_dt120 --episodes 15
     containergym-marl evaluate planner --config n11_m2_dt120      # the rollout planner (planner_agents: per container)
     containergym-marl compare                                   # the main job: the shipped policies, evaluated
@@ -189,14 +190,16 @@ def _cmd_compare(ns: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from containergym_marl.training.algorithms import ALGORITHMS, REGISTRY, RULE_BASED
 
-    reward_modes = tuple(dict.fromkeys(m for spec in REGISTRY.values() for m in spec.reward_modes))
+    trained = {name: REGISTRY[name] for name in ALGORITHMS}  # the SB3 ones (mappo: baselines/train_mappo.py)
+    reward_modes = tuple(dict.fromkeys(m for spec in trained.values() for m in spec.reward_modes))
     parser = argparse.ArgumentParser(prog="containergym-marl", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
     t = sub.add_parser("train", help="train a baseline; writes a run directory")
     t.add_argument("--algo", required=True, choices=ALGORITHMS,
-                   help="; ".join(f"{name}: {spec.description}" for name, spec in REGISTRY.items()))
+                   help="; ".join(f"{name}: {spec.description}" for name, spec in trained.items())
+                   + " (MAPPO: baselines/train_mappo.py, then evaluate its run directory here)")
     t.add_argument("--config", default="n5_m2_dt120", help=f"built-in ({', '.join(list_configs())}) or a path")
     t.add_argument("--seed", type=int, default=1)
     t.add_argument("--timesteps", type=_positive_int, default=None,
@@ -206,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     t.add_argument("--n-envs", type=_positive_int, default=None,
                    help="parallel simulations (default: " + ", ".join(
-                       f"{name} {spec.default_n_envs}" for name, spec in REGISTRY.items()) + ")")
+                       f"{name} {spec.default_n_envs}" for name, spec in trained.items()) + ")")
     t.add_argument("--vec", choices=("native", "supersuit"), default="native",
                    help="shared_ppo's vectorisation: our batched env or the SuperSuit stack")
     t.add_argument("--num-cpus", type=int, default=0, help="SuperSuit worker processes")

@@ -35,7 +35,9 @@ Methods (:data:`METHODS`): ``rule_based`` (centralised) and ``rule_based_agents`
 controllers; ``planner`` and ``planner_agents``, the rollout planner through each view
 (:mod:`containergym_marl.policies.planner`, default settings); ``ppo``, ``trpo``, ``dqn``,
 ``maskable_ppo`` (centralised, SB3); ``shared_ppo`` (one PPO policy shared by the container agents,
-individual rewards) and ``shared_ppo_team`` (the same with the team reward). Runs are
+individual rewards) and ``shared_ppo_team`` (the same with the team reward). MAPPO is not one of
+them: ``baselines/train_mappo.py`` trains it with BenchMARL (the clients extra) and writes
+``mappo_s<seed>.json`` evaluation files that the table reads beside these. Runs are
 ``<runs>/<method>_<config>_s<seed>/`` and train on the config as it is (the δ = 60 rows at
 δ = 60 s); ``--timesteps paper`` gives each config the paper's budget (2M samples for n = 5, 5M for
 n >= 11).

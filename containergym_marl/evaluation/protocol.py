@@ -89,7 +89,11 @@ class EpisodeMetrics:
 
 @dataclass
 class EvaluationResult:
-    """Per-episode metrics, their aggregate, and (optionally) the full episode records."""
+    """Per-episode metrics, their aggregate, and (optionally) the full episode records.
+
+    ``training``: what the evaluated policy was trained with, when its run directory records it
+    (``run.json``'s ``"training"``, written by ``baselines/train_mappo.py``: its budget in plant steps,
+    agent steps and the table's samples); written to the JSON only when set."""
 
     policy: str
     view: str
@@ -97,6 +101,7 @@ class EvaluationResult:
     protocol: EvalProtocol
     episodes: list[EpisodeMetrics]
     records: list[EpisodeRecord] = field(default_factory=list, repr=False)
+    training: dict[str, Any] | None = None
 
     @property
     def returns(self) -> np.ndarray:
@@ -135,6 +140,7 @@ class EvaluationResult:
                 "protocol": asdict(self.protocol),
                 "summary": {k: clean(v) for k, v in self.summary().items()},
                 "episodes": [{k: clean(v) for k, v in asdict(e).items()} for e in self.episodes],
+                **({"training": self.training} if self.training is not None else {}),
             },
             indent=2,
         )

@@ -24,7 +24,10 @@ def evaluated_model(files: dict[str, bytes]) -> bytes:
 
 
 def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = True):
-    """The evaluation policy of a run directory (``which`` = "best" or "final").
+    """The evaluation policy of a run directory (``which`` = "best" or "final"): the model file and
+    the policy adapter its algorithm's registry entry names (``best_model.zip`` and an SB3 adapter,
+    or ``best_model.pt`` and :class:`~containergym_marl.policies.shared_actor.SharedActorPolicy`
+    for a MAPPO run of ``baselines/train_mappo.py``).
 
     A run in which no training episode finished has no best model (its run.json says so): asking
     for "best" then gives the final model, named so, with a :class:`RunWarning`.
@@ -34,13 +37,14 @@ def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = 
     run = Path(run)
     saved = run_args(run)
     spec = get_algorithm(saved["algo"])
-    path, label = run / f"{which}_model.zip", which
+    path, label = run / spec.model_file(which), which
     if which == "best" and not path.is_file():
         summary = read_run_summary(run)
         if summary is not None and summary.get("best_model") is None:
-            warnings.warn(f"{run}: {summary.get('note') or 'no best model; evaluating final_model.zip'}",
+            final = spec.model_file("final")
+            warnings.warn(f"{run}: {summary.get('note') or f'no best model; evaluating {final}'}",
                           RunWarning, stacklevel=2)
-            path, label = run / "final_model.zip", "final: no training episode finished"
+            path, label = run / final, "final: no training episode finished"
     model = load_model(path, algo=saved["algo"])
     return spec.policy(model, name=f"{saved['algo']}[s{saved['seed']},{label}]", deterministic=deterministic)
 
@@ -49,13 +53,17 @@ def evaluate_run(run: str | Path, config: str | None = None, which: str = "best"
                  arbitration: str | None = None, write: bool = True, on_episode=None):
     """Evaluate a run's model with the paper's test protocol (on its own config by default);
     writes ``RUN/evaluation_<which>.json`` (crash-safe) unless ``write`` is False. ``on_episode``:
-    see :func:`~containergym_marl.evaluation.evaluate`."""
+    see :func:`~containergym_marl.evaluation.evaluate`. A run whose run.json records its training
+    budget (``"training"``, as MAPPO runs do) passes it on to the result, where the table reads it."""
     from containergym_marl.evaluation import PAPER, evaluate
 
     saved = run_args(run)
     policy = policy_from_run(run, which)
     result = evaluate(policy, config or saved["config"], protocol or PAPER,
                       arbitration=arbitration or saved.get("arbitration", "fullest"), on_episode=on_episode)
+    summary = read_run_summary(run) or {}
+    if isinstance(summary.get("training"), dict):
+        result.training = summary["training"]
     if write:
         atomic_write_text(Path(run) / f"evaluation_{which}.json", result.to_json())
     return result

@@ -14,8 +14,10 @@ Output, per (config, method), in the paper's Table 1 shape: the best and the med
 training seeds (ranked by mean test return; the lower median for an even count), each as mean ± std
 over the test episodes; the interquartile mean (IQM) of the per-seed mean returns with a 95 %
 stratified-bootstrap interval; the best policy's overflow rate, emptyings, share of emptyings with
-reward >= 0.75, denied requests and PU utilisation; the training budget per run. The paper's own
-PPO/TRPO/DQN rows follow each config. Below the table: for each (decentralised, centralised) pair,
+reward >= 0.75, denied requests and PU utilisation; the training budget per run (in samples, one per
+decision of the trained policy: plant steps for centralised methods, agent steps for decentralised
+ones such as shared PPO and MAPPO). The paper's own PPO/TRPO/DQN rows follow each config. Below
+the table: for each (decentralised, centralised) pair,
 the probability that a run of the first beats a run of the second, with its interval (over training
 seeds; over test episodes for the rule-based controllers, which have no seeds).
 
@@ -187,9 +189,10 @@ def _summary_value(evaluation: dict, key: str) -> float:
 
 
 def _budget(group: MethodEvaluations) -> int | None:
-    """Training samples per run (plant steps): compare's record, or the training record a script
-    such as baselines/train_mappo.py writes."""
-    budgets = {e.get("compare", {}).get("timesteps") or e.get("training", {}).get("plant_steps")
+    """Training samples per run, one per decision of the policy (plant steps for a centralised
+    method, agent steps for a decentralised one): compare's record, or the training record of a run
+    trained by a script (baselines/train_mappo.py: ``training.samples``, its budget in agent steps)."""
+    budgets = {e.get("compare", {}).get("timesteps") or e.get("training", {}).get("samples")
                for e in group.evaluations}
     return budgets.pop() if len(budgets) == 1 else None
 
@@ -264,7 +267,8 @@ def markdown(rows: Sequence[dict], imps: Sequence[dict], groups: Sequence[Method
         f"Test cumulative reward ({_protocol_text(groups)}). Best / median: the best and the median policy "
         "over training seeds, mean ± std over test episodes. IQM: interquartile mean of the per-seed mean "
         "returns [95 % stratified-bootstrap CI]. Overflow rate … PU busy: of the best policy. "
-        "Samples: training budget per run.",
+        "Samples: training budget per run, one sample per decision of the trained policy (a plant step "
+        "for a centralised method, an agent step for a decentralised one: n per plant step).",
         "",
         "| config | method | view | seeds | best | median | IQM [95 % CI] | overflow rate | emptyings | "
         "r ≥ 0.75 | denied req. | PU busy | samples |",
@@ -393,7 +397,8 @@ def _rich_table(table: Table, shipped: bool, narrow: bool):
         "best / median: the best and the median policy over training seeds (by mean test return), mean ± std over "
         "the test episodes; " + ("" if narrow else "IQM: interquartile mean of the per-seed means; ")
         + "overflow: share of the best policy's test episodes that end in an overflow; samples: training budget "
-        "per run. Paper PPO: Table 1 of the paper ("
+        "per run (plant steps for centralised methods, agent steps for decentralised ones). Paper PPO: Table 1 "
+        "of the paper ("
         + ("views, IQM, " if narrow else "") + "TRPO, DQN and more columns in table.md)."
         + (" Learned methods: their finished shipped seeds; the best seed's policy (and any seed without a "
            "published evaluation) is evaluated now, the other seeds' numbers are their published evaluations."

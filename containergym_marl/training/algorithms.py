@@ -5,6 +5,11 @@ needed), which view of the plant it acts on, how many simulations it steps by de
 learns from rollouts (``n_steps`` samples per update) or from a replay buffer, and which policy
 adapter evaluates its models. Adding an algorithm = one entry in :data:`REGISTRY`.
 
+An entry without an SB3 class is trained by a script of its own (``trainer``) and only evaluated
+here: ``mappo`` (BenchMARL's MAPPO, ``baselines/train_mappo.py``), whose run directories
+``containergym-marl evaluate`` reads like any other. :data:`ALGORITHMS` lists the SB3 ones, which
+``containergym-marl train`` and ``compare`` train.
+
 The non-learned controllers that are evaluated next to the algorithms (the paper's rule) are in
 :data:`RULE_BASED`; :data:`METHODS` lists everything a comparison can hold.
 """
@@ -23,6 +28,7 @@ from containergym_marl.policies import (
     RuleBasedController,
     SharedModelPolicy,
 )
+from containergym_marl.policies.shared_actor import SharedActorPolicy
 
 #: Samples per policy update of the rollout algorithms (the paper's n_steps with one environment).
 ROLLOUT_SAMPLES = 6144
@@ -62,9 +68,11 @@ class AlgorithmSpec:
 
     Attributes:
         name: the registry key (CLI ``--algo``, run directory names, table rows).
-        class_path: ``"module:Class"`` of the SB3 / sb3-contrib algorithm (imported by :meth:`load_class`).
+        class_path: ``"module:Class"`` of the SB3 / sb3-contrib algorithm (imported by :meth:`load_class`),
+            or None for an algorithm that ``trainer`` trains outside SB3.
         policy_adapter: the class that evaluates its models; its ``view`` ("centralised" or
-            "decentralised") is the algorithm's view.
+            "decentralised") is the algorithm's view. For a non-SB3 algorithm it also loads them
+            (``policy_adapter.load_model(path)``).
         description: one line for help texts and the baseline script.
         default_n_envs: simulations stepped together when the caller gives none.
         rollout: True for on-policy algorithms (``n_steps`` samples per update, see
@@ -75,10 +83,13 @@ class AlgorithmSpec:
         reward_modes: the agent reward modes a decentralised algorithm can train with (the first
             is the default); () for centralised ones, which train on the plant reward.
         extra_modules: modules it needs beyond torch and stable_baselines3 (for error messages).
+        trainer: what trains it: ``containergym-marl train`` for the SB3 algorithms, a script otherwise.
+        model_suffix: the suffix of its model files in a run directory (``best_model<suffix>``,
+            ``final_model<suffix>``): SB3's ``.zip``, or a torch file (``.pt``).
     """
 
     name: str
-    class_path: str
+    class_path: str | None
     policy_adapter: type
     description: str
     default_n_envs: int = 8
@@ -87,10 +98,21 @@ class AlgorithmSpec:
     adam_eps: float | None = 1e-5
     reward_modes: tuple[str, ...] = ()
     extra_modules: tuple[str, ...] = ()
+    trainer: str = "containergym-marl train"
+    model_suffix: str = ".zip"
 
     @property
     def view(self) -> str:
         return self.policy_adapter.view
+
+    @property
+    def sb3(self) -> bool:
+        """Trained by Stable-Baselines3 (``containergym-marl train``, ``compare``)."""
+        return self.class_path is not None
+
+    def model_file(self, which: str) -> str:
+        """The file name of a run's ``which`` ("best" or "final") model."""
+        return f"{which}_model{self.model_suffix}"
 
     @property
     def replay_buffer(self) -> bool:
@@ -98,6 +120,8 @@ class AlgorithmSpec:
 
     def load_class(self):
         """The SB3 algorithm class, with an error naming the ``train`` extra when it is missing."""
+        if not self.sb3:
+            raise ValueError(f"{self.name} is not a Stable-Baselines3 algorithm: it is trained by {self.trainer}")
         require_training_extra(self.extra_modules)
         module, cls = self.class_path.split(":")
         return getattr(importlib.import_module(module), cls)
@@ -152,13 +176,19 @@ REGISTRY: dict[str, AlgorithmSpec] = {
         AlgorithmSpec("shared_ppo", "stable_baselines3:PPO", SharedModelPolicy,
                       "decentralised PPO: one policy shared by every container agent",
                       reward_modes=("individual", "team")),
+        AlgorithmSpec("mappo", None, SharedActorPolicy,
+                      "MAPPO (BenchMARL, CTDE): one actor shared by the container agents, a critic on the "
+                      "global state; team reward (its settings are BenchMARL's, in the script)",
+                      reward_modes=("team",), extra_modules=("benchmarl",), trainer="baselines/train_mappo.py",
+                      model_suffix=".pt"),
     )
 }
-#: The algorithms' names, in registry order.
-ALGORITHMS: tuple[str, ...] = tuple(REGISTRY)
+#: The SB3 algorithms' names, in registry order: what ``containergym-marl train --algo`` and
+#: ``compare`` train. The other entries (mappo) are trained by their own script.
+ALGORITHMS: tuple[str, ...] = tuple(name for name, spec in REGISTRY.items() if spec.sb3)
 #: The paper's rule-based controllers, by name (no training; evaluated with the algorithms).
 RULE_BASED: dict[str, type] = {cls.name: cls for cls in (RuleBasedController, RuleBasedAgents)}
-#: Every method a comparison can hold: the rule-based controllers, then the algorithms.
+#: Every method a comparison can hold: the rule-based controllers, then the SB3 algorithms.
 METHODS: tuple[str, ...] = (*RULE_BASED, *ALGORITHMS)
 
 
@@ -167,7 +197,7 @@ def get_algorithm(name: str) -> AlgorithmSpec:
     try:
         return REGISTRY[name]
     except (KeyError, TypeError):
-        raise ValueError(f"algo: unknown algorithm {name!r}; choose one of {ALGORITHMS}") from None
+        raise ValueError(f"algo: unknown algorithm {name!r}; choose one of {tuple(REGISTRY)}") from None
 
 
 def view_of(method: str) -> str:

@@ -28,6 +28,11 @@ checkpoint.
 
 Budgets are SB3 timesteps, i.e. samples: one per environment step for the centralised algorithms
 and one per *agent* step for shared PPO (a simulation step of an n-container plant gives n samples).
+
+MAPPO runs (``baselines/train_mappo.py``, BenchMARL) follow this layout where it applies: their
+models are ``best_model.pt`` / ``final_model.pt`` (a plain torch actor), their checkpoints are
+BenchMARL's (``benchmarl/<experiment>/checkpoints/``), their budget and metrics count plant steps,
+and run.json's ``"training"`` states the budget in plant steps and agent steps.
 """
 
 from __future__ import annotations
@@ -110,6 +115,8 @@ class TrainArgs:
     def validate(self) -> None:
         """Refuse bad values up front (a ValueError naming the argument)."""
         spec = get_algorithm(self.algo)
+        if not spec.sb3:
+            raise ValueError(f"algo: {self.algo} is not trained by containergym-marl train but by {spec.trainer}")
         for name in ("timesteps", "n_envs", "checkpoint_every"):
             value = getattr(self, name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
@@ -486,11 +493,16 @@ def check_model_file(path: str | Path) -> None:
 
 
 def load_model(path: str | Path, algo: str, env=None):
-    """Load an SB3 model file with a clear error when it is missing, broken or not a model of ``algo``."""
+    """Load a model file of ``algo`` with a clear error when it is missing, broken or not a model of
+    ``algo``: an SB3 model, or for an algorithm trained outside SB3 (mappo) what its policy
+    adapter's ``load_model`` reads (``env`` is then unused)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"model file {str(path)!r} does not exist")
-    cls = get_algorithm(algo).load_class()
+    spec = get_algorithm(algo)
+    if not spec.sb3:
+        return spec.policy_adapter.load_model(path)
+    cls = spec.load_class()
     check_model_file(path)
     try:
         return cls.load(path, env=env, device="cpu")
