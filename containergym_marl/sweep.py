@@ -382,8 +382,8 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
         files = run["files"]  # evaluation.runs.evaluated_files of the run
         model_sha = sha256(evaluated_model(files))
         with tempfile.TemporaryDirectory(prefix="cgm-eval-") as tmp:
-            write_files(tmp, {k: files[k] for k in ("args.json", "run.json", "best_model.zip", "final_model.zip")
-                              if k in files})
+            write_files(tmp, {k: v for k, v in files.items()
+                              if k in ("args.json", "run.json") or k.startswith(("best_model.", "final_model."))})
             policy = policy_from_run(tmp, "best")
             result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
     return result, model_sha

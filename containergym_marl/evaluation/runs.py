@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 
@@ -11,16 +12,20 @@ from containergym_marl.training.runs import RunWarning, atomic_write_text, load_
 
 def evaluated_files(run: str | Path) -> tuple[str, ...]:
     """The files of a finished run that its evaluation reads (``policy_from_run(run, "best")``):
-    ``args.json`` and ``best_model.zip``, or, when no training episode finished (so no best model),
-    ``args.json``, ``run.json`` and ``final_model.zip``."""
-    if (Path(run) / "best_model.zip").is_file():
-        return "args.json", "best_model.zip"
-    return "args.json", "run.json", "final_model.zip"
+    ``args.json`` and the best model, or, when no training episode finished (so no best model),
+    ``args.json``, ``run.json`` and the final model (file names from the algorithm's registry entry)."""
+    spec = get_algorithm(run_args(run)["algo"])
+    if (Path(run) / spec.model_file("best")).is_file():
+        return "args.json", spec.model_file("best")
+    return "args.json", "run.json", spec.model_file("final")
 
 
 def evaluated_model(files: dict[str, bytes]) -> bytes:
-    """The model among ``files`` (from :func:`evaluated_files`) that the evaluation uses."""
-    return files["best_model.zip"] if "best_model.zip" in files else files["final_model.zip"]
+    """The model among ``files`` (a run's files, e.g. :func:`evaluated_files`) that the evaluation
+    uses: the best model, else the final one."""
+    spec = get_algorithm(json.loads(files["args.json"])["algo"])
+    best = spec.model_file("best")
+    return files[best] if best in files else files[spec.model_file("final")]
 
 
 def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = True):
