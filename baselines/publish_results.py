@@ -4,14 +4,17 @@ evaluation, the best and median model of each (row, method), the table), and bri
     python baselines/publish_results.py --runs RUNS --compare OUT --to results/paper_rows
     python baselines/publish_results.py --runs RUNS --compare OUT --to results/paper_rows --restore
 
-RUNS is compare's ``--runs`` folder, OUT its ``--out`` folder. For every finished run (a readable
-``final_model.zip``) it copies ``args.json``, ``run.json``, ``config.toml``, ``metrics.csv``,
-``best_model.zip`` (the policy the evaluations use) and ``final_model.zip`` to ``<to>/runs/<run>/``
-(~330 kB a run); with ``--with-checkpoints``, every interrupted run too, with only its newest intact
-checkpoint, so that a later session on another machine resumes it (``--restore``). Every evaluation
-file of OUT goes to ``<to>/evaluations/<config>/``; for each (config, method) with at least
-``--min-seeds`` evaluated seeds, the best model of its best and of its median seed by mean test
-return (the table's rule) to ``<to>/models/<config>/<method>_{best,median}.zip`` with
+RUNS is compare's ``--runs`` folder, OUT its ``--out`` folder (MAPPO runs of
+``baselines/sweep_mappo_rows.sh`` go to the same two). For every finished run (its final model) it
+copies ``args.json``, ``run.json``, ``config.toml``, ``metrics.csv``, the best model (the policy the
+evaluations use) and the final model (``best_model.zip``/``final_model.zip``, or ``.pt`` for MAPPO:
+the file names of the algorithm's registry entry) to ``<to>/runs/<run>/`` (~330 kB an SB3 run);
+with ``--with-checkpoints``, every interrupted SB3 run too, with only its newest intact checkpoint,
+so that a later session on another machine resumes it (``--restore``; an interrupted MAPPO run,
+~15 minutes of training, is not published). Every evaluation file of OUT goes to
+``<to>/evaluations/<config>/``; for each (config, method) with at least ``--min-seeds`` evaluated
+seeds, the best model of its best and of its median seed by mean test return (the table's rule) to
+``<to>/models/<config>/<method>_{best,median}.zip`` (``.pt`` for MAPPO) with
 ``<method>.json`` naming the seeds and their returns (git stores each of these once: they are the
 runs' own files). Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
 (``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same). Rerunning it is
@@ -33,10 +36,17 @@ from containergym_marl.compare import PAIRS
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.sweep import latest_readable_checkpoint
-from containergym_marl.training.runs import checkpoint_files, checkpoints, run_status
+from containergym_marl.training.algorithms import get_algorithm
+from containergym_marl.training.runs import checkpoint_files, checkpoints, run_args, run_status
 
 SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
-MODELS = ("best_model.zip", "final_model.zip")
+
+
+def _model_files(run: Path) -> tuple[str, str]:
+    """The run's best and final model files, named by its algorithm's registry entry (``.zip`` for
+    SB3 runs, ``.pt`` for MAPPO runs of baselines/train_mappo.py)."""
+    spec = get_algorithm(run_args(run)["algo"])
+    return spec.model_file("best"), spec.model_file("final")
 
 
 def _copy(src: Path, dst: Path) -> None:
@@ -52,8 +62,9 @@ def _trained_samples(run: Path) -> int:
 
 
 def _copy_run(run: Path, dst: Path) -> None:
-    """The run's small files and policies; for an unfinished run, its newest intact checkpoint only."""
-    for name in SMALL_FILES + MODELS:
+    """The run's small files and policies; for an unfinished run, its newest intact checkpoint only
+    (SB3 runs: a MAPPO run's BenchMARL folder, checkpoints included, stays behind)."""
+    for name in SMALL_FILES + _model_files(run):
         if (run / name).is_file():
             _copy(run / name, dst / name)
     keep = set()
@@ -96,15 +107,17 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
         picked = {"best": group.best, "median": group.median}
         folder = to / "models" / group.config
         for which, i in picked.items():
-            model = runs_of[i] / "best_model.zip"
+            best, final = _model_files(runs_of[i])
+            model = runs_of[i] / best
             if not model.is_file():  # no training episode finished: the evaluation used the final model
-                model = runs_of[i] / "final_model.zip"
-            _copy(model, folder / f"{group.method}_{which}.zip")
+                model = runs_of[i] / final
+            _copy(model, folder / f"{group.method}_{which}{model.suffix}")
         atomic_write_text(folder / f"{group.method}.json", json.dumps({
             "config": group.config, "method": group.method, "view": group.view,
             "best_seed": group.seeds[picked["best"]], "median_seed": group.seeds[picked["median"]],
             "seed_mean_returns": {str(s): float(m) for s, m in zip(group.seeds, means)},
-            "files": {which: f"{group.method}_{which}.zip" for which in picked},
+            "files": {which: f"{group.method}_{which}{Path(_model_files(runs_of[i])[0]).suffix}"
+                      for which, i in picked.items()},
         }, indent=2) + "\n")
         done["models"].append(f"{group.config}/{group.method}")
     table = tables.build_table(tables.load_evaluations(to / "evaluations"), PAIRS)
@@ -149,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"restored {len(done['runs'])} run(s) and {done['evaluations']} evaluation(s) from {ns.to}/")
         return 0
     done = publish(ns.runs, ns.compare, ns.to, ns.min_seeds, ns.with_checkpoints)
-    size = sum(p.stat().st_size for p in (ns.to / "models").rglob("*.zip")) if (ns.to / "models").exists() else 0
+    size = sum(p.stat().st_size for p in (ns.to / "models").rglob("*_*.*") if p.suffix in (".zip", ".pt"))
     print(f"published {len(done['runs'])} finished run(s), {len(done['interrupted'])} interrupted one(s) with "
           f"their newest checkpoint, {done['evaluations']} evaluation(s), models of "
           f"{len(done['models'])} (row, method) pair(s) ({size / 1e6:.1f} MB of models) to {ns.to}/")

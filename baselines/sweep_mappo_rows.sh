@@ -6,13 +6,13 @@
 # run on one free core. Resumable: rerun it to continue (finished runs are evaluated again only if their
 # evaluation file is missing; interrupted runs resume from their newest checkpoint).
 #
-#   RUNS=runs/mappo EVALUATIONS=results/compare_paper/evaluations bash baselines/sweep_mappo_rows.sh
+#   RUNS=runs/paper EVALUATIONS=results/compare_paper/evaluations bash baselines/sweep_mappo_rows.sh
 #
 # Needs the clients extra (.venv-clients: ./run test-clients sets it up). The evaluations land beside
 # compare's, named mappo_s<seed>.json, so publish_results.py and the table take them as method "mappo".
 set -euo pipefail
 cd "$(dirname "$0")/.."
-RUNS=${RUNS:-runs/mappo}
+RUNS=${RUNS:-runs/paper}
 EVALUATIONS=${EVALUATIONS:-results/compare_paper/evaluations}
 PYTHON=${PYTHON:-.venv-clients/bin/python}
 SEEDS=${SEEDS:-1 2 3}

@@ -190,3 +190,38 @@ def test_interrupted_run_resumes_from_its_checkpoint(script, tmp_path, monkeypat
     assert (summary["timesteps"], summary["resumed_from"], summary["training"]["agent_steps"]) == (2400, 1200, 12000)
     assert summary["episodes"] == read_metrics(run)[-1]["episodes"]
     assert [s for s, _ in script.checkpoints(run)] == [2400]  # the earlier ones are removed at the end
+
+
+def test_a_finished_run_is_published_with_its_torch_models(trained, tmp_path):
+    """baselines/publish_results.py ships a MAPPO run like an SB3 one: finished by its final_model.pt
+    (the registry's file name; before, only final_model.zip counted, so MAPPO runs stayed behind),
+    its small files and both .pt models, and the best/median model of the (row, method)."""
+    import shutil
+
+    from containergym_marl.training.runs import run_status
+
+    run, evaluations, evaluation, _ = trained
+    runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "published"
+    shutil.copytree(run, runs / "mappo_n5_m2_dt120_s3")
+    shutil.copytree(evaluations, out / "evaluations")
+    assert run_status(runs / "mappo_n5_m2_dt120_s3") == "finished"
+    spec = importlib.util.spec_from_file_location("publish_results", ROOT / "baselines" / "publish_results.py")
+    publish_results = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(publish_results)
+
+    done = publish_results.publish(runs, out, to, min_seeds=1)
+
+    assert done["runs"] == ["mappo_n5_m2_dt120_s3"] and done["models"] == ["n5_m2_dt120/mappo"]
+    shipped = to / "runs" / "mappo_n5_m2_dt120_s3"
+    assert sorted(p.name for p in shipped.iterdir()) == sorted(
+        ["args.json", "run.json", "config.toml", "metrics.csv", "best_model.pt", "final_model.pt"])
+    for which in ("best", "median"):  # one seed: it is both
+        assert (to / "models" / "n5_m2_dt120" / f"mappo_{which}.pt").read_bytes() == (run / "best_model.pt").read_bytes()
+    meta = json.loads((to / "models" / "n5_m2_dt120" / "mappo.json").read_text())
+    assert meta["files"] == {"best": "mappo_best.pt", "median": "mappo_median.pt"} and meta["best_seed"] == 3
+    assert "| n5_m2_dt120 | mappo |" in (to / "table.md").read_text()
+    # the shipped run, read with torch alone, gives the published evaluation again
+    from containergym_marl.evaluation.runs import evaluate_run
+
+    again = evaluate_run(shipped, protocol=EvalProtocol(episodes=2), write=False)
+    assert json.loads(again.to_json()) == evaluation

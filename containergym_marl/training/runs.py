@@ -253,12 +253,22 @@ def read_run_summary(run: str | Path) -> dict[str, Any] | None:
 
 
 def run_status(run: str | Path) -> str:
-    """"absent" (nothing there), "finished" (a final model), or "interrupted" (started, not
+    """"absent" (nothing there), "finished" (a final model: the file its algorithm's registry entry
+    names, ``final_model.zip`` or a MAPPO run's ``final_model.pt``), or "interrupted" (started, not
     finished: rerunning with ``resume=True`` continues it)."""
     run = Path(run)
     if not _contents(run):
         return "absent"
-    return "finished" if (run / "final_model.zip").is_file() else "interrupted"
+    return "finished" if (run / final_model_file(run)).is_file() else "interrupted"
+
+
+def final_model_file(run: str | Path) -> str:
+    """The name of a run's final model, from the algorithm its args.json names (``final_model.zip``
+    for a run without a readable args.json: SB3's, the only kind trained before args.json)."""
+    try:
+        return get_algorithm(run_args(run)["algo"]).model_file("final")
+    except (FileNotFoundError, RunError, KeyError, ValueError):
+        return "final_model.zip"
 
 
 def prepare_run_dir(args: TrainArgs, plant) -> tuple[Path, RunLock]:
@@ -529,7 +539,7 @@ __all__ = [
     "TrainingProgress", "append_metrics", "atomic_save_model", "atomic_write", "atomic_write_text",
     "check_model_file", "checkpoint_files", "checkpoint_interval", "checkpoints", "intact_checkpoints",
     "latest_checkpoint", "load_model", "prepare_run_dir", "read_metrics", "read_progress",
-    "read_run_summary", "remove_stale_temporaries", "run_args", "run_status", "save_checkpoint",
+    "read_run_summary", "remove_stale_temporaries", "run_args", "run_status", "final_model_file", "save_checkpoint",
     "truncate_metrics",
 ]
 
