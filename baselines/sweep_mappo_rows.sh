@@ -16,8 +16,9 @@ RUNS=${RUNS:-runs/paper}
 EVALUATIONS=${EVALUATIONS:-results/compare_paper/evaluations}
 PYTHON=${PYTHON:-.venv-clients/bin/python}
 SEEDS=${SEEDS:-1 2 3}
+CONFIGS=${CONFIGS:-n5_m2_dt120 n11_m2_dt120}  # e.g. CONFIGS=n11_m2_dt120 in a second process beside the first
 declare -A PLANT_STEPS=([n5_m2_dt120]=400000 [n11_m2_dt120]=454546)  # ceil(agent-step budget / n)
-for config in n5_m2_dt120 n11_m2_dt120; do
+for config in $CONFIGS; do
   for seed in $SEEDS; do
     run="$RUNS/mappo_${config}_s${seed}"
     if [ -f "$EVALUATIONS/$config/mappo_s${seed}.json" ] && [ -f "$run/final_model.pt" ]; then
