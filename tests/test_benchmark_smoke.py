@@ -71,6 +71,11 @@ def test_smoke_run_prints_every_table(tmp_path):
     header, rows = _table(lines, "## Where the time goes at B = 1")
     assert header[:5] == ["path", "n", "untimed", "with timers", "kernel"] and "resets" in header
     assert len(rows) == 4 and all(len(r) == len(header) for r in rows)
+    # every path steps the kernel and the core around it (both read 0.0 while the timers wrapped
+    # functions the simulator no longer called)
+    for r in rows:
+        parts = dict(zip(header, r))
+        assert _number(parts["kernel"]) > 0 and _number(parts["core around the kernel"]) > 0, parts
 
     header, rows = _table(lines, "## SB3 PPO training")
     assert header == ["algorithm", "env slots", "samples/s", "env share of wall time", "projected 2M samples (min)"]
