@@ -17,8 +17,9 @@ seeds, the best model of its best and of its median seed by mean test return (th
 ``<to>/models/<config>/<method>_{best,median}.zip`` (``.pt`` for MAPPO) with
 ``<method>.json`` naming the seeds and their returns (git stores each of these once: they are the
 runs' own files). Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
-(``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same). Rerunning it is
-safe: files are replaced atomically, nothing else is touched.
+(``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same), and with ``--readme
+README.md`` shown in the README between its results-table markers (a test checks that the README shows
+the committed table). Rerunning it is safe: files are replaced atomically, nothing else is touched.
 
 ``--restore`` goes the other way before a sweep is rerun on a fresh machine: runs of ``<to>/runs``
 that RUNS lacks or holds less far trained are copied there, evaluations OUT lacks are copied to
@@ -80,7 +81,8 @@ def _copy_run(run: Path, dst: Path) -> None:
         (dst / "checkpoints").rmdir()
 
 
-def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_checkpoints: bool = False) -> dict:
+def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_checkpoints: bool = False,
+            readme: Path | None = None) -> dict:
     done = {"runs": [], "interrupted": [], "evaluations": 0, "models": []}
     for run in sorted(p for p in runs.iterdir() if p.is_dir() and not p.name.startswith(".")):
         status = run_status(run)
@@ -122,7 +124,27 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
         done["models"].append(f"{group.config}/{group.method}")
     table = tables.build_table(tables.load_evaluations(to / "evaluations"), PAIRS)
     table.write(to, {"source": "baselines/publish_results.py"})
+    if readme is not None:
+        show_table_in_readme(readme, (to / "table.md").read_text(), to)
     return done
+
+
+README_START = "<!-- results table: written by baselines/publish_results.py from {source}; do not edit -->"
+README_START_PREFIX = "<!-- results table:"
+README_END = "<!-- end of results table -->"
+
+
+def show_table_in_readme(readme: Path, table_md: str, source: Path) -> None:
+    """Replace the README's results-table block (between its two marker lines) by ``table_md``."""
+    text = readme.read_text()
+    lines = text.splitlines(keepends=True)
+    starts = [i for i, line in enumerate(lines) if line.startswith(README_START_PREFIX)]
+    ends = [i for i, line in enumerate(lines) if line.strip() == README_END]
+    if len(starts) != 1 or len(ends) != 1 or ends[0] < starts[0]:
+        raise SystemExit(f"{readme}: expected one results-table block ({README_START_PREFIX} ... --> then "
+                         f"{README_END}); found {len(starts)} start and {len(ends)} end marker(s)")
+    block = [README_START.format(source=source.as_posix()) + "\n", "\n", table_md.rstrip("\n") + "\n", "\n"]
+    atomic_write_text(readme, "".join(lines[:starts[0]] + block + lines[ends[0]:]))
 
 
 def restore(to: Path, runs: Path, compare_out: Path) -> dict:
@@ -154,6 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--min-seeds", type=int, default=3, help="ship models of a (row, method) from this many seeds on")
     parser.add_argument("--with-checkpoints", action="store_true",
                         help="also publish interrupted runs with their newest checkpoint (resumable elsewhere)")
+    parser.add_argument("--readme", type=Path, default=None,
+                        help="also show the table in this README, between its results-table markers")
     parser.add_argument("--restore", action="store_true",
                         help="copy published runs and evaluations back into --runs and --compare instead")
     ns = parser.parse_args(argv)
@@ -161,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         done = restore(ns.to, ns.runs, ns.compare)
         print(f"restored {len(done['runs'])} run(s) and {done['evaluations']} evaluation(s) from {ns.to}/")
         return 0
-    done = publish(ns.runs, ns.compare, ns.to, ns.min_seeds, ns.with_checkpoints)
+    done = publish(ns.runs, ns.compare, ns.to, ns.min_seeds, ns.with_checkpoints, ns.readme)
     size = sum(p.stat().st_size for p in (ns.to / "models").rglob("*_*.*") if p.suffix in (".zip", ".pt"))
     print(f"published {len(done['runs'])} finished run(s), {len(done['interrupted'])} interrupted one(s) with "
           f"their newest checkpoint, {done['evaluations']} evaluation(s), models of "

@@ -129,8 +129,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("shared_ppo_team", algo="shared_ppo", train=(("reward_mode", "team"),),
            counterpart="ppo"),
 )}
-#: (decentralised, centralised) pairs whose probability of improvement the table reports.
-PAIRS = tuple((m.name, m.counterpart) for m in METHODS.values() if m.counterpart)
+#: (decentralised, centralised) pairs whose probability of improvement the table reports; MAPPO
+#: (trained by baselines/train_mappo.py, whose evaluation files the table reads) against PPO too.
+PAIRS = tuple((m.name, m.counterpart) for m in METHODS.values() if m.counterpart) + (("mappo", "ppo"),)
 #: The samples per run of ``compare --train`` (a look in minutes, not a result).
 QUICK_TIMESTEPS = 30_000
 #: The rows of the comparison the repository publishes (baselines/sweep_paper_rows.sh): the paper's
