@@ -11,12 +11,10 @@ some end and a best model is kept).
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -32,18 +30,14 @@ from containergym_marl.evaluation.runs import policy_from_run  # noqa: E402
 from containergym_marl.policies.shared_actor import SharedActor, SharedActorPolicy  # noqa: E402
 from containergym_marl.policies.torchrl_policy import TorchRLAgentsPolicy  # noqa: E402
 from containergym_marl.training.runs import METRIC_FIELDS, read_metrics  # noqa: E402
+from tests.conftest import load_script  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--frames-per-batch", "600", "--n-envs", "4", "--episodes", "2", "--override", "episode_length_steps=50",
         "--hp", "on_policy_n_minibatch_iters=2", "num_cells=[16,16]"]
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("train_mappo", ROOT / "baselines" / "train_mappo.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    return load_script("baselines/train_mappo.py")
 
 
 @pytest.fixture(scope="module")
@@ -205,9 +199,7 @@ def test_a_finished_run_is_published_with_its_torch_models(trained, tmp_path):
     shutil.copytree(run, runs / "mappo_n5_m2_dt120_s3")
     shutil.copytree(evaluations, out / "evaluations")
     assert run_status(runs / "mappo_n5_m2_dt120_s3") == "finished"
-    spec = importlib.util.spec_from_file_location("publish_results", ROOT / "baselines" / "publish_results.py")
-    publish_results = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(publish_results)
+    publish_results = load_script("baselines/publish_results.py")
 
     done = publish_results.publish(runs, out, to, min_seeds=1)
 

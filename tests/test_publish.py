@@ -3,24 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 
 from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.runs import evaluate_run
 from containergym_marl.training import TrainArgs, train
+from tests.conftest import load_script
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _publish_module():
-    spec = importlib.util.spec_from_file_location("publish_results", ROOT / "baselines" / "publish_results.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("baselines/publish_results.py")
 
 
 def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(tmp_path):

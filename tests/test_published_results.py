@@ -4,20 +4,17 @@ clone does), and the README shows that table between its results-table markers."
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 from containergym_marl.evaluation import table as tables
+from tests.conftest import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 PUBLISHED = ROOT / "results" / "paper_rows"
 
 
 def _publish_module():
-    spec = importlib.util.spec_from_file_location("publish_results", ROOT / "baselines" / "publish_results.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("baselines/publish_results.py")
 
 
 def test_committed_table_is_the_table_of_the_committed_evaluations(tmp_path):
