@@ -688,8 +688,19 @@ def _drain(events, progress: Progress) -> None:
 
 
 def estimate_rate(runs_root: str | Path) -> float:
-    """Samples/s per run measured by earlier runs under ``runs_root`` (median), else :data:`DEFAULT_RATE`."""
-    rates = sorted(r for p in Path(runs_root).glob("*/metrics.csv") if (r := measured_rate(p.parent)))
+    """Samples/s per run measured by earlier SB3 runs under ``runs_root`` (median), else
+    :data:`DEFAULT_RATE`. Runs that compare does not train (MAPPO's, which count plant steps at a
+    tenth of the rate) share the folder but say nothing about the sweep's runs."""
+    from containergym_marl.training.algorithms import ALGORITHMS
+
+    def sweep_run(run: Path) -> bool:
+        try:
+            return json.loads((run / "args.json").read_text()).get("algo") in ALGORITHMS
+        except (OSError, ValueError, AttributeError):
+            return False
+
+    rates = sorted(r for p in Path(runs_root).glob("*/metrics.csv")
+                   if sweep_run(p.parent) and (r := measured_rate(p.parent)))
     return rates[len(rates) // 2] if rates else DEFAULT_RATE
 
 

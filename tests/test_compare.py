@@ -206,6 +206,26 @@ def test_samples_per_second_of_the_last_uninterrupted_stretch(tmp_path):
     assert measured_rate(tmp_path / "missing") is None
 
 
+def test_the_eta_rate_is_the_median_of_the_sweeps_own_runs(tmp_path):
+    """estimate_rate reads the SB3 runs of the runs folder; MAPPO runs trained beside them (plant
+    steps, ~250/s) do not drag the sweep's estimate down (they did when every metrics.csv counted)."""
+    from containergym_marl.sweep import DEFAULT_RATE, estimate_rate
+
+    def run(name: str, algo: str, rate: float) -> None:
+        folder = tmp_path / name
+        folder.mkdir()
+        (folder / "args.json").write_text(json.dumps({"algo": algo}))
+        (folder / "metrics.csv").write_text(f"timesteps,wall_time_s\n{rate:.0f},1.0\n{2 * rate:.0f},2.0\n")
+
+    assert estimate_rate(tmp_path) == DEFAULT_RATE
+    run("ppo_a_s1", "ppo", 3000)
+    run("shared_ppo_a_s1", "shared_ppo", 3200)
+    run("ppo_a_s2", "ppo", 2800)
+    for seed in (1, 2, 3, 4):
+        run(f"mappo_a_s{seed}", "mappo", 250)
+    assert estimate_rate(tmp_path) == pytest.approx(3000.0)
+
+
 def test_a_training_task_reports_samples_and_rate_from_its_metrics(tmp_path):
     class Events(list):
         put_nowait = list.append
