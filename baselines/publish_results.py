@@ -37,17 +37,9 @@ from containergym_marl.compare import PAIRS
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.sweep import latest_readable_checkpoint
-from containergym_marl.training.algorithms import get_algorithm
-from containergym_marl.training.runs import checkpoint_files, checkpoints, run_args, run_status
+from containergym_marl.training.runs import checkpoint_files, checkpoints, model_file, run_status
 
 SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
-
-
-def _model_files(run: Path) -> tuple[str, str]:
-    """The run's best and final model files, named by its algorithm's registry entry (``.zip`` for
-    SB3 runs, ``.pt`` for MAPPO runs of baselines/train_mappo.py)."""
-    spec = get_algorithm(run_args(run)["algo"])
-    return spec.model_file("best"), spec.model_file("final")
 
 
 def _copy(src: Path, dst: Path) -> None:
@@ -65,7 +57,7 @@ def _trained_samples(run: Path) -> int:
 def _copy_run(run: Path, dst: Path) -> None:
     """The run's small files and policies; for an unfinished run, its newest intact checkpoint only
     (SB3 runs: a MAPPO run's BenchMARL folder, checkpoints included, stays behind)."""
-    for name in SMALL_FILES + _model_files(run):
+    for name in SMALL_FILES + (model_file(run, "best"), model_file(run, "final")):
         if (run / name).is_file():
             _copy(run / name, dst / name)
     keep = set()
@@ -108,18 +100,18 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
         means = group.seed_means
         picked = {"best": group.best, "median": group.median}
         folder = to / "models" / group.config
+        files = {}
         for which, i in picked.items():
-            best, final = _model_files(runs_of[i])
-            model = runs_of[i] / best
+            model = runs_of[i] / model_file(runs_of[i], "best")
             if not model.is_file():  # no training episode finished: the evaluation used the final model
-                model = runs_of[i] / final
-            _copy(model, folder / f"{group.method}_{which}{model.suffix}")
+                model = runs_of[i] / model_file(runs_of[i], "final")
+            files[which] = f"{group.method}_{which}{model.suffix}"
+            _copy(model, folder / files[which])
         atomic_write_text(folder / f"{group.method}.json", json.dumps({
             "config": group.config, "method": group.method, "view": group.view,
             "best_seed": group.seeds[picked["best"]], "median_seed": group.seeds[picked["median"]],
             "seed_mean_returns": {str(s): float(m) for s, m in zip(group.seeds, means)},
-            "files": {which: f"{group.method}_{which}{Path(_model_files(runs_of[i])[0]).suffix}"
-                      for which, i in picked.items()},
+            "files": files,
         }, indent=2) + "\n")
         done["models"].append(f"{group.config}/{group.method}")
     table = tables.build_table(tables.load_evaluations(to / "evaluations"), PAIRS)
@@ -186,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"restored {len(done['runs'])} run(s) and {done['evaluations']} evaluation(s) from {ns.to}/")
         return 0
     done = publish(ns.runs, ns.compare, ns.to, ns.min_seeds, ns.with_checkpoints, ns.readme)
-    size = sum(p.stat().st_size for p in (ns.to / "models").rglob("*_*.*") if p.suffix in (".zip", ".pt"))
+    size = sum(p.stat().st_size for p in (ns.to / "models").rglob("*") if p.suffix in (".zip", ".pt"))
     print(f"published {len(done['runs'])} finished run(s), {len(done['interrupted'])} interrupted one(s) with "
           f"their newest checkpoint, {done['evaluations']} evaluation(s), models of "
           f"{len(done['models'])} (row, method) pair(s) ({size / 1e6:.1f} MB of models) to {ns.to}/")

@@ -692,11 +692,12 @@ def estimate_rate(runs_root: str | Path) -> float:
     :data:`DEFAULT_RATE`. Runs that compare does not train (MAPPO's, which count plant steps at a
     tenth of the rate) share the folder but say nothing about the sweep's runs."""
     from containergym_marl.training.algorithms import ALGORITHMS
+    from containergym_marl.training.runs import RunError, run_args
 
     def sweep_run(run: Path) -> bool:
         try:
-            return json.loads((run / "args.json").read_text()).get("algo") in ALGORITHMS
-        except (OSError, ValueError, AttributeError):
+            return run_args(run).get("algo") in ALGORITHMS
+        except (FileNotFoundError, RunError, AttributeError):
             return False
 
     rates = sorted(r for p in Path(runs_root).glob("*/metrics.csv")

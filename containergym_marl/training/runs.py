@@ -259,16 +259,18 @@ def run_status(run: str | Path) -> str:
     run = Path(run)
     if not _contents(run):
         return "absent"
-    return "finished" if (run / final_model_file(run)).is_file() else "interrupted"
+    return "finished" if (run / model_file(run, "final")).is_file() else "interrupted"
 
 
-def final_model_file(run: str | Path) -> str:
-    """The name of a run's final model, from the algorithm its args.json names (``final_model.zip``
-    for a run without a readable args.json: SB3's, the only kind trained before args.json)."""
+def model_file(run: str | Path, which: str) -> str:
+    """The name of a run's ``which`` ("best" or "final") model, from the algorithm its args.json
+    names (SB3's ``.zip`` names for a run without a readable args.json: the only kind trained before
+    args.json)."""
     try:
-        return get_algorithm(run_args(run)["algo"]).model_file("final")
+        spec = get_algorithm(run_args(run)["algo"])
     except (FileNotFoundError, RunError, KeyError, ValueError):
-        return "final_model.zip"
+        spec = get_algorithm("ppo")
+    return spec.model_file(which)
 
 
 def prepare_run_dir(args: TrainArgs, plant) -> tuple[Path, RunLock]:
@@ -539,7 +541,7 @@ __all__ = [
     "TrainingProgress", "append_metrics", "atomic_save_model", "atomic_write", "atomic_write_text",
     "check_model_file", "checkpoint_files", "checkpoint_interval", "checkpoints", "intact_checkpoints",
     "latest_checkpoint", "load_model", "prepare_run_dir", "read_metrics", "read_progress",
-    "read_run_summary", "remove_stale_temporaries", "run_args", "run_status", "final_model_file", "save_checkpoint",
+    "read_run_summary", "remove_stale_temporaries", "run_args", "run_status", "model_file", "save_checkpoint",
     "truncate_metrics",
 ]
 
