@@ -48,6 +48,26 @@ def test_batch_of_B_equals_B_single_runs(rule):
     assert resets > 0  # the test exercised partial resets
 
 
+@pytest.mark.parametrize("rule", tuple(ARBITRATION_RULES))
+def test_threaded_step_equals_the_one_thread_step(rule, monkeypatch):
+    """A batch large enough to be stepped in threads (row blocks) gives every output of the step
+    in one thread, bit for bit."""
+    cfg = load_config("n11_m2_dt120")
+    params = PlantParams.from_config(cfg)
+    B, n, m = dynamics.PARALLEL_MIN_BATCH + 37, cfg.n_containers, cfg.num_processing_units
+    rng = np.random.default_rng(5)
+    state = dynamics.PlantState(rng.uniform(0.0, 40.0, (B, n)), np.where(rng.random((B, m)) < 0.5, 0.0, 90.0),
+                                rng.integers(0, cfg.episode_length_steps, B))
+    args = (state, rng.random((B, n)) < 0.4, params, rng.standard_normal((B, n)), rng.random((B, n)), rule)
+    monkeypatch.setattr(dynamics, "_THREADS", 2)
+    threaded = dynamics.step(*args)
+    monkeypatch.setattr(dynamics, "_THREADS", 1)
+    single = dynamics.step(*args)
+    for got, expected in zip((*threaded[0], *threaded[1]), (*single[0], *single[1])):
+        np.testing.assert_array_equal(got, expected)
+    assert threaded[1].granted.any() and threaded[1].denied.any() and threaded[1].terminated.any()
+
+
 def test_reseeding_one_simulation_leaves_the_others_alone():
     cfg = load_config("n5_m2_dt120")
     a = PlantSimulator(cfg, num_sims=3)

@@ -319,7 +319,7 @@ def test_ppo_and_maskable_ppo_learn_on_the_native_vec_envs():
 
 
 # ---- arbitration and random streams ------------------------------------------------------------
-@pytest.mark.parametrize("B", [500, 600])  # 600: the threaded kernel
+@pytest.mark.parametrize("B", [dynamics.PARALLEL_MIN_BATCH - 100, dynamics.PARALLEL_MIN_BATCH + 100])  # threaded above
 def test_arbitration_equals_a_stable_sort_of_the_priorities(B):
     """The "random" rule's priorities are the step's uniforms: with many ties (rounded), the grants
     are the first `free` requests of a stable sort by decreasing priority, whatever the batch."""

@@ -5,7 +5,7 @@ Shapes: B simulations, n containers, m processing units (PUs). The action input 
 The centralised controller makes at most one request per step; container agents may make many, and
 the arbitration grants at most as many as there are free PUs.
 
-One step of one simulation (:func:`step_simulation`, numbered as below):
+One step of one simulation (the body of :func:`step_simulations`' loop, numbered as below):
 
 1. **Arbitration.** PU j is free iff its timer is 0. If the requests outnumber the free PUs, they are
    ranked by the arbitration rule's priority (larger first, ties to the lower index) and the first
@@ -44,7 +44,7 @@ from containergym_marl.core.params import PlantParams
 #: The compiled functions are cached on disk: a new process loads them instead of recompiling.
 jit = numba.njit(cache=True)
 #: From this batch size on, blocks of simulations are stepped in parallel threads.
-PARALLEL_MIN_BATCH = 512
+PARALLEL_MIN_BATCH = 2048
 _THREADS = min(os.cpu_count() or 1, 8)
 
 
@@ -112,82 +112,89 @@ def _floor_at_zero(x: float) -> float:
     return x if x > 0.0 else 0.0
 
 
-# ---- one step of one simulation -----------------------------------------------------------------
+# ---- one step of every simulation ----------------------------------------------------------------
 @jit
-def step_simulation(b, state, requests, normals, priorities, params, next_state, out):
-    """Step simulation ``b`` of ``state`` into row b of ``next_state`` and ``out`` (a StepOutcome).
+def step_simulations(state, requests, normals, priorities, params, next_state, out):
+    """Step every simulation b of ``state`` into row b of ``next_state`` and ``out`` (a StepOutcome).
 
-    ``priorities[i]`` is the arbitration rule's priority of container i's request (read only for
-    requested containers).
+    ``priorities[b, i]`` is the arbitration rule's priority of container i's request in simulation
+    b (read only for requested containers).
+
+    The loop over simulations is inside this function rather than around a function of one
+    simulation: numba increments and decrements the reference count of every array of a named-tuple
+    argument at each call (about a hundred atomic operations), which cost eight times the physics
+    itself at B = 4096 (``benchmarks/RESULTS.md``, run 7).
     """
     n, m = params.n_containers, params.n_pus
-    volumes, timers = state.volumes[b], state.pu_timers_s[b]
-    next_volumes, next_timers = next_state.volumes[b], next_state.pu_timers_s[b]
-    granted, denied = out.granted[b], out.denied[b]
-
-    # 1. Arbitration: grant the `free_pus` requests of highest priority (ties to the lower index).
-    free_pus = 0
-    for j in range(m):
-        if timers[j] == 0.0:
-            free_pus += 1
-    n_requests = 0
-    for i in range(n):
-        out.requested[b, i] = requests[b, i]
-        granted[i] = requests[b, i]
-        n_requests += requests[b, i]
-    if n_requests > free_pus:
-        granted[:] = False
-        for _ in range(free_pus):
-            best, best_priority = -1, 0.0
+    volumes, timers = state.volumes, state.pu_timers_s
+    next_volumes, next_timers = next_state.volumes, next_state.pu_timers_s
+    granted, denied = out.granted, out.denied
+    for b in range(requests.shape[0]):
+        # 1. Arbitration: grant the `free_pus` requests of highest priority (ties to the lower index).
+        free_pus = 0
+        for j in range(m):
+            if timers[b, j] == 0.0:
+                free_pus += 1
+        n_requests = 0
+        for i in range(n):
+            out.requested[b, i] = requests[b, i]
+            granted[b, i] = requests[b, i]
+            n_requests += requests[b, i]
+        if n_requests > free_pus:
             for i in range(n):
-                if requests[b, i] and not granted[i]:
-                    if best < 0 or priorities[i] > best_priority:
-                        best, best_priority = i, priorities[i]
-            granted[best] = True
+                granted[b, i] = False
+            for _ in range(free_pus):
+                best, best_priority = -1, 0.0
+                for i in range(n):
+                    if requests[b, i] and not granted[b, i]:
+                        if best < 0 or priorities[b, i] > best_priority:
+                            best, best_priority = i, priorities[b, i]
+                granted[b, best] = True
 
-    # 2. Rewards (volumes before the inflow) and 4. timers: granted containers, in index order,
-    # take the free PUs in index order; every other timer counts down by δ.
-    for j in range(m):
-        next_timers[j] = _floor_at_zero(timers[j] - params.timestep_s)
-    pu = 0
-    plant_reward = 0.0
-    for i in range(n):
-        denied[i] = requests[b, i] and not granted[i]
-        out.pu_index[b, i] = -1
-        out.emptied_volume[b, i] = 0.0
-        reward = 0.0
-        if granted[i]:
-            while timers[pu] != 0.0:
+        # 2. Rewards (volumes before the inflow) and 4. timers: granted containers, in index order,
+        # take the free PUs in index order; every other timer counts down by δ.
+        for j in range(m):
+            next_timers[b, j] = _floor_at_zero(timers[b, j] - params.timestep_s)
+        pu = 0
+        plant_reward = 0.0
+        for i in range(n):
+            denied[b, i] = requests[b, i] and not granted[b, i]
+            out.pu_index[b, i] = -1
+            out.emptied_volume[b, i] = 0.0
+            reward = 0.0
+            if granted[b, i]:
+                while timers[b, pu] != 0.0:
+                    pu += 1
+                reward = emptying_reward(i, volumes[b, i], params)
+                out.emptied_volume[b, i] = volumes[b, i]
+                out.pu_index[b, i] = pu
+                next_timers[b, pu] = pu_busy_time_s(i, volumes[b, i], params)
                 pu += 1
-            reward = emptying_reward(i, volumes[i], params)
-            out.emptied_volume[b, i] = volumes[i]
-            out.pu_index[b, i] = pu
-            next_timers[pu] = pu_busy_time_s(i, volumes[i], params)
-            pu += 1
-        elif denied[i]:
-            reward = params.penalty_reward
-        out.container_reward[b, i] = reward
-        plant_reward += reward
+            elif denied[b, i]:
+                reward = params.penalty_reward
+            out.container_reward[b, i] = reward
+            plant_reward += reward
 
-    # 3. Volumes: emptied containers are 0; the others fill by one normal draw, floored at 0.
-    for i in range(n):
-        if granted[i]:
-            next_volumes[i] = 0.0
-        else:
-            filled = volumes[i] + params.fill_mean_per_step[i] + params.fill_std_per_step[i] * normals[b, i]
-            next_volumes[i] = _floor_at_zero(filled)
+        # 3. Volumes: emptied containers are 0; the others fill by one normal draw, floored at 0.
+        for i in range(n):
+            if granted[b, i]:
+                next_volumes[b, i] = 0.0
+            else:
+                filled = volumes[b, i] + params.fill_mean_per_step[i] + params.fill_std_per_step[i] * normals[b, i]
+                next_volumes[b, i] = _floor_at_zero(filled)
 
-    # 5. End: an overflow replaces the step's reward by r_min and terminates; else the time limit.
-    overflow = False
-    for i in range(n):
-        out.overflowed[b, i] = next_volumes[i] >= params.max_volume[i]
-        out.individual_reward[b, i] = params.overflow_reward if out.overflowed[b, i] else out.container_reward[b, i]
-        overflow = overflow or out.overflowed[b, i]
-    next_state.step_count[b] = state.step_count[b] + 1
-    out.plant_reward[b] = params.overflow_reward if overflow else plant_reward
-    out.free_pus_before[b] = free_pus
-    out.terminated[b] = overflow
-    out.truncated[b] = not overflow and next_state.step_count[b] >= params.episode_length_steps
+        # 5. End: an overflow replaces the step's reward by r_min and terminates; else the time limit.
+        overflow = False
+        for i in range(n):
+            out.overflowed[b, i] = next_volumes[b, i] >= params.max_volume[i]
+            out.individual_reward[b, i] = (params.overflow_reward if out.overflowed[b, i]
+                                           else out.container_reward[b, i])
+            overflow = overflow or out.overflowed[b, i]
+        next_state.step_count[b] = state.step_count[b] + 1
+        out.plant_reward[b] = params.overflow_reward if overflow else plant_reward
+        out.free_pus_before[b] = free_pus
+        out.terminated[b] = overflow
+        out.truncated[b] = not overflow and next_state.step_count[b] >= params.episode_length_steps
 
 
 @jit
@@ -225,12 +232,12 @@ def _compile_batch_step(priority: Callable) -> Callable:
         state = PlantState(volumes, pu_timers_s, step_count)
         params = unpack_params(per_container, reward_table, scalars)
         next_state, out = _named_outputs(*outputs)
-        priorities = np.zeros(params.n_containers)
+        priorities = np.zeros(requests.shape)
         for b in range(requests.shape[0]):
             for i in range(params.n_containers):
                 if requests[b, i]:
-                    priorities[i] = priority(i, volumes[b, i], uniforms[b, i], params)
-            step_simulation(b, state, requests, normals, priorities, params, next_state, out)
+                    priorities[b, i] = priority(i, volumes[b, i], uniforms[b, i], params)
+        step_simulations(state, requests, normals, priorities, params, next_state, out)
 
     return numba.njit(cache=True, nogil=True)(step_batch)
 
