@@ -371,6 +371,8 @@ def worker_info(kind: str) -> dict:
     else:
         import containergym_marl
         info["module"] = str(Path(containergym_marl.__file__).parent)
+        from containergym_marl.core import dynamics
+        info["parallel_min_batch"] = getattr(dynamics, "PARALLEL_MIN_BATCH", None)
         try:
             import numba
             info["numba"] = numba.__version__
@@ -637,8 +639,11 @@ def markdown(result: dict) -> str:
     lines += ["", f"## Vectorised envs, B = {result['sizes']['vec_batch']}", ""]
     lines += _rate_table([r for r in s["rows"] if r["B"] != 1], [x for x in others if x != REFERENCE],
                          "env steps", agents=True)
-    lines += ["", f"The step of B ≥ 512 simulations runs in {meta['cpus']} threads: on an idle machine its "
-              f"wall-clock rate is at most {meta['cpus']} × the rate per CPU-second."]
+    threaded = [f"{name} from B = {impl['parallel_min_batch']}" for name, impl in result["implementations"].items()
+                if impl.get("parallel_min_batch")]
+    if threaded:
+        lines += ["", f"The step of a large batch runs in {meta['cpus']} threads ({', '.join(threaded)}): on an "
+                  f"idle machine its wall-clock rate is at most {meta['cpus']} × the rate per CPU-second."]
     if result.get("profile"):
         parts = list(result["profile"][0]["parts_us"])
         lines += ["", "## Where the time goes at B = 1 (ours; µs per step)", ""]

@@ -67,6 +67,9 @@ def test_smoke_run_prints_every_table(tmp_path):
             assert abs(_number(r[6]) - int(r[1]) * _number(r[3])) <= int(r[1])
         else:
             assert r[6] == "–"
+    from containergym_marl.core.dynamics import PARALLEL_MIN_BATCH
+    assert (f"The step of a large batch runs in {os.cpu_count()} threads (ours from B = {PARALLEL_MIN_BATCH}, "
+            f"before from B = {PARALLEL_MIN_BATCH})") in proc.stdout
 
     header, rows = _table(lines, "## Where the time goes at B = 1")
     assert header[:5] == ["path", "n", "untimed", "with timers", "kernel"] and "resets" in header
@@ -90,3 +93,21 @@ def test_smoke_run_prints_every_table(tmp_path):
     assert set(data) >= {"meta", "implementations", "skipped", "summary", "raw", "profile", "ppo", "targets"}
     assert list(data["implementations"]) == ["ours", "before"] and data["meta"]["smoke"] is True
     assert len(data["summary"]["rows"]) == 10
+
+
+def test_kernel_benchmark_compares_two_checkouts():
+    """benchmarks/kernel.py times the compiled step of ours and of another checkout (here: this one
+    again) and prints one row per case with the ratio."""
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "kernel.py"), "--rounds", "1",
+                           "--compare-with", str(REPO), "--compare-label", "again"],
+                          capture_output=True, text=True, timeout=300, check=True)
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("|") and not line.startswith("|---")]
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert header == ["case (n = 11)", "ours µs", "ours ns per simulation", "again µs", "again ns per simulation",
+                      "again ÷ ours"]
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines[1:]]
+    assert [r[0] for r in rows] == ["B=1 p=0.01", "B=1 p=0.5", "B=512 p=0.01", "B=4096 p=0.01", "B=4096 p=0.5"]
+    for r in rows:
+        bsz = int(r[0].split()[0][2:])
+        assert _number(r[1]) > 0 and _number(r[3]) > 0 and r[5].endswith("×")
+        assert abs(_number(r[2]) - 1000 * _number(r[1]) / bsz) <= 1000 * 0.05 / bsz + 1  # µs shown to 0.1

@@ -122,8 +122,8 @@ def step_simulations(state, requests, normals, priorities, params, next_state, o
 
     The loop over simulations is inside this function rather than around a function of one
     simulation: numba increments and decrements the reference count of every array of a named-tuple
-    argument at each call (about a hundred atomic operations), which cost eight times the physics
-    itself at B = 4096 (``benchmarks/RESULTS.md``, run 7).
+    argument at each call (about a hundred atomic operations), which made a batch of centralised
+    steps 9× slower (``benchmarks/kernel.py``; ``benchmarks/RESULTS.md``, run 7).
     """
     n, m = params.n_containers, params.n_pus
     volumes, timers = state.volumes, state.pu_timers_s
