@@ -502,3 +502,16 @@ def test_kill_9_at_random_points_many_times(tmp_path):
     if not (out / "final_model.zip").exists():
         assert cli_main(_train_argv(out, budget, resume=True)) == 0
     _check_consistent(out, budget)
+
+
+def test_the_policy_of_a_team_reward_run_is_named_after_its_method(tmp_path):
+    """A shared-PPO run trained with the team reward evaluates as compare's "shared_ppo_team" (figure
+    titles and evaluation files show this name), one with the default individual reward as "shared_ppo"."""
+    names = {}
+    for mode in ("individual", "team"):
+        out = tmp_path / mode
+        assert cli_main(["train", "--algo", "shared_ppo", "--reward-mode", mode, "--timesteps", "64", "--n-envs", "1",
+                         "--hp", "n_steps=64", "--hp", "batch_size=64", "--out", str(out), "--no-progress",
+                         "--override", "episode_length_steps=5"]) == 0
+        names[mode] = policy_from_run(out, "best").name
+    assert names == {"individual": "shared_ppo[s1,best]", "team": "shared_ppo_team[s1,best]"}
