@@ -17,9 +17,10 @@ seeds, the best model of its best and of its median seed by mean test return (th
 ``<to>/models/<config>/<method>_{best,median}.zip`` (``.pt`` for MAPPO) with
 ``<method>.json`` naming the seeds and their returns (git stores each of these once: they are the
 runs' own files). Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
-(``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same), and with ``--readme
-README.md`` shown in the README between its results-table markers (a test checks that the README shows
-the committed table). Rerunning it is safe: files are replaced atomically, nothing else is touched.
+(``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same), ``<to>/compute.md``
+sums the finished runs' training wall times per row, and with ``--readme README.md`` both are shown in
+the README between its results-table markers (a test checks that the README shows the committed
+files). Rerunning it is safe: files are replaced atomically, nothing else is touched.
 
 ``--restore`` goes the other way before a sweep is rerun on a fresh machine: runs of ``<to>/runs``
 that RUNS lacks or holds less far trained are copied there, evaluations OUT lacks are copied to
@@ -116,9 +117,34 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
         done["models"].append(f"{group.config}/{group.method}")
     table = tables.build_table(tables.load_evaluations(to / "evaluations"), PAIRS)
     table.write(to, {"source": "baselines/publish_results.py"})
+    atomic_write_text(to / "compute.md", training_compute(to / "runs"))
     if readme is not None:
-        show_table_in_readme(readme, (to / "table.md").read_text(), to)
+        show_table_in_readme(readme, readme_block(to), to)
     return done
+
+
+def training_compute(runs: Path) -> str:
+    """What training the finished runs under ``runs`` took, per row: the sum of the runs' wall times
+    (``run.json``, all segments of a resumed run). Each run trains on one core."""
+    per_row: dict[str, list[float]] = {}
+    for run in sorted(p for p in runs.iterdir() if p.is_dir()) if runs.is_dir() else []:
+        if run_status(run) != "finished":
+            continue
+        config = json.loads((run / "args.json").read_text())["config"]
+        wall_s = json.loads((run / "run.json").read_text()).get("wall_time_s") or 0.0
+        per_row.setdefault(config, []).append(float(wall_s))
+    total_runs = sum(len(v) for v in per_row.values())
+    total_h = sum(sum(v) for v in per_row.values()) / 3600
+    rows = " · ".join(f"{config}: {len(v)} run{'' if len(v) == 1 else 's'}, {sum(v) / 3600:.1f} h"
+                      for config, v in sorted(per_row.items(), key=lambda kv: tables.config_sort_key(kv[0])))
+    return (f"Training compute of the {total_runs} finished runs published here: {total_h:.1f} core-hours (each run "
+            f"trains on one core; the sum of the runs' wall times in their run.json, on a 2-core machine training "
+            f"two at a time). Per row: {rows}.\n")
+
+
+def readme_block(to: Path) -> str:
+    """What the README shows between its results-table markers: the table and the training compute."""
+    return (to / "table.md").read_text().rstrip("\n") + "\n\n" + (to / "compute.md").read_text()
 
 
 README_START = "<!-- results table: written by baselines/publish_results.py from {source}; do not edit -->"

@@ -30,7 +30,37 @@ def test_readme_shows_the_committed_table():
     start = readme.index(publish_results.README_START.format(source="results/paper_rows"))
     end = readme.index(publish_results.README_END)
     shown = readme[start:end].split("\n", 1)[1].strip()
-    assert shown == (PUBLISHED / "table.md").read_text().strip()
+    assert shown == publish_results.readme_block(PUBLISHED).strip()
+    assert shown.startswith((PUBLISHED / "table.md").read_text().strip())
+
+
+def test_committed_compute_is_the_sum_of_the_committed_runs_wall_times():
+    publish_results = _publish_module()
+    assert (PUBLISHED / "compute.md").read_text() == publish_results.training_compute(PUBLISHED / "runs")
+
+
+def test_training_compute_sums_finished_runs_per_row(tmp_path):
+    """Hand-computed: two finished runs on one row (1800 s + 5400 s = 2 h), one on another (3600 s), an
+    interrupted run left out."""
+    import json
+
+    publish_results = _publish_module()
+
+    def run(name, config, wall_s, finished=True):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "args.json").write_text(json.dumps({"algo": "ppo", "config": config, "seed": 1}))
+        if finished:
+            (d / "run.json").write_text(json.dumps({"status": "finished", "wall_time_s": wall_s}))
+            (d / "final_model.zip").write_bytes(b"model")
+
+    run("ppo_n5_m2_dt120_s1", "n5_m2_dt120", 1800.0)
+    run("ppo_n5_m2_dt120_s2", "n5_m2_dt120", 5400.0)
+    run("ppo_n11_m2_dt120_s1", "n11_m2_dt120", 3600.0)
+    run("ppo_n11_m2_dt120_s2", "n11_m2_dt120", 0.0, finished=False)
+    text = publish_results.training_compute(tmp_path)
+    assert text.startswith("Training compute of the 3 finished runs published here: 3.0 core-hours")
+    assert text.endswith("Per row: n5_m2_dt120: 2 runs, 2.0 h · n11_m2_dt120: 1 run, 1.0 h.\n")
 
 
 def test_readme_block_is_replaced_in_place_and_a_missing_marker_is_named(tmp_path):
