@@ -70,6 +70,31 @@ def test_final_overflow_reward_is_counted():
         assert metrics.emptyings == 0 and np.isnan(metrics.good_emptying_share)
 
 
+def test_records_and_the_cli_name_the_containers_whose_overflow_ended_the_episode(capsys, tmp_path):
+    """Never emptying, every episode ends in an overflow: the record names exactly the containers at
+    or above their v_max in the final state (checked against the config), survives a save and load,
+    and the evaluate command prints them with their volume after the reset."""
+    from containergym_marl.cli import _print_evaluation
+
+    cfg = load_config("n5_m2_dt120")
+    max_volume = np.array([c.max_volume for c in cfg.containers])
+    result = evaluate(NeverEmpty(), cfg, EvalProtocol(episodes=3))
+    lines = []
+    for rec in result.records:
+        over = np.flatnonzero(rec.volumes[-1] >= max_volume)
+        assert over.size >= 1 and np.all(rec.volumes[-2] < max_volume)
+        assert rec.overflowed_containers == tuple(cfg.container_names[i] for i in over)
+        lines.append(", ".join(f"{cfg.container_names[i]} ({rec.volumes[0, i]:.1f})" for i in over))
+    rec.save_npz(tmp_path / "e.npz")
+    assert EpisodeRecord.load_npz(tmp_path / "e.npz").overflowed_containers == rec.overflowed_containers
+    _print_evaluation(result, None)
+    rows = capsys.readouterr().out.splitlines()[2:5]
+    assert [row.split("  ")[-1] for row in rows] == lines
+
+    survivor = evaluate(RuleBasedController(PlantParams.from_config(cfg)), cfg, EvalProtocol(episodes=1))
+    assert not survivor.records[0].terminated and survivor.records[0].overflowed_containers == ()
+
+
 def test_pu_utilisation_counts_busy_pu_steps():
     result = evaluate(RuleBasedController(PlantParams.from_config(load_config("n5_m2_dt120"))), "n5_m2_dt120", EvalProtocol(episodes=1))
     rec = result.records[0]

@@ -27,6 +27,7 @@ class EpisodeRecord:
     (-1 = none), ``emptied_volume`` and ``container_reward`` (T, n) and ``plant_reward`` (T,) hold
     what each step did. ``container_reward`` is the emptying reward or penalty before any overflow
     replacement; ``plant_reward`` is the reward the centralised view returns (r_min on overflow).
+    ``overflowed_containers`` names the containers whose overflow ended the episode (empty if none).
     """
 
     config_name: str
@@ -47,6 +48,7 @@ class EpisodeRecord:
     terminated: bool
     truncated: bool
     meta: dict = field(default_factory=dict)
+    overflowed_containers: tuple[str, ...] = ()
 
     @property
     def steps(self) -> int:
@@ -81,6 +83,7 @@ class EpisodeRecord:
         with np.load(path) as data:
             meta = json.loads(str(data["meta"]))
             meta["container_names"] = tuple(meta["container_names"])
+            meta["overflowed_containers"] = tuple(meta.get("overflowed_containers", ()))  # absent in older files
             return cls(**meta, **{k: data[k] for k in _ARRAYS})
 
 
@@ -101,6 +104,7 @@ class EpisodeRecorder:
         self._rows["volumes"].append(s.volumes[self.index].copy())
         self._rows["pu_timers_s"].append(s.pu_timers_s[self.index].copy())
         self._terminated = self._truncated = False
+        self._overflowed: tuple[str, ...] = ()
 
     def add(self) -> None:
         out, s, b = self.sim.last_outcome, self.sim.state, self.index
@@ -110,6 +114,9 @@ class EpisodeRecorder:
             self._rows[key].append(getattr(out, key)[b].copy())
         self._rows["plant_reward"].append(float(out.plant_reward[b]))
         self._terminated, self._truncated = bool(out.terminated[b]), bool(out.truncated[b])
+        if self._terminated:
+            names = self.sim.config.container_names
+            self._overflowed = tuple(names[i] for i in np.flatnonzero(out.overflowed[b]))
 
     def finish(self, **meta) -> EpisodeRecord:
         n, m = self.sim.params.n_containers, self.sim.params.n_pus
@@ -130,5 +137,6 @@ class EpisodeRecorder:
             terminated=self._terminated,
             truncated=self._truncated,
             meta=dict(meta),
+            overflowed_containers=self._overflowed,
             **arrays,
         )
