@@ -281,32 +281,37 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
         out = self._sim.step(requests)
         observations = self._observations()
+        plant_reward = float(out.plant_reward[0])
         if self.reward_mode == "team":
-            plant = float(out.plant_reward[0])
-            rewards = {a: plant for a in self.agents}
+            rewards = {a: plant_reward for a in self.agents}
         else:
-            rewards = {a: float(out.individual_reward[0, i]) for i, a in enumerate(self.agents)}
+            rewards = dict(zip(self.agents, out.individual_reward[0].tolist()))
         terminated, truncated = bool(out.terminated[0]), bool(out.truncated[0])
         terminations = {a: terminated for a in self.agents}
         truncations = {a: truncated for a in self.agents}
         step_count = int(self._sim.state.step_count[0])
-        plant_reward = float(out.plant_reward[0])
-        free_now = int(self._sim.free_pu_count()[0])
+        free_before = int(out.free_pus_before[0])
+        # each per-container array as Python numbers once (reading n entries one by one costs n times more)
+        requested, granted, denied, pu_index, emptied_volume, emptying_reward, overflowed = (
+            array[0].tolist() for array in (out.requested, out.granted, out.denied, out.pu_index, out.emptied_volume,
+                                            out.container_reward, out.overflowed))
         infos = {}
         for i, a in enumerate(self.agents):
             infos[a] = {
-                "requested": bool(out.requested[0, i]),
-                "granted": bool(out.granted[0, i]),
-                "denied": bool(out.denied[0, i]),
-                "pu_index": int(out.pu_index[0, i]),
-                "emptied_volume": float(out.emptied_volume[0, i]),
-                "emptying_reward": float(out.container_reward[0, i]),
-                "overflowed": bool(out.overflowed[0, i]),
+                "requested": requested[i],
+                "granted": granted[i],
+                "denied": denied[i],
+                "pu_index": pu_index[i],
+                "emptied_volume": emptied_volume[i],
+                "emptying_reward": emptying_reward[i],
+                "overflowed": overflowed[i],
                 "plant_reward": plant_reward,
-                "free_pus": int(out.free_pus_before[0]),
+                "free_pus": free_before,
                 "step": step_count,
             }
-            if self.action_masking:
+        if self.action_masking:
+            free_now = int(self._sim.free_pu_count()[0])
+            for a in self.agents:
                 infos[a]["action_mask"] = self._mask(free_now)
         if terminated or truncated:
             self.agents = []
