@@ -42,7 +42,11 @@ import numpy as np
 from containergym_marl.core.params import PlantParams
 
 #: The compiled functions are cached on disk: a new process loads them instead of recompiling.
-jit = numba.njit(cache=True)
+#: ``error_model="numpy"``: a division by zero gives inf instead of raising. No divisor here can be
+#: zero (v_max, product sizes and reward widths are validated ≥ 1e-3 by the config), and without the
+#: exception paths numba can drop its reference counting from the step (14 % of a one-simulation
+#: kernel call, ``benchmarks/kernel.py``).
+jit = numba.njit(cache=True, error_model="numpy")
 #: From this batch size on, blocks of simulations are stepped in parallel threads.
 PARALLEL_MIN_BATCH = 2048
 _THREADS = min(os.cpu_count() or 1, 8)
@@ -239,7 +243,7 @@ def _compile_batch_step(priority: Callable) -> Callable:
                     priorities[b, i] = priority(i, volumes[b, i], uniforms[b, i], params)
         step_simulations(state, requests, normals, priorities, params, next_state, out)
 
-    return numba.njit(cache=True, nogil=True)(step_batch)
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(step_batch)
 
 
 #: Which of the outputs are stacked (batch on axis 1).
