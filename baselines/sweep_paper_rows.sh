@@ -3,7 +3,7 @@
 # rule-based controllers, centralised PPO, shared PPO (individual and team rewards), 3 seeds each
 # at the paper's budget (2M samples for n = 5, 5M for n >= 11), evaluated with the paper's test
 # protocol. Resumable: rerun it to continue (finished runs and evaluations are reused, interrupted
-# runs resume from their last checkpoint). About 27 hours on 2 cores.
+# runs resume from their last checkpoint). About 21 core-hours of training (11 hours on 2 cores).
 #
 #   RUNS=runs/paper OUT=results/compare_paper bash baselines/sweep_paper_rows.sh
 #   python baselines/publish_results.py --runs runs/paper --compare results/compare_paper --to results/paper_rows
