@@ -1,6 +1,6 @@
 """The compiled step alone: µs per call and ns per simulation, one thread, at several batch sizes.
 
-    python benchmarks/kernel.py [--compare-with PATH] [--compare-label NAME]
+    python benchmarks/kernel.py [--compare-with PATH] [--compare-label NAME] [--rounds N] [--smoke]
 
 Calls the arbitration rule's batched kernel (``ArbitrationRule.step_batch``) on fixed inputs and
 preallocated outputs, so nothing but the compiled loop and numba's unboxing of its arguments is
@@ -23,7 +23,7 @@ CASES = [(1, 0.01), (1, 0.5), (512, 0.01), (4096, 0.01), (4096, 0.5)]
 CONFIG = "n11_m2_dt120"
 
 
-def measure(rounds: int) -> dict[str, float]:
+def measure(rounds: int, calls_per_round: int = 400_000) -> dict[str, float]:
     """{case: best µs per call} for this interpreter's containergym_marl."""
     import numpy as np
 
@@ -43,7 +43,7 @@ def measure(rounds: int) -> dict[str, float]:
         inputs = (*state, rng.random((bsz, n)) < rate, rng.standard_normal((bsz, n)), rng.random((bsz, n)))
         outputs = dynamics._allocate_outputs(bsz, n, m)
         rule.step_batch(*inputs, *params.kernel_arrays(), *outputs)  # compile or load
-        calls = max(20, 400_000 // bsz)
+        calls = max(2, calls_per_round // bsz)
         best = float("inf")
         for _ in range(rounds):
             started = time.perf_counter()
@@ -59,21 +59,24 @@ def main() -> None:
     parser.add_argument("--compare-with", metavar="PATH", help="another checkout of this package")
     parser.add_argument("--compare-label", default="before")
     parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--smoke", action="store_true", help="a hundredth of the calls: checks the table, not speed")
     parser.add_argument("--json-only", action="store_true", help=argparse.SUPPRESS)  # the subprocess
     args = parser.parse_args()
+    calls = 4_000 if args.smoke else 400_000
     if args.json_only:
-        print(json.dumps(measure(args.rounds)))
+        print(json.dumps(measure(args.rounds, calls)))
         return
 
     def other() -> dict[str, float]:
         env = {**os.environ, "PYTHONPATH": args.compare_with}
-        out = subprocess.run([sys.executable, __file__, "--json-only", "--rounds", str(args.rounds)], env=env,
+        out = subprocess.run([sys.executable, __file__, "--json-only", "--rounds", str(args.rounds)]
+                             + ["--smoke"] * args.smoke, env=env,
                              cwd=args.compare_with, check=True, capture_output=True, text=True).stdout
         return json.loads(out)
 
     # alternate, twice each, and keep the best of everything: the machine's load drifts
-    ours, theirs = measure(args.rounds), other() if args.compare_with else {}
-    ours = {k: min(v, w) for (k, v), w in zip(ours.items(), measure(args.rounds).values())}
+    ours, theirs = measure(args.rounds, calls), other() if args.compare_with else {}
+    ours = {k: min(v, w) for (k, v), w in zip(ours.items(), measure(args.rounds, calls).values())}
     if args.compare_with:
         theirs = {k: min(v, w) for (k, v), w in zip(theirs.items(), other().values())}
     header = ["case (n = 11)", "ours µs", "ours ns per simulation"]
