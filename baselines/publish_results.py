@@ -38,7 +38,8 @@ from containergym_marl.compare import PAIRS
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.sweep import latest_readable_checkpoint
-from containergym_marl.training.runs import checkpoint_files, checkpoints, model_file, run_status
+from containergym_marl.training.runs import (checkpoint_files, checkpoints, model_file, read_run_summary, run_args,
+                                             run_status)
 
 SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
 
@@ -130,8 +131,8 @@ def training_compute(runs: Path) -> str:
     for run in sorted(p for p in runs.iterdir() if p.is_dir()) if runs.is_dir() else []:
         if run_status(run) != "finished":
             continue
-        config = json.loads((run / "args.json").read_text())["config"]
-        wall_s = json.loads((run / "run.json").read_text()).get("wall_time_s") or 0.0
+        config = run_args(run)["config"]
+        wall_s = (read_run_summary(run) or {}).get("wall_time_s") or 0.0
         per_row.setdefault(config, []).append(float(wall_s))
     total_runs = sum(len(v) for v in per_row.values())
     total_h = sum(sum(v) for v in per_row.values()) / 3600

@@ -46,7 +46,8 @@ from containergym_marl.core.params import PlantParams
 #: zero (v_max, product sizes and reward widths are validated ≥ 1e-3 by the config), and without the
 #: exception paths numba can drop its reference counting from the step (14 % of a one-simulation
 #: kernel call, ``benchmarks/kernel.py``).
-jit = numba.njit(cache=True, error_model="numpy")
+JIT_OPTIONS = {"cache": True, "error_model": "numpy"}
+jit = numba.njit(**JIT_OPTIONS)
 #: From this batch size on, blocks of simulations are stepped in parallel threads.
 PARALLEL_MIN_BATCH = 2048
 _THREADS = min(os.cpu_count() or 1, 8)
@@ -236,14 +237,14 @@ def _compile_batch_step(priority: Callable) -> Callable:
         state = PlantState(volumes, pu_timers_s, step_count)
         params = unpack_params(per_container, reward_table, scalars)
         next_state, out = _named_outputs(*outputs)
-        priorities = np.zeros(requests.shape)
+        priorities = np.empty(requests.shape)  # written and read for requested containers only
         for b in range(requests.shape[0]):
             for i in range(params.n_containers):
                 if requests[b, i]:
                     priorities[b, i] = priority(i, volumes[b, i], uniforms[b, i], params)
         step_simulations(state, requests, normals, priorities, params, next_state, out)
 
-    return numba.njit(cache=True, nogil=True, error_model="numpy")(step_batch)
+    return numba.njit(nogil=True, **JIT_OPTIONS)(step_batch)
 
 
 #: Which of the outputs are stacked (batch on axis 1).

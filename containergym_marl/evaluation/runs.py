@@ -51,10 +51,7 @@ def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = 
                           RunWarning, stacklevel=2)
             path, label = run / final, "final: no training episode finished"
     model = load_model(path, algo=saved["algo"])
-    # a reward mode other than the algorithm's default is part of the method's name (compare's
-    # "shared_ppo_team"), which figure titles and evaluation files show
-    mode = saved.get("reward_mode")
-    method = saved["algo"] if mode in (None, *spec.reward_modes[:1]) else f"{saved['algo']}_{mode}"
+    method = spec.method_name(saved.get("reward_mode"))  # figure titles and evaluation files show it
     return spec.policy(model, name=f"{method}[s{saved['seed']},{label}]", deterministic=deterministic)
 
 

@@ -114,6 +114,11 @@ class AlgorithmSpec:
         """The file name of a run's ``which`` ("best" or "final") model."""
         return f"{which}_model{self.model_suffix}"
 
+    def method_name(self, reward_mode: str | None = None) -> str:
+        """The name of this algorithm trained with ``reward_mode``: its own name for the default mode
+        (or none), ``<name>_<mode>`` for another (compare's ``shared_ppo_team``)."""
+        return self.name if reward_mode in (None, *self.reward_modes[:1]) else f"{self.name}_{reward_mode}"
+
     @property
     def replay_buffer(self) -> bool:
         return not self.rollout
