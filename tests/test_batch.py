@@ -164,3 +164,23 @@ def test_core_matches_oracle_on_generated_plants(cfg, seed, rule):
             break
         # keep the oracle and the core on exactly the same state (no drift from float rounding)
         volumes, timers = list(state.volumes[0]), list(state.pu_timers_s[0])
+
+
+@pytest.mark.parametrize("sims", [None, [1]], ids=["all", "one"])
+def test_reset_leaves_the_last_outcome_unchanged(sims):
+    """A StepOutcome is never written after it is returned: resetting (all simulations, or some,
+    as a vector env's autoreset does) must not clear the requests that the last step reports."""
+    sim = PlantSimulator(load_config("n5_m2_dt120"), num_sims=3)
+    sim.reset(generators=[np.random.default_rng(s) for s in range(3)])
+    requests = np.zeros((3, 5), dtype=bool)
+    requests[:, 0] = requests[1, 3] = True
+    outcome = sim.step(requests)
+    kept = {name: np.copy(value) for name, value in outcome._asdict().items()}
+    sim.reset(sims)
+    for name, value in outcome._asdict().items():
+        np.testing.assert_array_equal(value, kept[name], err_msg=name)
+    assert sim.last_outcome is outcome
+    reset_rows = [0, 1, 2] if sims is None else sims
+    assert not sim.previous_requests[reset_rows].any()
+    if sims is not None:  # the others still see their own last requests
+        np.testing.assert_array_equal(sim.previous_requests[[0, 2]], requests[[0, 2]])

@@ -113,16 +113,22 @@ class PlantSimulator:
                                     and np.array_equal(idx, np.arange(self.num_sims)))
         _, uniforms = self._streams.next_rows(None if everyone else idx, normals=False)
         fresh = dynamics.reset_state(self.params, uniforms)
+        # New arrays, never writes into old ones: the previous requests are the last outcome's
+        # ``requested``, which the caller may still hold.
         if everyone:
             self.state = fresh
+            self.previous_requests = np.zeros_like(self.previous_requests)
+            self.finished = np.zeros_like(self.finished)
+            self._any_finished = False
         else:
             vol, tim, cnt = (self.state.volumes.copy(), self.state.pu_timers_s.copy(),
                              self.state.step_count.copy())
             vol[idx], tim[idx], cnt[idx] = fresh.volumes, fresh.pu_timers_s, fresh.step_count
             self.state = PlantState(vol, tim, cnt)
-        self.previous_requests[idx] = False
-        self.finished[idx] = False
-        self._any_finished = bool(self.finished.any())
+            previous, finished = self.previous_requests.copy(), self.finished.copy()
+            previous[idx] = finished[idx] = False
+            self.previous_requests, self.finished = previous, finished
+            self._any_finished = bool(finished.any())
 
     def step(self, requests: np.ndarray) -> StepOutcome:
         """Step every simulation by one δ with a (B, n) boolean request matrix."""
@@ -135,7 +141,7 @@ class PlantSimulator:
         requests = dynamics.check_requests(requests, self.state.volumes.shape)  # before a random row is used
         normals, uniforms = self._streams.next_rows()
         self.state, outcome = dynamics.step_checked(self.state, requests, self.params, normals, uniforms, self._rule)
-        self.previous_requests = outcome.requested  # a fresh array every step, never written again
+        self.previous_requests = outcome.requested  # shared with the outcome: never written in place
         finished = self.finished = outcome.terminated | outcome.truncated
         # a Python bool for the check above (ndarray.any() costs ~1 µs, a tenth of a small step)
         self._any_finished = finished.item(0) if finished.size == 1 else bool(np.logical_or.reduce(finished))
