@@ -3,10 +3,13 @@
 # rule-based controllers, centralised PPO, shared PPO (individual and team rewards), 3 seeds each
 # at the paper's budget (2M samples for n = 5, 5M for n >= 11), evaluated with the paper's test
 # protocol. Resumable: rerun it to continue (finished runs and evaluations are reused, interrupted
-# runs resume from their last checkpoint). About 21 core-hours of training (11 hours on 2 cores).
+# runs resume from their last checkpoint). About 19 core-hours of training (10 hours on 2 cores).
 #
 #   RUNS=runs/paper OUT=results/compare_paper bash baselines/sweep_paper_rows.sh
 #   python baselines/publish_results.py --runs runs/paper --compare results/compare_paper --to results/paper_rows
+#
+# Seeds 4 and 5 on the rows where the PUs are scarce (arguments after the script's own win):
+#   bash baselines/sweep_paper_rows.sh --configs n16_m2_dt120 n11_m2_dt120 n5_m2_dt120 n11_m2_dt60 n5_m2_dt60 --seeds 1 2 3 4 5
 #
 # The published folder carries the sweep between machines: publish with --with-checkpoints (interrupted
 # runs keep their newest checkpoint) and commit; on the next machine, first
