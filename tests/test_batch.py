@@ -168,8 +168,8 @@ def test_core_matches_oracle_on_generated_plants(cfg, seed, rule):
 
 @pytest.mark.parametrize("sims", [None, [1]], ids=["all", "one"])
 def test_reset_leaves_the_last_outcome_unchanged(sims):
-    """A StepOutcome is never written after it is returned: resetting (all simulations, or some,
-    as a vector env's autoreset does) must not clear the requests that the last step reports."""
+    """A StepOutcome stays as returned until the step after next: resetting (all simulations, or
+    some, as a vector env's autoreset does) must not clear the requests that the last step reports."""
     sim = PlantSimulator(load_config("n5_m2_dt120"), num_sims=3)
     sim.reset(generators=[np.random.default_rng(s) for s in range(3)])
     requests = np.zeros((3, 5), dtype=bool)
@@ -184,3 +184,51 @@ def test_reset_leaves_the_last_outcome_unchanged(sims):
     assert not sim.previous_requests[reset_rows].any()
     if sims is not None:  # the others still see their own last requests
         np.testing.assert_array_equal(sim.previous_requests[[0, 2]], requests[[0, 2]])
+
+
+def _stepped_simulator(steps: int, seed: int = 5) -> tuple[PlantSimulator, np.ndarray]:
+    sim = PlantSimulator(load_config("n5_m2_dt120"), num_sims=3)
+    sim.reset(generators=[np.random.default_rng(seed + b) for b in range(3)])
+    requests = np.random.default_rng(seed).random((steps, 3, 5)) < 0.3
+    for t in range(steps):
+        sim.step(requests[t])
+    return sim, requests
+
+
+def test_outcome_and_state_stay_valid_until_the_step_after_next():
+    """The simulator steps into two sets of output arrays in turn: what a step returns (outcome and
+    state) is unchanged by the next step, and the step after that reuses its arrays."""
+    sim, requests = _stepped_simulator(4)
+    first, first_state = sim.step(requests[0]), sim.state
+    kept = {name: np.copy(value) for name, value in {**first._asdict(), **first_state._asdict()}.items()}
+    second = sim.step(requests[1])
+    for name, value in {**first._asdict(), **first_state._asdict()}.items():
+        np.testing.assert_array_equal(value, kept[name], err_msg=name)
+    assert second is not first and not np.shares_memory(second.granted, first.granted)
+    assert not np.shares_memory(sim.state.volumes, first_state.volumes)
+    third = sim.step(requests[2])
+    assert third is first and sim.state is first_state  # nothing allocated per step
+
+
+@pytest.mark.parametrize("how", ["deepcopy", "pickle"])
+def test_a_copied_simulator_steps_like_the_original_and_apart_from_it(how):
+    """SuperSuit and subprocess vector envs copy environments: a copy must own its output arrays,
+    with its outcome's names pointing at them (a name left on a copy of the arrays would report
+    the state before the copy forever)."""
+    import copy
+    import pickle
+
+    sim, requests = _stepped_simulator(3)
+    twin = copy.deepcopy(sim) if how == "deepcopy" else pickle.loads(pickle.dumps(sim))
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        r = rng.random((3, 5)) < 0.3
+        kept = {name: np.copy(value) for name, value in sim.last_outcome._asdict().items()}
+        twin_out = twin.step(r)
+        for name, value in sim.last_outcome._asdict().items():  # the copy's step left these alone
+            np.testing.assert_array_equal(value, kept[name], err_msg=name)
+        out = sim.step(r)
+        for name, value in out._asdict().items():
+            np.testing.assert_array_equal(twin_out._asdict()[name], value, err_msg=name)
+        np.testing.assert_array_equal(twin.state.volumes, sim.state.volumes)
+        assert not np.shares_memory(twin.state.volumes, sim.state.volumes)

@@ -59,8 +59,9 @@ def _thread_pool() -> ThreadPoolExecutor:
 
 
 class PlantState(NamedTuple):
-    """State of B simulations: the paper's s_t = (v, p) plus the step counter. Never modified in
-    place: :func:`step` returns a new one."""
+    """State of B simulations: the paper's s_t = (v, p) plus the step counter. A step never writes
+    into the state it reads: :func:`step` returns the next one in new arrays (a
+    :class:`~containergym_marl.core.simulator.PlantSimulator` in arrays of its own)."""
 
     volumes: np.ndarray  # (B, n) volume units
     pu_timers_s: np.ndarray  # (B, m) seconds until each PU is free
@@ -260,6 +261,31 @@ def _allocate_outputs(bsz: int, n: int, m: int) -> tuple[np.ndarray, ...]:
             np.empty(bsz), np.empty((2, bsz), np.int64), np.empty((2, bsz), bool))
 
 
+class StepOutputs:
+    """Storage for what one step of B simulations writes: the stacked arrays the kernel fills and,
+    named once, the next :class:`PlantState` and the :class:`StepOutcome` they hold.
+
+    A :class:`~containergym_marl.core.simulator.PlantSimulator` steps into two of these in turn, so
+    a step allocates and names nothing (at B = 1 that was a quarter of the centralised env's step).
+    Copies (deepcopy, pickle) hold their own arrays and name them anew.
+    """
+
+    __slots__ = ("arrays", "next_state", "outcome")
+
+    def __init__(self, num_sims: int, n_containers: int, n_pus: int):
+        self._name(_allocate_outputs(num_sims, n_containers, n_pus))
+
+    def _name(self, arrays: tuple[np.ndarray, ...]) -> None:
+        self.arrays = arrays
+        self.next_state, self.outcome = _named_outputs.py_func(*arrays)
+
+    def __getstate__(self) -> tuple[np.ndarray, ...]:
+        return self.arrays
+
+    def __setstate__(self, arrays: tuple[np.ndarray, ...]) -> None:
+        self._name(tuple(np.array(a) for a in arrays))
+
+
 # ---- 1. arbitration rules: name -> compiled priority ---------------------------------------------
 # A rule is a priority function ``priority(i, volume, uniform, params) -> float`` of container i, its
 # volume v_i(t) and the step's uniform draw for it; the step grants the requests of highest
@@ -380,24 +406,30 @@ def step(
 
 
 def step_checked(state: PlantState, requests: np.ndarray, params: PlantParams, normals: np.ndarray,
-                 uniforms: np.ndarray, rule: ArbitrationRule) -> tuple[PlantState, StepOutcome]:
+                 uniforms: np.ndarray, rule: ArbitrationRule,
+                 outputs: StepOutputs | None = None) -> tuple[PlantState, StepOutcome]:
     """:func:`step` for inputs already checked: C-contiguous (B, n) bool requests and float64 random
     rows, and a rule from :func:`get_rule`. The kernel checks no bounds; the simulator, whose inputs
-    are right by construction, calls this to skip the checks (a fifth of a one-simulation step)."""
+    are right by construction, calls this to skip the checks (a fifth of a one-simulation step).
+
+    ``outputs``: where to write the step (fresh arrays when None); they must not hold ``state``.
+    """
     bsz, n = state.volumes.shape
-    outputs = _allocate_outputs(bsz, n, state.pu_timers_s.shape[1])
+    if outputs is None:
+        outputs = StepOutputs(bsz, n, state.pu_timers_s.shape[1])
+    arrays = outputs.arrays
     inputs = (*state, requests, normals, uniforms)
     if bsz < PARALLEL_MIN_BATCH or _THREADS == 1:
-        rule.step_batch(*inputs, *params.kernel_arrays(), *outputs)
+        rule.step_batch(*inputs, *params.kernel_arrays(), *arrays)
     else:  # row blocks in threads: the kernel releases the GIL, and simulations are independent
         bounds = np.linspace(0, bsz, _THREADS + 1).astype(int)
 
         def block(lo: int, hi: int) -> None:
             rule.step_batch(*(a[lo:hi] for a in inputs), *params.kernel_arrays(),
-                            *(a[:, lo:hi] if stacked else a[lo:hi] for a, stacked in zip(outputs, _STACKED)))
+                            *(a[:, lo:hi] if stacked else a[lo:hi] for a, stacked in zip(arrays, _STACKED)))
 
         list(_thread_pool().map(block, bounds[:-1], bounds[1:]))
-    return _named_outputs.py_func(*outputs)  # the same naming, in Python
+    return outputs.next_state, outputs.outcome
 
 
 def reset_state(params: PlantParams, uniforms: np.ndarray) -> PlantState:

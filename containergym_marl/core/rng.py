@@ -88,18 +88,20 @@ class NoiseStreams:
         """One row for each simulation in ``sims`` (all when None): ``(normals, uniforms)``, (k, n).
 
         The row is consumed whether or not its parts are returned; ``normals=False`` or
-        ``uniforms=False`` only skips copying that part out (None is returned in its place).
+        ``uniforms=False`` only skips copying that part out (None is returned in its place). Use the
+        rows before the next call: for a single simulation they are views of its block, which a
+        later refill overwrites.
         """
         if sims is None:
             cur = self._cursor
             if self._max_cursor >= BLOCK_ROWS:
                 self._refill(np.flatnonzero(cur >= BLOCK_ROWS))
                 self._max_cursor = int(cur.max())
-            if cur.size == 1:  # one simulation: its row is a slice, no index arithmetic
+            if cur.size == 1:  # one simulation: its row is a slice, no index arithmetic nor copy
                 r = self._max_cursor
                 cur[0] = self._max_cursor = r + 1
-                return (self._normals[r:r + 1].copy() if normals else None,
-                        self._uniforms[r:r + 1].copy() if uniforms else None)
+                return (self._normals[r:r + 1] if normals else None,
+                        self._uniforms[r:r + 1] if uniforms else None)
             rows = self._row_base + cur
             cur += 1
             self._max_cursor += 1

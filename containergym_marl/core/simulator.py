@@ -12,7 +12,7 @@ import numpy as np
 
 from containergym_marl.config import MAX_SIMS, PlantConfig
 from containergym_marl.core import dynamics
-from containergym_marl.core.dynamics import PlantState, StepOutcome, get_rule
+from containergym_marl.core.dynamics import PlantState, StepOutcome, StepOutputs, get_rule
 from containergym_marl.core.observations import global_state
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.rng import NoiseStreams
@@ -24,6 +24,13 @@ class EpisodeFinishedError(RuntimeError):
 
 class PlantSimulator:
     """B simulations of one plant, stepped together by one call of the compiled step.
+
+    Like a physics engine's data block (MuJoCo's ``MjData``), the simulator owns the arrays it
+    writes: each step writes its :class:`StepOutcome` and the next ``state`` into one of two sets of
+    arrays, taken in turn. What a step returns stays unchanged until the step after next; copy what
+    you keep longer. (The views return fresh observations and Python numbers, and the episode
+    recorder copies, so none of this reaches an environment's user; the pure
+    :func:`containergym_marl.core.dynamics.step` allocates new arrays at every call.)
 
     Args:
         config: the plant.
@@ -52,6 +59,9 @@ class PlantSimulator:
         self.finished = np.ones(self.num_sims, dtype=bool)  # nothing to step before a reset
         self._any_finished = True
         self.last_outcome: StepOutcome | None = None
+        # The step writes into these two in turn (see step()).
+        self._outputs = (StepOutputs(self.num_sims, n, m), StepOutputs(self.num_sims, n, m))
+        self._next_outputs = 0
 
     # ---- randomness --------------------------------------------------------------------------
     def generator(self, index: int = 0) -> np.random.Generator | None:
@@ -140,7 +150,12 @@ class PlantSimulator:
             )
         requests = dynamics.check_requests(requests, self.state.volumes.shape)  # before a random row is used
         normals, uniforms = self._streams.next_rows()
-        self.state, outcome = dynamics.step_checked(self.state, requests, self.params, normals, uniforms, self._rule)
+        # Written into the outputs of the step before last: the state (this step's input) lies in
+        # the last step's outputs or in arrays of a reset, never in these.
+        outputs = self._outputs[self._next_outputs]
+        self._next_outputs ^= 1
+        self.state, outcome = dynamics.step_checked(self.state, requests, self.params, normals, uniforms, self._rule,
+                                                    outputs)
         self.previous_requests = outcome.requested  # shared with the outcome: never written in place
         finished = self.finished = outcome.terminated | outcome.truncated
         # a Python bool for the check above (ndarray.any() costs ~1 µs, a tenth of a small step)

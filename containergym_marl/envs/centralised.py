@@ -112,6 +112,8 @@ class ContainerGymEnv(gym.Env):
         self.n_containers, self.n_pus = params.n_containers, params.n_pus
         self._names = self.config.container_names
         self.action_space = spaces.Discrete(self.n_containers + 1)
+        # action a -> its (1, n) request row: none for 0, container a - 1 otherwise (the step copies it)
+        self._requests_of_action = np.eye(self.n_containers + 1, self.n_containers, k=-1, dtype=bool)[:, None, :]
         low, high = global_state_bounds(params)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
@@ -129,10 +131,7 @@ class ContainerGymEnv(gym.Env):
 
     def step(self, action):
         a = discrete_action(action, self.n_containers + 1, "action")
-        requests = np.zeros((1, self.n_containers), dtype=bool)
-        if a > 0:
-            requests[0, a - 1] = True
-        out = self._sim.step(requests)
+        out = self._sim.step(self._requests_of_action[a])
         # At most one request (container a - 1): read its entries directly, cheaper than searching.
         # ``.item(k)`` reads entry k of the (one-simulation) arrays straight into a Python number.
         i = a - 1

@@ -209,11 +209,11 @@ class _SB3Base(VecEnv):
     def last_plant_step(self) -> tuple[np.ndarray, np.ndarray]:
         """(num_sims,) plant reward and episode end (terminated or truncated) of every simulation in
         the last step: what training monitors need whatever the agents' rewards are (the same
-        method exists on the SuperSuit adapter)."""
+        method exists on the SuperSuit adapter). New arrays: the simulator reuses its own."""
         out = self._batch.sim.last_outcome
         if out is None:
             raise RuntimeError("last_plant_step: no step has been taken yet")
-        return out.plant_reward, out.terminated | out.truncated
+        return out.plant_reward.copy(), out.terminated | out.truncated
 
     def seed(self, seed: int | None = None) -> list[int | None]:
         """Simulation b gets ``seed + b`` at the next ``reset()``."""
