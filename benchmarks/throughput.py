@@ -651,7 +651,8 @@ def markdown(result: dict) -> str:
                         [[LABELS[p["path"]], str(p["n"]), f"{p['untimed_us']:.1f}", f"{p['timed_us']:.1f}"]
                          + [f"{p['parts_us'][k]:.1f}" for k in parts] for p in result["profile"]])
         lines += ["", "kernel: the call of the compiled step (numba's unboxing of its arguments included); core around "
-                  "the kernel: output arrays and their names (`dynamics.step_checked`); simulator bookkeeping: the rest of "
+                  "the kernel: the rest of `dynamics.step_checked` (argument tuples; the simulator gives it its output "
+                  "arrays); simulator bookkeeping: the rest of "
                   "`PlantSimulator.step`; resets: per step, amortised. The timers add the difference between the "
                   "two totals."]
     if result.get("ppo"):
