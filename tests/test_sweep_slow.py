@@ -179,13 +179,26 @@ def test_a_killed_training_worker_is_retried_and_resumes_the_others_are_identica
     assert [e["cumulative_reward"] for e in saved["episodes"]] == expected.returns.tolist()
 
 
+@contextlib.contextmanager
+def _ctrl_c_reaches_children():
+    """Start children with SIGINT at its default, as a terminal's foreground job has it. A shell
+    starts a background job (``pytest ... &``, ``nohup``) with SIGINT ignored, an ignored signal
+    stays ignored across exec, and the Ctrl-C of these tests would then never reach compare."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def test_ctrl_c_leaves_every_run_resumable_and_the_same_command_finishes_the_sweep(tmp_path):
     out = tmp_path / "cmp"
     cmd = _compare_cmd(out, *KILL_ARGS)
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
     # its own process group, so that SIGINT reaches the group as Ctrl-C in a terminal does
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-                            start_new_session=True)
+    with _ctrl_c_reaches_children():
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                                start_new_session=True)
     try:
         _wait_for_checkpoint(out, RUN1, proc)
         os.killpg(proc.pid, signal.SIGINT)
@@ -384,8 +397,9 @@ def test_ctrl_c_under_load_ends_compare_quickly_and_leaves_no_process(tmp_path):
     of the processes it started (Ray's included) outlives it by more than 30 s."""
     out = tmp_path / "cmp"
     marker, env = kills.marked_env("CONTAINERGYM_CTRLC")
-    proc = subprocess.Popen(kills.compare_cmd(out, *KILL_ARGS), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env=env, start_new_session=True)
+    with _ctrl_c_reaches_children():
+        proc = subprocess.Popen(kills.compare_cmd(out, *KILL_ARGS), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True, env=env, start_new_session=True)
     orphans = []
     try:
         _wait_for_checkpoint(out, RUN1, proc)
