@@ -283,7 +283,7 @@ class StepOutputs:
         return self.arrays
 
     def __setstate__(self, arrays: tuple[np.ndarray, ...]) -> None:
-        self._name(tuple(np.array(a) for a in arrays))
+        self._name(arrays)  # the copy's own arrays (pickle and deepcopy make new ones)
 
 
 # ---- 1. arbitration rules: name -> compiled priority ---------------------------------------------

@@ -156,7 +156,7 @@ class PlantSimulator:
         self._next_outputs ^= 1
         self.state, outcome = dynamics.step_checked(self.state, requests, self.params, normals, uniforms, self._rule,
                                                     outputs)
-        self.previous_requests = outcome.requested  # shared with the outcome: never written in place
+        self.previous_requests = outcome.requested  # shared with the outcome; reset() replaces it, never writes it
         finished = self.finished = outcome.terminated | outcome.truncated
         # a Python bool for the check above (ndarray.any() costs ~1 µs, a tenth of a small step)
         self._any_finished = finished.item(0) if finished.size == 1 else bool(np.logical_or.reduce(finished))
