@@ -75,7 +75,7 @@ def _print_training_end(run) -> None:
         best = ""
         if s.get("best_model") and s.get("best_train_return") is not None:
             at = f" at {s['best_timesteps']:,} samples" if s.get("best_timesteps") is not None else ""
-            best = f"; best {s['best_train_return']:.2f}{at} (best_model.zip)"
+            best = f"; best {s['best_train_return']:.2f}{at} ({s['best_model']})"
         print(f"training return (mean of the last {min(s['episodes'], 100)} of {s['episodes']} training "
               f"episodes): {s['train_return_mean100']:.2f} after {s['timesteps']:,} samples{best}")
         print(f"next: containergym-marl evaluate {shlex.quote(str(run))}")

@@ -5,10 +5,11 @@ needed), which view of the plant it acts on, how many simulations it steps by de
 learns from rollouts (``n_steps`` samples per update) or from a replay buffer, and which policy
 adapter evaluates its models. Adding an algorithm = one entry in :data:`REGISTRY`.
 
-An entry without an SB3 class is trained by a script of its own (``trainer``) and only evaluated
-here: ``mappo`` (BenchMARL's MAPPO, ``baselines/train_mappo.py``), whose run directories
-``containergym-marl evaluate`` reads like any other. :data:`ALGORITHMS` lists the SB3 ones, which
-``containergym-marl train`` and ``compare`` train.
+``fast_ppo`` and ``fast_shared_ppo`` are the package's own PPO (:mod:`containergym_marl.training.fast_ppo`:
+SB3's network and loss, a wider batch), with tensor-only model files (``.pt``). An entry with neither
+is trained by a script of its own (``trainer``) and only evaluated here: ``mappo`` (BenchMARL's
+MAPPO, ``baselines/train_mappo.py``), whose run directories ``containergym-marl evaluate`` reads like
+any other. :data:`ALGORITHMS` lists the ones that ``containergym-marl train`` and ``compare`` train.
 
 The non-learned controllers that are evaluated next to the algorithms (the paper's rule) are in
 :data:`RULE_BASED`; :data:`METHODS` lists everything a comparison can hold.
@@ -28,6 +29,7 @@ from containergym_marl.policies import (
     RuleBasedController,
     SharedModelPolicy,
 )
+from containergym_marl.policies.actor_critic import CentralisedActorCriticPolicy, SharedActorCriticPolicy
 from containergym_marl.policies.shared_actor import SharedActorPolicy
 
 #: Samples per policy update of the rollout algorithms (the paper's n_steps with one environment).
@@ -69,7 +71,8 @@ class AlgorithmSpec:
     Attributes:
         name: the registry key (CLI ``--algo``, run directory names, table rows).
         class_path: ``"module:Class"`` of the SB3 / sb3-contrib algorithm (imported by :meth:`load_class`),
-            or None for an algorithm that ``trainer`` trains outside SB3.
+            or None for an algorithm trained outside SB3 (``native``, or by ``trainer``).
+        native: trained by the package's own PPO (:mod:`containergym_marl.training.fast_ppo`).
         policy_adapter: the class that evaluates its models; its ``view`` ("centralised" or
             "decentralised") is the algorithm's view. For a non-SB3 algorithm it also loads them
             (``policy_adapter.load_model(path)``).
@@ -92,6 +95,7 @@ class AlgorithmSpec:
     class_path: str | None
     policy_adapter: type
     description: str
+    native: bool = False
     default_n_envs: int = 8
     rollout: bool = True
     minibatch: int | None = 64
@@ -107,8 +111,13 @@ class AlgorithmSpec:
 
     @property
     def sb3(self) -> bool:
-        """Trained by Stable-Baselines3 (``containergym-marl train``, ``compare``)."""
+        """Trained by Stable-Baselines3."""
         return self.class_path is not None
+
+    @property
+    def trained_here(self) -> bool:
+        """Trained by ``containergym-marl train`` (and ``compare``, the sweep): SB3 or native."""
+        return self.sb3 or self.native
 
     def model_file(self, which: str) -> str:
         """The file name of a run's ``which`` ("best" or "final") model."""
@@ -127,7 +136,7 @@ class AlgorithmSpec:
         """The SB3 algorithm class, with an error naming the ``train`` extra when it is missing."""
         if not self.sb3:
             raise ValueError(f"{self.name} is not a Stable-Baselines3 algorithm: it is trained by {self.trainer}")
-        require_training_extra(self.extra_modules)
+        require_training_extra(("stable_baselines3", *self.extra_modules))
         module, cls = self.class_path.split(":")
         return getattr(importlib.import_module(module), cls)
 
@@ -181,6 +190,14 @@ REGISTRY: dict[str, AlgorithmSpec] = {
         AlgorithmSpec("shared_ppo", "stable_baselines3:PPO", SharedModelPolicy,
                       "decentralised PPO: one policy shared by every container agent",
                       reward_modes=("individual", "team")),
+        AlgorithmSpec("fast_ppo", None, CentralisedActorCriticPolicy,
+                      "centralised PPO, native trainer: SB3's network and loss on 64 simulations with "
+                      "minibatches of 4096", native=True, default_n_envs=64, minibatch=None, adam_eps=None,
+                      model_suffix=".pt"),
+        AlgorithmSpec("fast_shared_ppo", None, SharedActorCriticPolicy,
+                      "decentralised PPO, native trainer: one policy shared by every container agent, "
+                      "64 simulations, minibatches of 4096", native=True, default_n_envs=64, minibatch=None,
+                      adam_eps=None, reward_modes=("individual", "team"), model_suffix=".pt"),
         AlgorithmSpec("mappo", None, SharedActorPolicy,
                       "MAPPO (BenchMARL, CTDE): one actor shared by the container agents, a critic on the "
                       "global state; team reward (its settings are BenchMARL's, in the script)",
@@ -188,12 +205,12 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       model_suffix=".pt"),
     )
 }
-#: The SB3 algorithms' names, in registry order: what ``containergym-marl train --algo`` and
-#: ``compare`` train. The other entries (mappo) are trained by their own script.
-ALGORITHMS: tuple[str, ...] = tuple(name for name, spec in REGISTRY.items() if spec.sb3)
+#: The names of the algorithms that ``containergym-marl train --algo`` and ``compare`` train (SB3 and
+#: native), in registry order. The other entries (mappo) are trained by their own script.
+ALGORITHMS: tuple[str, ...] = tuple(name for name, spec in REGISTRY.items() if spec.trained_here)
 #: The paper's rule-based controllers, by name (no training; evaluated with the algorithms).
 RULE_BASED: dict[str, type] = {cls.name: cls for cls in (RuleBasedController, RuleBasedAgents)}
-#: Every method a comparison can hold: the rule-based controllers, then the SB3 algorithms.
+#: The rule-based controllers, then the algorithms that ``containergym-marl train`` trains.
 METHODS: tuple[str, ...] = (*RULE_BASED, *ALGORITHMS)
 
 
@@ -214,10 +231,10 @@ def view_of(method: str) -> str:
     raise ValueError(f"method: unknown method {method!r}; choose one of {METHODS}")
 
 
-def require_training_extra(modules: tuple[str, ...] = ()) -> None:
-    """Import torch, stable_baselines3 and ``modules``; a :class:`MissingExtraError` naming the
-    ``train`` extra when one is missing."""
-    for module in ("torch", "stable_baselines3", *modules):
+def require_training_extra(modules: tuple[str, ...] = ("stable_baselines3",)) -> None:
+    """Import torch and ``modules``; a :class:`MissingExtraError` naming the ``train`` extra when one
+    is missing."""
+    for module in ("torch", *modules):
         try:
             importlib.import_module(module)
         except ImportError as exc:

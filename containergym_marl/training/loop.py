@@ -56,9 +56,10 @@ from containergym_marl.training.runs import (
     truncate_metrics,
 )
 
-#: run.json's note for a run in which no training episode ended.
-NO_EPISODE_NOTE = ("no training episode finished within the budget, so there is no best model "
-                   "(best_model.zip is not written); evaluation uses the final model")
+def no_episode_note(best_name: str = "best_model.zip") -> str:
+    """run.json's note for a run in which no training episode ended."""
+    return (f"no training episode finished within the budget, so there is no best model "
+            f"({best_name} is not written); evaluation uses the final model")
 
 
 def make_training_env(spec: AlgorithmSpec, args: TrainArgs, plant: PlantConfig, n_envs: int):
@@ -198,22 +199,27 @@ def _logger(run: Path, resume: bool):
 
 
 # ---- resume ---------------------------------------------------------------------------------------
-def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env):
+def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, load=None):
     """(model, samples, progress) from the newest intact checkpoint, the run directory made
     consistent with it; None when there is no intact checkpoint (the run directory is then cleared
-    for a fresh start)."""
+    for a fresh start). ``load(path)`` reads a checkpoint's model (default: the SB3 model of
+    ``args.algo``), raising a ValueError for a broken one."""
+    load = load or (lambda path: load_model(path, algo=args.algo, env=env))
+    suffix, best_name = spec.model_suffix, spec.model_file("best")
     # A checkpoint's model file is written after its progress file (runs.save_checkpoint). Runs
     # saved before that order may hold a model without its progress file after a kill: cut short
     # when an older checkpoint has one; otherwise such checkpoints are from before progress files.
     first_with_progress = min((s for s, _ in checkpoints(run) if checkpoint_files(run, s)["progress"].is_file()),
                               default=math.inf)
     for steps, path in intact_checkpoints(run):
+        if path.suffix != suffix:
+            continue
         if steps > first_with_progress and not checkpoint_files(run, steps)["progress"].is_file():
             warnings.warn(f"checkpoint {path.name} is incomplete (no progress file); trying the previous one",
                           RunWarning, stacklevel=3)
             continue
         try:
-            model = load_model(path, algo=args.algo, env=env)
+            model = load(path)
         except ValueError as exc:
             warnings.warn(f"{exc}; set aside as {path.name}.broken, trying the previous checkpoint",
                           RunWarning, stacklevel=3)
@@ -223,11 +229,11 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env):
     else:
         warnings.warn(f"{run}: no intact checkpoint to resume from; the run starts again from the beginning",
                       RunWarning, stacklevel=3)
-        for name in ("metrics.csv", "best_model.zip", "run.json"):
+        for name in ("metrics.csv", best_name, "run.json"):
             (run / name).unlink(missing_ok=True)
         shutil.rmtree(run / "tb", ignore_errors=True)
         return None
-    files = checkpoint_files(run, steps)
+    files = checkpoint_files(run, steps, suffix)
     if spec.replay_buffer:
         if files["replay_buffer"].is_file():
             try:
@@ -252,9 +258,9 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env):
             wall_time_s=kept[-1]["wall_time_s"] if kept else 0.0,
             best_timesteps=max((int(r["timesteps"]) for r in rows_before if r["saved_best"]), default=None))
     elif files["best"].is_file():  # the best model as it was at the checkpoint
-        atomic_write(run / "best_model.zip", lambda tmp: tmp.write_bytes(files["best"].read_bytes()))
+        atomic_write(run / best_name, lambda tmp: tmp.write_bytes(files["best"].read_bytes()))
     elif progress.best_timesteps is None:  # no best model yet at the checkpoint
-        (run / "best_model.zip").unlink(missing_ok=True)
+        (run / best_name).unlink(missing_ok=True)
     (run / "run.json").unlink(missing_ok=True)
     # Fresh simulation seeds after a resume (an uninterrupted run's streams are not replayed).
     env.seed(args.seed + steps)
@@ -267,7 +273,8 @@ def train(args: TrainArgs) -> Path:
     one writer per directory."""
     spec = get_algorithm(args.algo)
     args.validate()
-    algo_cls = spec.load_class()  # a MissingExtraError naming the extra, before anything is written
+    # a MissingExtraError naming the extra, before anything is written
+    algo_cls = spec.load_class() if spec.sb3 else None
     import torch
 
     plant = load_config(args.config, **args.overrides)  # raises ConfigError for unknown configs
@@ -283,7 +290,12 @@ def train(args: TrainArgs) -> Path:
         torch.set_num_threads(max(int(args.torch_threads), 1))
         env = make_training_env(spec, args, plant, n_envs)
         try:
-            _train(run, spec, algo_cls, args, plant, env, interval)
+            if _finished_already(run, spec, args):
+                return run
+            if spec.native:
+                _train_native(run, spec, args, env, interval)
+            else:
+                _train(run, spec, algo_cls, args, env, interval)
         finally:
             env.close()
     finally:
@@ -291,12 +303,16 @@ def train(args: TrainArgs) -> Path:
     return run
 
 
-def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, plant: PlantConfig, env, interval: int):
-    if args.resume and (run / "final_model.zip").is_file():
+def _finished_already(run: Path, spec: AlgorithmSpec, args: TrainArgs) -> bool:
+    if args.resume and (run / spec.model_file("final")).is_file():
         done = read_run_summary(run)
         if done is not None and done["timesteps"] >= args.timesteps:
             print(f"{run} finished already ({done['timesteps']:,} samples); nothing to resume")
-            return
+            return True
+    return False
+
+
+def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, env, interval: int):
     resumed = _resume(run, spec, args, env) if args.resume else None
     if resumed is None:
         env.seed(args.seed)
@@ -312,23 +328,75 @@ def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, plant: Pla
         with _no_distribution_validation():
             model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=resumed is None,
                         progress_bar=False, tb_log_name="run")
+    _finish(run, spec, args, int(model.num_timesteps), progress, start if resumed is not None else None,
+            lambda path: atomic_save_model(model, path))
+
+
+def _train_native(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval: int):
+    """The native PPO (:mod:`containergym_marl.training.fast_ppo`) in the run directory."""
+    from containergym_marl.training import fast_ppo
+
+    hp = fast_ppo.PPOArgs.from_hyperparams(args.hyperparams)
+    resumed = _resume(run, spec, args, env, load=lambda path: fast_ppo.load_checkpoint(path, hp)) \
+        if args.resume else None
+    if resumed is None:
+        env.seed(args.seed)
+        meta = {"algo": args.algo, "config": Path(str(args.config)).stem, "seed": args.seed,
+                "reward_mode": args.reward_mode if spec.reward_modes else None}
+        state, start, progress = fast_ppo.new_state(env, hp, spec.view, args.seed, meta), 0, TrainingProgress()
+    else:
+        state, start, progress = resumed
+    bar = _ProgressBar(args, start) if args.progress_bar else None
+    try:
+        fast_ppo.learn(run, state, env, args, hp, progress, interval,
+                       on_samples=bar.update if bar is not None else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    _finish(run, spec, args, state.num_timesteps, progress, start if resumed is not None else None,
+            lambda path: fast_ppo.save_final(state, path))
+
+
+class _ProgressBar:
+    """tqdm's bar over the budget, with the latest training return."""
+
+    def __init__(self, args: TrainArgs, start: int):
+        from tqdm.auto import tqdm
+
+        self.budget = int(args.timesteps)
+        self.bar = tqdm(total=self.budget, initial=min(start, self.budget), unit=" samples", unit_scale=True,
+                        dynamic_ncols=True, desc=f"{args.algo} s{args.seed}")
+
+    def update(self, steps: int, progress: TrainingProgress) -> None:
+        self.bar.update(min(steps, self.budget) - self.bar.n)
+        if progress.returns:
+            self.bar.set_postfix_str(f"training return {np.mean(progress.returns):.2f}", refresh=False)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _finish(run: Path, spec: AlgorithmSpec, args: TrainArgs, timesteps: int, progress: TrainingProgress,
+            resumed_from: int | None, save_final) -> None:
+    """run.json, then the final model (``save_final(path)``): the mark of a finished run."""
+    best_name = spec.model_file("best")
     if progress.episodes == 0 and not progress.returns:
-        (run / "best_model.zip").unlink(missing_ok=True)
-    best = (run / "best_model.zip").is_file()
+        (run / best_name).unlink(missing_ok=True)
+    best = (run / best_name).is_file()
     summary = {
         "status": "finished",
         "algo": args.algo,
-        "timesteps": int(model.num_timesteps),
+        "timesteps": int(timesteps),
         "budget": int(args.timesteps),
         "episodes": progress.episodes,
         "train_return_mean100": float(np.mean(progress.returns)) if progress.returns else None,
         "best_train_return": None if math.isinf(progress.best_train_return) else progress.best_train_return,
         "best_timesteps": progress.best_timesteps,
-        "best_model": "best_model.zip" if best else None,
-        "resumed_from": start if resumed is not None else None,
+        "best_model": best_name if best else None,
+        "resumed_from": resumed_from,
         "wall_time_s": progress.wall_time_s,
-        "note": NO_EPISODE_NOTE if progress.episodes == 0 and not best else None,
+        "note": no_episode_note(best_name) if progress.episodes == 0 and not best else None,
     }
-    # run.json first: final_model.zip is the mark of a finished run (compare reuses such runs).
+    # run.json first: the final model is the mark of a finished run (compare reuses such runs).
     atomic_write_text(run / "run.json", json.dumps(summary, indent=2))
-    atomic_save_model(model, run / "final_model.zip")
+    save_final(run / spec.model_file("final"))

@@ -52,7 +52,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from containergym_marl.files import atomic_write, atomic_write_text, temporary_target
-from containergym_marl.training.algorithms import get_algorithm
+from containergym_marl.training.algorithms import get_algorithm, require_training_extra
 
 try:
     import fcntl
@@ -115,7 +115,7 @@ class TrainArgs:
     def validate(self) -> None:
         """Refuse bad values up front (a ValueError naming the argument)."""
         spec = get_algorithm(self.algo)
-        if not spec.sb3:
+        if not spec.trained_here:
             raise ValueError(f"algo: {self.algo} is not trained by containergym-marl train but by {spec.trainer}")
         for name in ("timesteps", "n_envs", "checkpoint_every"):
             value = getattr(self, name)
@@ -127,6 +127,16 @@ class TrainArgs:
             raise ValueError(f"vec: {self.vec!r} applies to decentralised algorithms only; {self.algo} uses 'native'")
         if spec.reward_modes and self.reward_mode not in spec.reward_modes:
             raise ValueError(f"reward_mode: unknown mode {self.reward_mode!r}; choose one of {spec.reward_modes}")
+        if not (isinstance(self.gamma, (int, float)) and not isinstance(self.gamma, bool)
+                and 0 < self.gamma <= 1):
+            raise ValueError(f"gamma: expected a discount factor in (0, 1], got {self.gamma!r}")
+        if spec.native:
+            if self.vec != "native":
+                raise ValueError(f"vec: {self.algo} trains on the native vector env only, not {self.vec!r}")
+            require_training_extra(())  # torch, with a message naming the extra
+            from containergym_marl.training.fast_ppo import PPOArgs
+
+            PPOArgs.from_hyperparams(self.hyperparams)
 
 
 class RunError(RuntimeError):
@@ -203,7 +213,8 @@ class RunLock:
 
 
 #: The files of a run directory that training writes (checkpoints/ is the training's too).
-TRAINING_FILES = ("args.json", "config.toml", "metrics.csv", "best_model.zip", "final_model.zip", "run.json")
+TRAINING_FILES = ("args.json", "config.toml", "metrics.csv", "best_model.zip", "final_model.zip", "best_model.pt",
+                  "final_model.pt", "run.json")
 
 
 def remove_stale_temporaries(run: str | Path) -> list[Path]:
@@ -408,7 +419,7 @@ class TrainingProgress:
 
 
 # ---- checkpoints ----------------------------------------------------------------------------------
-_CKPT = re.compile(r"^ckpt_(\d+)_steps\.zip$")
+_CKPT = re.compile(r"^ckpt_(\d+)_steps\.(zip|pt)$")
 
 
 def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -> int:
@@ -420,16 +431,19 @@ def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -
     return max(samples // num_slots, 1) * num_slots
 
 
-def checkpoint_files(run: str | Path, steps: int) -> dict[str, Path]:
+def checkpoint_files(run: str | Path, steps: int, suffix: str = ".zip") -> dict[str, Path]:
+    """The files of the checkpoint at ``steps``; ``suffix`` is the algorithm's model suffix (SB3's
+    ``.zip``, the native PPO's ``.pt``)."""
     d = Path(run) / "checkpoints"
-    return {"model": d / f"ckpt_{steps}_steps.zip", "progress": d / f"ckpt_{steps}_steps.json",
-            "best": d / f"best_model_{steps}_steps.zip", "replay_buffer": d / f"ckpt_replay_buffer_{steps}_steps.pkl"}
+    return {"model": d / f"ckpt_{steps}_steps{suffix}", "progress": d / f"ckpt_{steps}_steps.json",
+            "best": d / f"best_model_{steps}_steps{suffix}",
+            "replay_buffer": d / f"ckpt_replay_buffer_{steps}_steps.pkl"}
 
 
 def checkpoints(run: str | Path) -> list[tuple[int, Path]]:
     """(samples, model file) of every checkpoint, newest first."""
     found = []
-    for p in (Path(run) / "checkpoints").glob("ckpt_*_steps.zip"):
+    for p in (Path(run) / "checkpoints").glob("ckpt_*_steps.*"):
         m = _CKPT.match(p.name)
         if m:
             found.append((int(m.group(1)), p))
@@ -442,7 +456,8 @@ def latest_checkpoint(run: str | Path) -> tuple[Path, int] | None:
     return (found[0][1], found[0][0]) if found else None
 
 
-def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_buffer: bool = False) -> int:
+def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_buffer: bool = False,
+                    suffix: str = ".zip") -> int:
     """Save a checkpoint at ``model.num_timesteps``: the best model so far (a hard link, or a copy),
     the replay buffer, the progress sidecar, then the model, each crash-safe. The model comes last:
     it is what makes the checkpoint exist (:func:`checkpoints` lists model files), so a kill while
@@ -450,8 +465,8 @@ def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_bu
     for a checkpoint from before sidecars existed, losing the episode window), and files of a
     checkpoint that was never completed are overwritten by the next one at the same samples."""
     steps = int(model.num_timesteps)
-    files = checkpoint_files(run, steps)
-    best = Path(run) / "best_model.zip"
+    files = checkpoint_files(run, steps, suffix)
+    best = Path(run) / f"best_model{suffix}"
     if best.is_file():
         _link_or_copy(best, files["best"])
     if replay_buffer:
@@ -489,11 +504,17 @@ _MODEL_MEMBERS = ("data", "policy.pth")
 
 
 def check_model_file(path: str | Path) -> None:
-    """Raise a ValueError saying the file is broken unless ``path`` is a complete SB3 model zip."""
+    """Raise a ValueError saying the file is broken unless ``path`` is a complete model file: an SB3
+    model zip (``.zip``) or a torch file (``.pt``, itself a zip holding a ``data.pkl``). Reads the
+    archive's members, never their contents."""
     path = Path(path)
     try:
         with zipfile.ZipFile(path) as z:
-            missing = [m for m in _MODEL_MEMBERS if m not in z.namelist()]
+            names = z.namelist()
+            if path.suffix == ".pt":
+                missing = [] if any(n.endswith("/data.pkl") for n in names) else ["data.pkl"]
+            else:
+                missing = [m for m in _MODEL_MEMBERS if m not in names]
             if missing:
                 raise ValueError(f"it lacks {', '.join(missing)}")
             bad = z.testzip()

@@ -1,0 +1,343 @@
+"""Native PPO: Stable-Baselines3's PPO (network, loss, defaults) on the package's batched simulations,
+with a batch shape that keeps the CPU busy with samples rather than with tiny gradient steps.
+
+Two registry entries train with it (``containergym-marl train --algo ...``, ``compare``, the sweep):
+
+* ``fast_ppo``: the centralised controller, ``Discrete(n + 1)``, on the global state;
+* ``fast_shared_ppo``: one policy shared by every container agent (``Discrete(2)`` on the agent's own
+  observation), with ``--reward-mode individual`` (method ``fast_shared_ppo``) or ``team``
+  (``fast_shared_ppo_team``).
+
+What is SB3's, unchanged: separate [64, 64] tanh policy and value networks with orthogonal
+initialisation; the clipped surrogate (0.2) plus 0.5 × the value MSE, no entropy bonus; advantages
+normalised per minibatch; GAE (λ 0.95, γ 0.99); Adam (3e-4, eps 1e-5) with the gradient norm
+clipped at 0.5; 10 epochs per rollout; a time-limit cut bootstrapped with the value of the last
+observation (``TimeLimit.truncated``), an overflow not. What differs is only the batch shape
+(:class:`PPOArgs`): SB3's paper runs step 8 simulations for 6144 samples per rollout and take
+minibatches of 64 (960 gradient steps per rollout, 0.156 per sample); here 64 simulations × 64
+steps and minibatches of 4096 take 64× fewer gradient steps per sample, each on a batch wide
+enough for the CPU's vector units. ``--n-envs 8 --hp n_steps=768 minibatch_size=64`` is SB3's
+centralised shape exactly (the validation in ``benchmarks/fast_ppo_validation.py`` runs both).
+
+Optional: ``--hp action_mask=true`` masks the emptying actions while no PU is free (in training and
+in evaluation, the model file records it).
+
+The run directory is the SB3 runs' (:mod:`containergym_marl.training.runs`), with tensor-only model
+files: ``best_model.pt`` / ``final_model.pt`` (:class:`~containergym_marl.policies.actor_critic.ActorCritic`,
+loaded with ``weights_only=True``) and checkpoints ``checkpoints/ckpt_<S>_steps.pt`` that add the
+optimiser's state and the sampler's random state. A checkpoint is taken after the update of the
+rollout that crossed the interval, so a resumed run continues exactly where it stopped, except
+that the simulations get fresh seeds (``seed + samples``, as the SB3 runs). All randomness comes
+from the run's seed: the simulations (``seed + b``) and one ``torch.Generator`` for the
+initialisation, the action samples and the minibatch order; with one torch thread the same seed
+gives the same metrics and model on the same machine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from containergym_marl.policies.actor_critic import ActorCritic, load_tensors
+from containergym_marl.training.runs import (
+    TrainArgs,
+    TrainingProgress,
+    append_metrics,
+    save_checkpoint,
+)
+
+CHECKPOINT_FORMAT = "containergym-marl ppo checkpoint"
+CHECKPOINT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class PPOArgs:
+    """The native PPO's settings (``--hp KEY=VALUE``); SB3's defaults except the batch shape.
+
+    The number of simulations is ``--n-envs`` (default 64). One rollout is ``n_steps`` steps of
+    every slot: n_envs × n_steps samples for ``fast_ppo``, n_envs × n × n_steps for
+    ``fast_shared_ppo`` (one per container agent).
+    """
+
+    n_steps: int = 64  # steps of every simulation per rollout (SB3 paper runs: 768 with 8 simulations)
+    minibatch_size: int = 4096  # samples per gradient step (SB3: 64); the last one of an epoch may be smaller
+    n_epochs: int = 10  # passes over each rollout (SB3: 10)
+    learning_rate: float = 3e-4  # Adam's step size (SB3: 3e-4), constant
+    adam_eps: float = 1e-5  # Adam's eps (SB3's actor-critic policies: 1e-5)
+    clip_range: float = 0.2  # PPO's ratio clip (SB3: 0.2)
+    gae_lambda: float = 0.95  # GAE's λ (SB3: 0.95)
+    ent_coef: float = 0.0  # entropy bonus (SB3: 0)
+    vf_coef: float = 0.5  # weight of the value loss (SB3: 0.5)
+    max_grad_norm: float = 0.5  # gradient norm clip (SB3: 0.5)
+    normalize_advantage: bool = True  # advantages normalised per minibatch (SB3: True)
+    action_mask: bool = False  # mask the emptying actions while no PU is free
+    hidden: tuple[int, ...] = (64, 64)  # hidden units of the policy and of the value network (SB3: 64, 64)
+
+    @classmethod
+    def from_hyperparams(cls, hyperparams: dict[str, Any]) -> "PPOArgs":
+        """The settings with ``hyperparams`` applied; a ValueError naming an unknown key or a bad value."""
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        unknown = sorted(set(hyperparams) - set(fields))
+        if unknown:
+            raise ValueError(f"hp: unknown native PPO setting(s) {unknown}; choose from {sorted(fields)}")
+        values = {}
+        for key, value in hyperparams.items():
+            default = getattr(cls, key) if key != "hidden" else cls.hidden
+            values[key] = _coerce(key, value, default)
+        args = cls(**values)
+        args.validate()
+        return args
+
+    def validate(self) -> None:
+        for name in ("n_steps", "minibatch_size", "n_epochs"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"hp: {name} must be >= 1, got {getattr(self, name)}")
+        positive = ("learning_rate", "adam_eps", "clip_range", "max_grad_norm")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"hp: {name} must be a finite number > 0, got {value}")
+        if not 0 <= self.gae_lambda <= 1:
+            raise ValueError(f"hp: gae_lambda must be in [0, 1], got {self.gae_lambda}")
+        for name in ("ent_coef", "vf_coef"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"hp: {name} must be a finite number >= 0, got {value}")
+        if not self.hidden or any(h < 1 for h in self.hidden):
+            raise ValueError(f"hp: hidden must list positive layer widths, got {list(self.hidden)}")
+
+
+def _coerce(key: str, value: Any, default: Any) -> Any:
+    """``value`` (a CLI string or a Python value) as the type of ``default``; a ValueError naming ``key``."""
+    try:
+        if isinstance(default, bool):
+            if isinstance(value, str):
+                if value.lower() not in ("true", "false", "1", "0"):
+                    raise ValueError("expected true or false")
+                return value.lower() in ("true", "1")
+            if not isinstance(value, (bool, np.bool_)):
+                raise ValueError("expected true or false")
+            return bool(value)
+        if isinstance(default, tuple):
+            items = value.split(",") if isinstance(value, str) else list(value)
+            return tuple(_integer(v) for v in items)
+        if isinstance(default, int):
+            return _integer(value)
+        if isinstance(value, bool):
+            raise ValueError("expected a number")
+        return float(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"hp: {key}={value!r} is not valid ({exc})") from None
+
+
+def _integer(value: Any) -> int:
+    if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+        raise ValueError("expected an integer")
+    return int(value)
+
+
+# ---- the training state that a checkpoint holds ------------------------------------------------
+@dataclass
+class TrainingState:
+    """The model, its optimiser and the sampler's generator: everything a resumed run needs besides
+    the run directory's progress files. ``save(f)`` writes a tensor-only checkpoint."""
+
+    model: ActorCritic
+    optimizer: Any
+    generator: torch.Generator
+    num_timesteps: int = 0
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+
+    def save(self, f) -> None:
+        torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "model": self.model.to_dict(),
+                    "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
+                    "num_timesteps": int(self.num_timesteps), "hyperparams": self.hyperparams}, f)
+
+
+def new_state(env, hp: PPOArgs, view: str, seed: int, meta: dict[str, Any]) -> TrainingState:
+    """A fresh model (initialised from ``seed``) and optimiser for ``env``'s spaces."""
+    generator = torch.Generator().manual_seed(int(seed))
+    model = ActorCritic(view, env.observation_space.shape[0], int(env.action_space.n), hp.hidden,
+                        action_mask=hp.action_mask, meta=meta, generator=generator)
+    return TrainingState(model, _optimizer(model, hp), generator, 0, dataclasses.asdict(hp))
+
+
+def _optimizer(model: ActorCritic, hp: PPOArgs):
+    # Adam's fused CPU kernel: SB3's update rule, one kernel per step (as the SB3 runs use).
+    return torch.optim.Adam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps, fused=True)
+
+
+def load_checkpoint(path: str | Path, hp: PPOArgs) -> TrainingState:
+    """The training state saved at ``path`` (tensors only); a ValueError when it is broken or not a
+    native PPO checkpoint."""
+    data = load_tensors(path)
+    source = f"checkpoint {str(path)!r}"
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{source} is not a native PPO checkpoint (format {CHECKPOINT_FORMAT!r})")
+    if data.get("version") != CHECKPOINT_VERSION:
+        raise ValueError(f"{source}: version {data.get('version')!r}; this package reads {CHECKPOINT_VERSION}")
+    model = ActorCritic.from_dict(data.get("model"), source)
+    optimizer = _optimizer(model, hp)
+    generator = torch.Generator()
+    try:
+        optimizer.load_state_dict(data["optimizer"])
+        generator.set_state(data["generator"])
+        steps = int(data["num_timesteps"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(f"{source}: its optimiser or generator state is unreadable ({exc})") from exc
+    return TrainingState(model, optimizer, generator, steps, dataclasses.asdict(hp))
+
+
+# ---- the trainer --------------------------------------------------------------------------------
+def learn(run: Path, state: TrainingState, env, args: TrainArgs, hp: PPOArgs, progress: TrainingProgress,
+          interval: int, on_samples=None) -> None:
+    """Train ``state`` on ``env`` (a native SB3-style VecEnv of the package) until ``args.timesteps``
+    samples: rollouts, GAE, clipped-loss updates; a metrics row (and the best model when the
+    100-episode training return improved) after every rollout, a checkpoint after the update of
+    every rollout that crosses ``interval`` samples since the last one."""
+    budget, gamma = int(args.timesteps), float(args.gamma)
+    model, optimizer, generator = state.model, state.optimizer, state.generator
+    slots, n_steps = env.num_envs, hp.n_steps
+    obs_size, n_actions = model.observation_size, model.n_actions
+    # Rollout buffers, allocated once.
+    obs_buf = torch.zeros((n_steps, slots, obs_size))
+    act_buf = torch.zeros((n_steps, slots), dtype=torch.long)
+    logp_buf = torch.zeros((n_steps, slots))
+    val_buf = torch.zeros((n_steps, slots))
+    rew_buf = torch.zeros((n_steps, slots))
+    start_buf = torch.zeros((n_steps, slots))  # 1 where the observation starts an episode
+    mask_buf = torch.ones((n_steps, slots, n_actions), dtype=torch.bool) if hp.action_mask else None
+    adv_buf = torch.zeros((n_steps, slots))
+
+    obs = torch.from_numpy(env.reset())
+    episode_start = torch.ones(slots)
+    num_sims = env.num_sims
+    episode_return, episode_length = np.zeros(num_sims), np.zeros(num_sims, dtype=np.int64)
+    t0, wall0 = time.perf_counter(), progress.wall_time_s
+    last_checkpoint = state.num_timesteps
+    best_file = run / "best_model.pt"
+
+    while state.num_timesteps < budget:
+        # ---- rollout: n_steps steps of every slot with the current policy
+        with torch.no_grad():
+            for t in range(n_steps):
+                masks = torch.from_numpy(env.action_masks()) if mask_buf is not None else None
+                logits = model.logits(obs, masks)
+                uniform = torch.rand(logits.shape, generator=generator)
+                actions = (logits - torch.log(-torch.log(uniform))).argmax(-1)  # Gumbel-max: a sample
+                obs_buf[t] = obs
+                act_buf[t] = actions
+                logp_buf[t] = torch.log_softmax(logits, -1).gather(-1, actions[:, None]).squeeze(-1)
+                val_buf[t] = model.value(obs)
+                start_buf[t] = episode_start
+                if masks is not None:
+                    mask_buf[t] = masks
+                next_obs, rewards, dones, infos = env.step(actions.numpy())
+                rewards = torch.from_numpy(rewards)
+                if dones.any():
+                    # A time-limit cut is not a terminal state: bootstrap with the value of the last
+                    # observation (SB3's TimeLimit.truncated handling); an overflow is terminal.
+                    cut = [k for k in np.flatnonzero(dones).tolist() if infos[k].get("TimeLimit.truncated")]
+                    if cut:
+                        last = torch.from_numpy(np.stack([infos[k]["terminal_observation"] for k in cut]))
+                        rewards[cut] += gamma * model.value(last)
+                rew_buf[t] = rewards
+                episode_start = torch.from_numpy(dones.astype(np.float32))
+                obs = torch.from_numpy(next_obs)
+                state.num_timesteps += slots
+                # the plant's return of every training episode (the best-model criterion)
+                plant_reward, sim_done = env.last_plant_step()
+                episode_return += plant_reward
+                episode_length += 1
+                for b in np.flatnonzero(sim_done).tolist():
+                    progress.add_episode(float(episode_return[b]), int(episode_length[b]))
+                    episode_return[b], episode_length[b] = 0.0, 0
+            last_value = model.value(obs)
+
+            # ---- GAE (SB3's compute_returns_and_advantage)
+            gae = torch.zeros(slots)
+            for t in reversed(range(n_steps)):
+                if t == n_steps - 1:
+                    not_done, next_value = 1.0 - episode_start, last_value
+                else:
+                    not_done, next_value = 1.0 - start_buf[t + 1], val_buf[t + 1]
+                delta = rew_buf[t] + gamma * next_value * not_done - val_buf[t]
+                gae = delta + gamma * hp.gae_lambda * not_done * gae
+                adv_buf[t] = gae
+            ret_buf = adv_buf + val_buf
+
+        steps = state.num_timesteps
+        wall = round(wall0 + time.perf_counter() - t0, 2)
+        _log(run, best_file, model, progress, steps, wall)
+        if on_samples is not None:
+            on_samples(steps, progress)
+
+        # ---- update: n_epochs passes of shuffled minibatches
+        b_obs, b_act = obs_buf.view(-1, obs_size), act_buf.view(-1)
+        b_logp, b_adv, b_ret = logp_buf.view(-1), adv_buf.view(-1), ret_buf.view(-1)
+        b_mask = mask_buf.view(-1, n_actions) if mask_buf is not None else None
+        total = b_obs.shape[0]
+        for _ in range(hp.n_epochs):
+            order = torch.randperm(total, generator=generator)
+            for lo in range(0, total, hp.minibatch_size):
+                idx = order[lo: lo + hp.minibatch_size]
+                logits = model.logits(b_obs[idx], None if b_mask is None else b_mask[idx])
+                log_probs = torch.log_softmax(logits, -1)
+                new_logp = log_probs.gather(-1, b_act[idx, None]).squeeze(-1)
+                advantages = b_adv[idx]
+                if hp.normalize_advantage and len(idx) > 1:
+                    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+                ratio = torch.exp(new_logp - b_logp[idx])
+                policy_loss = -torch.min(advantages * ratio,
+                                         advantages * torch.clamp(ratio, 1 - hp.clip_range, 1 + hp.clip_range)).mean()
+                value_loss = torch.nn.functional.mse_loss(b_ret[idx], model.value(b_obs[idx]))
+                loss = policy_loss + hp.vf_coef * value_loss
+                if hp.ent_coef:
+                    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
+                    loss = loss - hp.ent_coef * entropy
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(model.net.parameters(), hp.max_grad_norm)
+                optimizer.step()
+
+        progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
+        if steps - last_checkpoint >= interval and steps < budget:
+            last_checkpoint = save_checkpoint(run, state, progress, suffix=".pt")
+    progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
+
+
+def _log(run: Path, best_file: Path, model: ActorCritic, progress: TrainingProgress, steps: int, wall: float) -> None:
+    """A metrics row, and the best model (the policy that collected this rollout) when the
+    100-episode mean training return improved; nothing before the first training episode ends."""
+    if not progress.returns:
+        return
+    recent = float(np.mean(progress.returns))
+    improved = recent > progress.best_train_return
+    if improved:
+        progress.best_train_return, progress.best_timesteps = recent, steps
+        model.meta["timesteps"] = steps
+        model.save(best_file)
+    append_metrics(run, {
+        "timesteps": steps,
+        "episodes": progress.episodes,
+        "train_return_mean100": recent,
+        "train_episode_length_mean100": float(np.mean(progress.lengths)),
+        "best_train_return": progress.best_train_return,
+        "saved_best": int(improved),
+        "wall_time_s": wall,
+    })
+
+
+def save_final(state: TrainingState, path: Path) -> None:
+    state.model.meta["timesteps"] = int(state.num_timesteps)
+    state.model.save(path)
+
+
+__all__ = ["PPOArgs", "TrainingState", "learn", "load_checkpoint", "new_state", "save_final"]
