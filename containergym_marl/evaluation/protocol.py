@@ -45,6 +45,10 @@ class EvalProtocol:
 
 
 PAPER = EvalProtocol()
+#: Episodes for choosing settings (the native PPO's defaults, the planner's): disjoint from the test seeds.
+VALIDATION = EvalProtocol(episodes=30, first_seed=20_000)
+#: Fresh episodes on which a policy picked on the test episodes (the best seed) is reported again.
+FRESH = EvalProtocol(episodes=30, first_seed=30_000)
 
 
 class Policy(Protocol):

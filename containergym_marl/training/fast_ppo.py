@@ -214,7 +214,7 @@ def learn(run: Path, state: TrainingState, env, args: TrainArgs, hp: PPOArgs, pr
     rew_buf = torch.zeros((n_steps, slots))
     start_buf = torch.zeros((n_steps, slots))  # 1 where the observation starts an episode
     mask_buf = torch.ones((n_steps, slots, n_actions), dtype=torch.bool) if hp.action_mask else None
-    adv_buf = torch.zeros((n_steps, slots))
+    adv_buf = torch.zeros((n_steps, slots))  # GAE, written in place each rollout
 
     obs = torch.from_numpy(env.reset())
     episode_start = torch.ones(slots)
@@ -261,16 +261,7 @@ def learn(run: Path, state: TrainingState, env, args: TrainArgs, hp: PPOArgs, pr
                     episode_return[b], episode_length[b] = 0.0, 0
             last_value = model.value(obs)
 
-            # ---- GAE (SB3's compute_returns_and_advantage)
-            gae = torch.zeros(slots)
-            for t in reversed(range(n_steps)):
-                if t == n_steps - 1:
-                    not_done, next_value = 1.0 - episode_start, last_value
-                else:
-                    not_done, next_value = 1.0 - start_buf[t + 1], val_buf[t + 1]
-                delta = rew_buf[t] + gamma * next_value * not_done - val_buf[t]
-                gae = delta + gamma * hp.gae_lambda * not_done * gae
-                adv_buf[t] = gae
+            compute_gae(rew_buf, val_buf, start_buf, last_value, episode_start, gamma, hp.gae_lambda, out=adv_buf)
             ret_buf = adv_buf + val_buf
 
         steps = state.num_timesteps
@@ -279,38 +270,61 @@ def learn(run: Path, state: TrainingState, env, args: TrainArgs, hp: PPOArgs, pr
         if on_samples is not None:
             on_samples(steps, progress)
 
-        # ---- update: n_epochs passes of shuffled minibatches
-        b_obs, b_act = obs_buf.view(-1, obs_size), act_buf.view(-1)
-        b_logp, b_adv, b_ret = logp_buf.view(-1), adv_buf.view(-1), ret_buf.view(-1)
-        b_mask = mask_buf.view(-1, n_actions) if mask_buf is not None else None
-        total = b_obs.shape[0]
-        for _ in range(hp.n_epochs):
-            order = torch.randperm(total, generator=generator)
-            for lo in range(0, total, hp.minibatch_size):
-                idx = order[lo: lo + hp.minibatch_size]
-                logits = model.logits(b_obs[idx], None if b_mask is None else b_mask[idx])
-                log_probs = torch.log_softmax(logits, -1)
-                new_logp = log_probs.gather(-1, b_act[idx, None]).squeeze(-1)
-                advantages = b_adv[idx]
-                if hp.normalize_advantage and len(idx) > 1:
-                    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-                ratio = torch.exp(new_logp - b_logp[idx])
-                policy_loss = -torch.min(advantages * ratio,
-                                         advantages * torch.clamp(ratio, 1 - hp.clip_range, 1 + hp.clip_range)).mean()
-                value_loss = torch.nn.functional.mse_loss(b_ret[idx], model.value(b_obs[idx]))
-                loss = policy_loss + hp.vf_coef * value_loss
-                if hp.ent_coef:
-                    entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
-                    loss = loss - hp.ent_coef * entropy
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(model.net.parameters(), hp.max_grad_norm)
-                optimizer.step()
+        update(model, optimizer, hp, generator, obs_buf.view(-1, obs_size), act_buf.view(-1), logp_buf.view(-1),
+               adv_buf.view(-1), ret_buf.view(-1), mask_buf.view(-1, n_actions) if mask_buf is not None else None)
 
         progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
         if steps - last_checkpoint >= interval and steps < budget:
             last_checkpoint = save_checkpoint(run, state, progress, suffix=".pt")
     progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
+
+
+def compute_gae(rewards, values, starts, last_value, last_start, gamma: float, lam: float, out=None):
+    """Generalised advantage estimates [T, B] (SB3's ``compute_returns_and_advantage``).
+
+    ``starts[t]`` is 1 where the observation of step t starts an episode (so step t - 1 ended one),
+    ``last_value`` and ``last_start`` are the value and start flag of the observation after the
+    last step. Rewards already include the bootstrap of time-limit cuts."""
+    n_steps = rewards.shape[0]
+    out = torch.empty_like(rewards) if out is None else out
+    gae = torch.zeros_like(last_value)
+    for t in reversed(range(n_steps)):
+        if t == n_steps - 1:
+            not_done, next_value = 1.0 - last_start, last_value
+        else:
+            not_done, next_value = 1.0 - starts[t + 1], values[t + 1]
+        delta = rewards[t] + gamma * next_value * not_done - values[t]
+        gae = delta + gamma * lam * not_done * gae
+        out[t] = gae
+    return out
+
+
+def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, old_logp, advantages, returns,
+           masks=None) -> None:
+    """``hp.n_epochs`` passes over one rollout's samples (flattened) in shuffled minibatches of
+    ``hp.minibatch_size``: SB3's clipped surrogate + ``vf_coef`` × value MSE − ``ent_coef`` × entropy,
+    advantages normalised per minibatch, gradient norm clipped, one Adam step per minibatch."""
+    total = obs.shape[0]
+    for _ in range(hp.n_epochs):
+        order = torch.randperm(total, generator=generator)
+        for lo in range(0, total, hp.minibatch_size):
+            idx = order[lo: lo + hp.minibatch_size]
+            log_probs = torch.log_softmax(model.logits(obs[idx], None if masks is None else masks[idx]), -1)
+            new_logp = log_probs.gather(-1, actions[idx, None]).squeeze(-1)
+            adv = advantages[idx]
+            if hp.normalize_advantage and len(idx) > 1:
+                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+            ratio = torch.exp(new_logp - old_logp[idx])
+            policy_loss = -torch.min(adv * ratio, adv * torch.clamp(ratio, 1 - hp.clip_range, 1 + hp.clip_range)).mean()
+            value_loss = torch.nn.functional.mse_loss(returns[idx], model.value(obs[idx]))
+            loss = policy_loss + hp.vf_coef * value_loss
+            if hp.ent_coef:
+                entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
+                loss = loss - hp.ent_coef * entropy
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.net.parameters(), hp.max_grad_norm)
+            optimizer.step()
 
 
 def _log(run: Path, best_file: Path, model: ActorCritic, progress: TrainingProgress, steps: int, wall: float) -> None:
@@ -340,4 +354,4 @@ def save_final(state: TrainingState, path: Path) -> None:
     state.model.save(path)
 
 
-__all__ = ["PPOArgs", "TrainingState", "learn", "load_checkpoint", "new_state", "save_final"]
+__all__ = ["PPOArgs", "TrainingState", "compute_gae", "learn", "update", "load_checkpoint", "new_state", "save_final"]
