@@ -38,8 +38,8 @@ from containergym_marl.compare import PAIRS
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.sweep import latest_readable_checkpoint
-from containergym_marl.training.runs import (checkpoint_files, checkpoints, model_file, read_run_summary, run_args,
-                                             run_status)
+from containergym_marl.training.runs import (checkpoint_files, checkpoints, model_file, model_suffix,
+                                             read_run_summary, run_args, run_status)
 
 SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
 
@@ -64,7 +64,7 @@ def _copy_run(run: Path, dst: Path) -> None:
             _copy(run / name, dst / name)
     keep = set()
     if run_status(run) != "finished" and (steps := latest_readable_checkpoint(run)) is not None:
-        for path in checkpoint_files(run, steps).values():
+        for path in checkpoint_files(run, steps, model_suffix(run)).values():
             if path.is_file():
                 _copy(path, dst / "checkpoints" / path.name)
                 keep.add(path.name)

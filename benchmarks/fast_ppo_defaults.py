@@ -26,12 +26,18 @@ from containergym_marl.evaluation.runs import policy_from_run
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.runs import read_run_summary, run_status
 
-#: The batch shapes tried (``--hp`` settings; 64 simulations each): the default, a smaller minibatch
-#: (4x the gradient steps), a longer rollout (half the updates).
+#: The batch shapes tried (``--hp`` settings; 64 simulations each), against a start of 64 steps per
+#: rollout and minibatches of 4096 ("wide"): smaller minibatches (4x and 8x the gradient steps),
+#: a longer rollout (half the updates), a shorter rollout with smaller minibatches, and half the
+#: epochs with smaller minibatches (the gradient steps of a wider minibatch at half the compute).
 VARIANTS = {
-    "wide": {},
-    "mb1024": {"minibatch_size": 1024},
-    "steps128": {"n_steps": 128},
+    "wide": {"n_steps": 64, "minibatch_size": 4096},
+    "mb1024": {"n_steps": 64, "minibatch_size": 1024},
+    "mb512": {"n_steps": 64, "minibatch_size": 512},
+    "steps128": {"n_steps": 128, "minibatch_size": 4096},
+    "steps32_mb1024": {"n_steps": 32, "minibatch_size": 1024},
+    "mb1024_e5": {"n_steps": 64, "minibatch_size": 1024, "n_epochs": 5},
+    "mb512_e5": {"n_steps": 64, "minibatch_size": 512, "n_epochs": 5},
 }
 
 
@@ -83,7 +89,7 @@ def main(argv=None) -> None:
                 if not group:
                     continue
                 returns = [e["validation_return"] for e in group]
-                lines.append(f"| {row} | {algo} | {variant} | {VARIANTS[variant] or 'defaults'} | "
+                lines.append(f"| {row} | {algo} | {variant} | {VARIANTS[variant]} | "
                              f"{', '.join(f'{r:.1f}' for r in returns)} | {np.mean(returns):.1f} | "
                              f"{sum(e['overflowing_episodes'] for e in group)} | "
                              f"{np.mean([e['wall_time_s'] for e in group]):.0f} |")

@@ -35,7 +35,10 @@ Methods (:data:`METHODS`): ``rule_based`` (centralised) and ``rule_based_agents`
 controllers; ``planner`` and ``planner_agents``, the rollout planner through each view
 (:mod:`containergym_marl.policies.planner`, default settings); ``ppo``, ``trpo``, ``dqn``,
 ``maskable_ppo`` (centralised, SB3); ``shared_ppo`` (one PPO policy shared by the container agents,
-individual rewards) and ``shared_ppo_team`` (the same with the team reward). MAPPO is not one of
+individual rewards) and ``shared_ppo_team`` (the same with the team reward); ``fast_ppo``,
+``fast_shared_ppo`` and ``fast_shared_ppo_team``, the same three trained by the package's native PPO
+(:mod:`containergym_marl.training.fast_ppo`: SB3's network and loss, 64 simulations, minibatches of
+4096; ``--hp`` then takes its settings, e.g. ``n_steps=128``). MAPPO is not one of
 them: ``baselines/train_mappo.py`` trains it with BenchMARL (the clients extra) and writes
 ``mappo_s<seed>.json`` evaluation files that the table reads beside these. Runs are
 ``<runs>/<method>_<config>_s<seed>/`` and train on the config as it is (the δ = 60 rows at
@@ -128,6 +131,11 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            counterpart="ppo"),
     Method("shared_ppo_team", algo="shared_ppo", train=(("reward_mode", "team"),),
            counterpart="ppo"),
+    Method("fast_ppo", algo="fast_ppo"),
+    Method("fast_shared_ppo", algo="fast_shared_ppo", train=(("reward_mode", "individual"),),
+           counterpart="fast_ppo"),
+    Method("fast_shared_ppo_team", algo="fast_shared_ppo", train=(("reward_mode", "team"),),
+           counterpart="fast_ppo"),
 )}
 #: (decentralised, centralised) pairs whose probability of improvement the table reports; MAPPO
 #: (trained by baselines/train_mappo.py, whose evaluation files the table reads) against PPO too.
@@ -407,7 +415,7 @@ def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
     Reads the shipped folder only."""
     from containergym_marl.evaluation import EvalProtocol
     from containergym_marl.sweep import finished_budget, sha256
-    from containergym_marl.training.runs import checkpoints
+    from containergym_marl.training.runs import checkpoints, model_file
 
     folder = Path(args.shipped)
     protocol = asdict(EvalProtocol(episodes=args.episodes))
@@ -453,11 +461,12 @@ def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
                 if (differ := [f"{k}={saved.get(k)}" for k, v in method.train if saved.get(k) != v]):
                     shipped.unusable.append(f"{run.name} was trained with {', '.join(differ)}, not as {name}")
                     continue
-                if not (run / "best_model.zip").is_file():
+                best_name = model_file(run, "best")
+                if not (run / best_name).is_file():
                     shipped.unusable.append(f"{run.name} has no best model (no training episode finished)")
                     continue
                 files = _run_files(run)
-                fingerprint = _fingerprint(args, config, method, run.name, sha256(files["files"]["best_model.zip"]),
+                fingerprint = _fingerprint(args, config, method, run.name, sha256(files["files"][best_name]),
                                            timesteps=trained)
                 published = _cached(folder / "evaluations" / stem / f"{name}_s{seed}.json", fingerprint, protocol)
                 found.append((seed, files, fingerprint, published))

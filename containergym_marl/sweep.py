@@ -107,10 +107,12 @@ def _zip_ok(path: Path) -> bool:
 
 
 def finished_budget(run: str | Path) -> int | None:
-    """The budget of a finished run (a readable ``final_model.zip`` and ``args.json``), else None.
-    Reads two small files; no Ray, no torch."""
+    """The budget of a finished run (a readable final model, ``final_model.zip`` or ``.pt``, and
+    ``args.json``), else None. Reads small files; no Ray, no torch."""
+    from containergym_marl.training.runs import model_file
+
     run = Path(run)
-    final, saved = run / "final_model.zip", run / "args.json"
+    final, saved = run / model_file(run, "final"), run / "args.json"
     if not (final.is_file() and saved.is_file() and _zip_ok(final)):
         return None
     try:
@@ -153,7 +155,9 @@ def prepare_run(spec: RunSpec) -> tuple[str, int]:
     if run.exists():
         steps = latest_readable_checkpoint(run)
         if steps is not None and (run / "args.json").is_file():
-            best = run / "best_model.zip"
+            from containergym_marl.training.runs import model_file
+
+            best = run / model_file(run, "best")
             if best.exists() and not _zip_ok(best):
                 best.unlink()  # cut short by a kill; the resumed run saves its next best
             return "resume", steps

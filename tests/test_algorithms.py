@@ -19,13 +19,20 @@ def test_registry_entries_load_their_classes_and_views():
     from stable_baselines3 import DQN, PPO
 
     classes = {"ppo": PPO, "trpo": TRPO, "dqn": DQN, "maskable_ppo": MaskablePPO, "shared_ppo": PPO}
-    assert set(ALGORITHMS) == set(classes)
+    assert set(ALGORITHMS) == set(classes) | {"fast_ppo", "fast_shared_ppo"}
     for name, cls in classes.items():
         assert get_algorithm(name).load_class() is cls
+    for name in ("fast_ppo", "fast_shared_ppo"):  # the native PPO: no SB3 class, tensor-only files
+        spec = get_algorithm(name)
+        assert spec.native and not spec.sb3 and spec.model_file("best") == "best_model.pt"
+        with pytest.raises(ValueError, match="not a Stable-Baselines3 algorithm"):
+            spec.load_class()
+    assert get_algorithm("fast_shared_ppo").method_name("team") == "fast_shared_ppo_team"
     assert get_algorithm("shared_ppo").policy_adapter is SharedModelPolicy
     assert all(REGISTRY[a].policy_adapter is CentralisedModelPolicy for a in ("ppo", "trpo", "dqn", "maskable_ppo"))
     assert [view_of(m) for m in METHODS] == ["centralised", "decentralised", "centralised", "centralised",
-                                             "centralised", "centralised", "decentralised"]
+                                             "centralised", "centralised", "decentralised", "centralised",
+                                             "decentralised"]
     assert get_algorithm("dqn").replay_buffer and not get_algorithm("ppo").replay_buffer
     assert get_algorithm("dqn").default_n_envs == 1 and get_algorithm("ppo").default_n_envs == 8
     with pytest.raises(ValueError, match="unknown algorithm 'a2c'"):

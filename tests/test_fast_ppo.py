@@ -245,3 +245,13 @@ def test_masked_controller_never_empties_without_a_free_pu(tmp_path):
     assert sum(e.denied_requests for e in result.episodes) == 0
     unmasked = train(TrainArgs(algo="fast_ppo", out=str(tmp_path / "u"), timesteps=1000, **TINY))
     assert sum(e.denied_requests for e in evaluate_run(unmasked, protocol=EvalProtocol(episodes=3), write=False).episodes) > 0
+
+
+def test_the_sigmoid_form_of_tanh_equals_torch_tanh_and_its_gradient():
+    from containergym_marl.policies._fast_tanh import Tanh
+
+    x = torch.linspace(-12, 12, 20001, dtype=torch.float32, requires_grad=True)
+    y = Tanh()(x)
+    assert (y - torch.tanh(x)).abs().max().item() < 3e-7
+    (grad,) = torch.autograd.grad(y.sum(), x)
+    np.testing.assert_allclose(grad.numpy(), (1 - torch.tanh(x) ** 2).detach().numpy(), atol=1e-6)

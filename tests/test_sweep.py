@@ -134,3 +134,25 @@ def test_compare_killed_once_then_the_same_command_resumes_and_finishes(tmp_path
     for s in (s for s in ours if s <= point):
         a, b = (load_model(c[s], "ppo").policy.state_dict() for c in (ours, theirs))
         assert all(np.array_equal(a[k].numpy(), b[k].numpy()) for k in a), s
+
+
+def test_compare_trains_and_evaluates_the_native_ppo_methods(tmp_path):
+    """fast_ppo, fast_shared_ppo and fast_shared_ppo_team through compare on Ray: tensor-only run
+    directories, evaluations, and the decentralised-against-centralised pairs in the table; a rerun
+    reuses the finished runs (their final_model.pt)."""
+    args = dict(configs=["n5_m2_dt120"], methods=["fast_ppo", "fast_shared_ppo", "fast_shared_ppo_team"],
+                seeds=[1], timesteps=2048, episodes=2, n_envs=2, checkpoint_every=1024, bootstrap_reps=200,
+                num_cpus=2, figures=False, hyperparams={"n_steps": 32, "minibatch_size": 256})
+    out = tmp_path / "cmp"
+    report = compare(CompareArgs(out=str(out), **args))
+    names = sorted(r["name"] for r in report["sweep"]["trained"])
+    assert names == ["fast_ppo_n5_m2_dt120_s1", "fast_shared_ppo_n5_m2_dt120_s1", "fast_shared_ppo_team_n5_m2_dt120_s1"]
+    for name in names:
+        files = {p.name for p in (out / "runs" / name).iterdir()}
+        assert {"final_model.pt", "args.json"} <= files and not any(f.endswith(".zip") for f in files)
+    team = json.loads((out / "runs" / "fast_shared_ppo_team_n5_m2_dt120_s1" / "args.json").read_text())
+    assert team["algo"] == "fast_shared_ppo" and team["reward_mode"] == "team"
+    assert [(i["decentralised"], i["centralised"]) for i in report["improvements"]] == [
+        ("fast_shared_ppo", "fast_ppo"), ("fast_shared_ppo_team", "fast_ppo")]
+    again = compare(CompareArgs(out=str(out), **args))
+    assert again["sweep"]["trained"] == []

@@ -56,6 +56,8 @@ def _torch():
 def _mlp(torch, sizes: Sequence[int], generator=None):
     """Linear-tanh layers through ``sizes`` then a last linear layer (no activation), orthogonal
     init as SB3's: gain √2 for every layer but the last (set by the caller), biases 0."""
+    from containergym_marl.policies._fast_tanh import Tanh
+
     layers: list[Any] = []
     for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
         linear = torch.nn.Linear(a, b)
@@ -63,7 +65,7 @@ def _mlp(torch, sizes: Sequence[int], generator=None):
         torch.nn.init.zeros_(linear.bias)
         layers.append(linear)
         if i < len(sizes) - 2:
-            layers.append(torch.nn.Tanh())
+            layers.append(Tanh())
     return torch.nn.Sequential(*layers)
 
 

@@ -284,6 +284,11 @@ def model_file(run: str | Path, which: str) -> str:
     return spec.model_file(which)
 
 
+def model_suffix(run: str | Path) -> str:
+    """The suffix of a run's model and checkpoint files (``.zip`` for SB3, ``.pt`` otherwise)."""
+    return Path(model_file(run, "final")).suffix
+
+
 def prepare_run_dir(args: TrainArgs, plant) -> tuple[Path, RunLock]:
     """Create (or check, for ``args.resume``) the run directory and take its lock; returns both.
     Never overwrites results."""
@@ -561,7 +566,7 @@ __all__ = [
     "LOCK_NAME", "METRIC_FIELDS", "RunError", "RunLock", "RunWarning", "TrainArgs",
     "TrainingProgress", "append_metrics", "atomic_save_model", "atomic_write", "atomic_write_text",
     "check_model_file", "checkpoint_files", "checkpoint_interval", "checkpoints", "intact_checkpoints",
-    "latest_checkpoint", "load_model", "prepare_run_dir", "read_metrics", "read_progress",
+    "latest_checkpoint", "load_model", "model_suffix", "prepare_run_dir", "read_metrics", "read_progress",
     "read_run_summary", "remove_stale_temporaries", "run_args", "run_status", "model_file", "save_checkpoint",
     "truncate_metrics",
 ]

@@ -1,0 +1,31 @@
+"""tanh as 2·sigmoid(2x) − 1, for the native PPO's networks.
+
+On x86 CPUs torch's own ``tanh`` kernel (SLEEF's 1-ULP tanh) costs several times its ``sigmoid``,
+and the two tanh layers of each network were the largest single cost of a PPO update
+(``benchmarks/RESULTS.md``, run 10). This form computes the same function to within 2e-7
+(absolute) from the fast sigmoid, and its backward reuses the output: d tanh = 1 − y².
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+class _TanhFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x):
+        y = torch.sigmoid(x * 2.0).mul_(2.0).sub_(1.0)
+        ctx.save_for_backward(y)
+        return y
+
+    @staticmethod
+    def backward(ctx, grad):
+        (y,) = ctx.saved_tensors
+        return grad * (1.0 - y * y)
+
+
+class Tanh(torch.nn.Module):
+    """``torch.nn.Tanh`` computed through the sigmoid (no parameters: state dicts are unchanged)."""
+
+    def forward(self, x):
+        return _TanhFunction.apply(x)
