@@ -116,11 +116,42 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
             "files": files,
         }, indent=2) + "\n")
         done["models"].append(f"{group.config}/{group.method}")
+    done["fresh"] = evaluate_fresh(to, min_seeds)
     table = tables.build_table(tables.load_evaluations(to / "evaluations"), PAIRS)
     table.write(to, {"source": "baselines/publish_results.py"})
     atomic_write_text(to / "compute.md", training_compute(to / "runs"))
     if readme is not None:
         show_table_in_readme(readme, readme_block(to), to)
+    return done
+
+
+def evaluate_fresh(to: Path, min_seeds: int = 3) -> list[str]:
+    """Evaluate the best and the median policy of every (row, method) with at least ``min_seeds``
+    published seeds on fresh episodes (:data:`~containergym_marl.evaluation.protocol.FRESH`: 30
+    episodes, seeds 30000-30029, none of them a test episode), from the published run in
+    ``<to>/runs``; written to ``<to>/fresh/<config>/<method>_s<seed>.json`` with the sha256 of the
+    model evaluated, and evaluated again only when that model changes. Returns what was evaluated."""
+    from containergym_marl.evaluation.protocol import FRESH
+    from containergym_marl.evaluation.runs import evaluate_run, evaluated_files, evaluated_model
+    from containergym_marl.sweep import sha256
+
+    done = []
+    for group in tables.load_evaluations(to / "evaluations"):
+        if len(group.seeds) < min_seeds:
+            continue
+        for i in dict.fromkeys((group.best, group.median)):
+            seed = group.seeds[i]
+            run = to / "runs" / f"{group.method}_{group.config}_s{seed}"
+            if run_status(run) != "finished":
+                continue
+            model_sha = sha256(evaluated_model({name: (run / name).read_bytes() for name in evaluated_files(run)}))
+            path = to / tables.FRESH_FOLDER / group.config / f"{group.method}_s{seed}.json"
+            if path.is_file() and json.loads(path.read_text()).get("model_sha256") == model_sha:
+                continue
+            data = json.loads(evaluate_run(run, protocol=FRESH, write=False).to_json())
+            data["model_sha256"] = model_sha
+            atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+            done.append(f"{group.config}/{group.method}_s{seed}")
     return done
 
 

@@ -47,6 +47,16 @@ def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(t
         assert shipped == (runs / f"ppo_{config}_s{seed}" / "best_model.zip").read_bytes()
     table = (to / "table.md").read_text()
     assert "| n5_m2_dt120 | ppo |" in table
+    # the best and the median policy again on 30 fresh episodes, shown beside their test numbers
+    assert sorted(done["fresh"]) == sorted(f"{config}/ppo_s{s}" for s in ranked[:2])
+    row = json.loads((to / "table.json").read_text())["rows"][0]
+    for which, seed in (("best", ranked[0]), ("median", ranked[1])):
+        fresh = json.loads((to / "fresh" / config / f"ppo_s{seed}.json").read_text())
+        assert [e["seed"] for e in fresh["episodes"]] == list(range(30_000, 30_030))
+        returns = [e["cumulative_reward"] for e in fresh["episodes"]]
+        assert row[f"{which}_fresh_mean"] == np.mean(returns)
+        assert f"{np.mean(returns):.2f} ± {np.std(returns):.2f}" in table
+    assert _publish_module().publish(runs, out, to)["fresh"] == []  # the same models: nothing evaluated again
 
 
 def test_an_interrupted_run_published_with_its_checkpoint_resumes_after_restore(tmp_path):

@@ -61,9 +61,13 @@ PAPER_TABLE_1 = {
 TABLE_SEED = 0
 
 #: Columns of table.csv (and keys of the rows in table.json), in order.
-COLUMNS = ("config", "method", "view", "seeds", "best_mean", "best_std", "median_mean", "median_std", "iqm",
+COLUMNS = ("config", "method", "view", "seeds", "best_mean", "best_std", "median_mean", "median_std",
+           "best_fresh_mean", "best_fresh_std", "median_fresh_mean", "median_fresh_std", "iqm",
            "iqm_low", "iqm_high", "overflow_rate", "emptyings", "good_share", "denied", "pu_utilisation",
            "best_seed", "samples")
+#: Where a published folder keeps the evaluations of its best and median policies on fresh episodes
+#: (``<folder>/fresh/<config>/<method>_s<seed>.json``; baselines/publish_results.py writes them).
+FRESH_FOLDER = "fresh"
 
 _FILE = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")
 _CONFIG = re.compile(r"^n(\d+)_m(\d+)_dt(\d+)")
@@ -80,6 +84,13 @@ class MethodEvaluations:
     method: str
     seeds: list[int]
     evaluations: list[dict] = field(repr=False)
+    #: evaluations on fresh episodes (disjoint from the test seeds) by training seed, where published
+    fresh: dict[int, dict] = field(default_factory=dict, repr=False)
+
+    def fresh_returns(self, i: int) -> np.ndarray | None:
+        """Returns of seed index ``i``'s policy on the fresh episodes, or None when not evaluated there."""
+        data = self.fresh.get(self.seeds[i]) if self.seeds else None
+        return None if data is None else np.array([e["cumulative_reward"] for e in data["episodes"]], dtype=float)
 
     @property
     def view(self) -> str:
@@ -155,6 +166,7 @@ def load_evaluations(path: str | Path) -> list[MethodEvaluations]:
     if not folders:
         raise FileNotFoundError(f"{str(path)!r} holds no evaluation files (<method>_s<seed>.json or <method>.json), "
                                 f"neither directly nor in evaluations/<config>/")
+    root = path.parent if path.name == "evaluations" else None
     groups = []
     for directory, files in folders:
         by_method: dict[str, list[tuple[int | None, dict]]] = {}
@@ -169,11 +181,21 @@ def load_evaluations(path: str | Path) -> list[MethodEvaluations]:
             if not seeded and len(found) != 1:
                 raise ValueError(f"{directory}: more than one evaluation file for {method}")
             if seeded:
+                fresh = _fresh_evaluations(root, directory.name, method) if root is not None else {}
                 groups.append(MethodEvaluations(directory.name, method, [s for s, _ in seeded],
-                                                [d for _, d in seeded]))
+                                                [d for _, d in seeded], fresh))
             else:
                 groups.append(MethodEvaluations(directory.name, method, [], [found[0][1]]))
     return sort_groups(groups)
+
+
+def _fresh_evaluations(root: Path, config: str, method: str) -> dict[int, dict]:
+    found = {}
+    for file, data in _evaluation_files(root / FRESH_FOLDER / config):
+        m = _FILE.match(file.stem)
+        if m["method"] == method and m["seed"] is not None:
+            found[int(m["seed"])] = data
+    return found
 
 
 # ---- statistics -----------------------------------------------------------------------------------
@@ -206,10 +228,15 @@ def table_rows(groups: Sequence[MethodEvaluations], reps: int = 2000) -> list[di
         point, low, high = st.stratified_bootstrap_ci(g.seed_means[:, None], st.iqm, reps=reps,
                                                       rng=bootstrap_rng("iqm", g.config, g.method))
         e = g.evaluations[best]
+        fb, fm = g.fresh_returns(best), g.fresh_returns(median)
         rows.append({
             "config": g.config, "method": g.method, "view": g.view, "seeds": len(g.seeds),
             "best_mean": float(b.mean()), "best_std": float(b.std()),
             "median_mean": float(md.mean()), "median_std": float(md.std()),
+            "best_fresh_mean": None if fb is None else float(fb.mean()),
+            "best_fresh_std": None if fb is None else float(fb.std()),
+            "median_fresh_mean": None if fm is None else float(fm.mean()),
+            "median_fresh_std": None if fm is None else float(fm.std()),
             "iqm": point, "iqm_low": low, "iqm_high": high,
             "overflow_rate": _summary_value(e, "overflow_rate"), "emptyings": _summary_value(e, "emptyings_mean"),
             "good_share": _summary_value(e, "good_emptying_share"),
@@ -261,31 +288,45 @@ def _protocol_text(groups: Sequence[MethodEvaluations]) -> str:
     return f"{name}: δ = {dt:g} s, T = {steps}" + (f", {episodes} episodes" if episodes else "")
 
 
+def _fresh_text(groups: Sequence[MethodEvaluations]) -> str:
+    seeds = sorted({e["seed"] for g in groups for data in g.fresh.values() for e in data["episodes"]})
+    if not seeds:
+        return ""
+    return (f" Fresh: the same best and median policies on {len(seeds)} fresh episodes (seeds {seeds[0]}–{seeds[-1]}, "
+            f"disjoint from the test seeds), where they were picked without seeing them.")
+
+
+def _fresh_cell(mean: float | None, std: float | None) -> str:
+    return "–" if mean is None else f"{mean:.2f} ± {std:.2f}"
+
+
 def markdown(rows: Sequence[dict], imps: Sequence[dict], groups: Sequence[MethodEvaluations] = ()) -> str:
     """The Markdown table (one block for all configs) and the probabilities of improvement."""
     lines = [
         f"Test cumulative reward ({_protocol_text(groups)}). Best / median: the best and the median policy "
-        "over training seeds, mean ± std over test episodes. IQM: interquartile mean of the per-seed mean "
-        "returns [95 % stratified-bootstrap CI]. Overflow rate … PU busy: of the best policy. "
+        "over training seeds, mean ± std over test episodes." + _fresh_text(groups) + " IQM: interquartile mean "
+        "of the per-seed mean returns [95 % stratified-bootstrap CI]. Overflow rate … PU busy: of the best policy. "
         "Samples: training budget per run, one sample per decision of the trained policy (a plant step "
         "for a centralised method, an agent step for a decentralised one: n per plant step).",
         "",
-        "| config | method | view | seeds | best | median | IQM [95 % CI] | overflow rate | emptyings | "
-        "r ≥ 0.75 | denied req. | PU busy | samples |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| config | method | view | seeds | best | best, fresh | median | median, fresh | IQM [95 % CI] | "
+        "overflow rate | emptyings | r ≥ 0.75 | denied req. | PU busy | samples |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     configs = list(dict.fromkeys(r["config"] for r in rows))
     for config in configs:
         for r in (r for r in rows if r["config"] == config):
             lines.append(
                 f"| {r['config']} | {r['method']} | {r['view']} | {r['seeds'] or '–'} | "
-                f"{r['best_mean']:.2f} ± {r['best_std']:.2f} | {r['median_mean']:.2f} ± {r['median_std']:.2f} | "
+                f"{r['best_mean']:.2f} ± {r['best_std']:.2f} | {_fresh_cell(r['best_fresh_mean'], r['best_fresh_std'])} | "
+                f"{r['median_mean']:.2f} ± {r['median_std']:.2f} | "
+                f"{_fresh_cell(r['median_fresh_mean'], r['median_fresh_std'])} | "
                 f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}] | {_num(r['overflow_rate'])} | "
                 f"{_num(r['emptyings'], '.1f')} | {_num(r['good_share'])} | {_num(r['denied'], '.1f')} | "
                 f"{_num(r['pu_utilisation'])} | {_samples(r['samples'])} |")
         for algo, (best, median) in PAPER_TABLE_1.get(config, {}).items():
             lines.append(f"| {config} | paper {algo.upper()} (15 seeds) | centralised | 15 | "
-                         f"{best[0]:.2f} ± {best[1]:.2f} | {median[0]:.2f} ± {median[1]:.2f} | – | – | – | – | – | "
+                         f"{best[0]:.2f} ± {best[1]:.2f} | – | {median[0]:.2f} ± {median[1]:.2f} | – | – | – | – | – | – | "
                          f"– | {'2M' if config.startswith('n5_') else '5M'} |")
     if imps:
         lines += ["", "Probability of improvement (decentralised over centralised) [95 % bootstrap CI]:", ""]

@@ -126,7 +126,9 @@ class AlgorithmSpec:
     def method_name(self, reward_mode: str | None = None) -> str:
         """The name of this algorithm trained with ``reward_mode``: its own name for the default mode
         (or none), ``<name>_<mode>`` for another (compare's ``shared_ppo_team``)."""
-        return self.name if reward_mode in (None, *self.reward_modes[:1]) else f"{self.name}_{reward_mode}"
+        if not self.reward_modes or reward_mode in (None, self.reward_modes[0]):
+            return self.name  # a centralised algorithm trains on the plant reward, whatever the mode says
+        return f"{self.name}_{reward_mode}"
 
     @property
     def replay_buffer(self) -> bool:

@@ -47,6 +47,7 @@ from containergym_marl.training.runs import (
     checkpoints,
     intact_checkpoints,
     load_model,
+    load_replay_buffer,
     prepare_run_dir,
     read_metrics,
     read_progress,
@@ -204,7 +205,7 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, load=None):
     consistent with it; None when there is no intact checkpoint (the run directory is then cleared
     for a fresh start). ``load(path)`` reads a checkpoint's model (default: the SB3 model of
     ``args.algo``), raising a ValueError for a broken one."""
-    load = load or (lambda path: load_model(path, algo=args.algo, env=env))
+    load = load or (lambda path: load_model(path, algo=args.algo, env=env, hyperparams=args.hyperparams))
     suffix, best_name = spec.model_suffix, spec.model_file("best")
     # A checkpoint's model file is written after its progress file (runs.save_checkpoint). Runs
     # saved before that order may hold a model without its progress file after a kill: cut short
@@ -237,7 +238,7 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, load=None):
     if spec.replay_buffer:
         if files["replay_buffer"].is_file():
             try:
-                model.load_replay_buffer(files["replay_buffer"])
+                load_replay_buffer(model, files["replay_buffer"])
             except Exception as exc:  # noqa: BLE001 - an unreadable buffer: continue with an empty one
                 warnings.warn(f"replay buffer {files['replay_buffer']} is unreadable ({exc}); "
                               f"continuing with an empty one", RunWarning, stacklevel=3)

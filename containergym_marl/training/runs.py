@@ -13,7 +13,7 @@ A run directory holds everything needed to inspect, resume and evaluate a run::
       checkpoints/        ckpt_<S>_steps.zip every checkpoint interval, used by --resume, with
                           ckpt_<S>_steps.json (episode counter, 100-episode window, best so far),
                           best_model_<S>_steps.zip (the best model at that point) and, for
-                          replay-buffer algorithms, ckpt_replay_buffer_<S>_steps.pkl
+                          replay-buffer algorithms, ckpt_replay_buffer_<S>_steps.npz (plain arrays)
       tb/                 TensorBoard logs
       .lock               held (flock) by the process training in the directory
       evaluation_best.json / evaluation_final.json   written by `containergym-marl evaluate RUN`
@@ -442,7 +442,7 @@ def checkpoint_files(run: str | Path, steps: int, suffix: str = ".zip") -> dict[
     d = Path(run) / "checkpoints"
     return {"model": d / f"ckpt_{steps}_steps{suffix}", "progress": d / f"ckpt_{steps}_steps.json",
             "best": d / f"best_model_{steps}_steps{suffix}",
-            "replay_buffer": d / f"ckpt_replay_buffer_{steps}_steps.pkl"}
+            "replay_buffer": d / f"ckpt_replay_buffer_{steps}_steps.npz"}
 
 
 def checkpoints(run: str | Path) -> list[tuple[int, Path]]:
@@ -475,10 +475,42 @@ def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_bu
     if best.is_file():
         _link_or_copy(best, files["best"])
     if replay_buffer:
-        atomic_write(files["replay_buffer"], lambda tmp: _save_via_file(model.save_replay_buffer, tmp))
+        atomic_write(files["replay_buffer"], lambda tmp: save_replay_buffer(model, tmp))
     atomic_write_text(files["progress"], progress.to_json())
     atomic_save_model(model, files["model"])
     return steps
+
+
+#: The arrays of an SB3 replay buffer that a checkpoint keeps (as .npz: numbers only, no pickle).
+REPLAY_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+
+
+def save_replay_buffer(model: Any, path: Path) -> None:
+    """The model's replay buffer as plain arrays (``np.savez``), with its write position and fill flag.
+    (SB3's own ``save_replay_buffer`` pickles the buffer object, which a reader would unpickle.)"""
+    import numpy as np
+
+    buffer = model.replay_buffer
+    arrays = {name: getattr(buffer, name) for name in REPLAY_ARRAYS if getattr(buffer, name, None) is not None}
+    with open(path, "wb") as f:
+        np.savez(f, pos=np.int64(buffer.pos), full=np.bool_(buffer.full), **arrays)
+
+
+def load_replay_buffer(model: Any, path: Path) -> None:
+    """Fill the model's replay buffer from :func:`save_replay_buffer`'s file (``allow_pickle=False``);
+    a ValueError when the arrays do not fit the buffer."""
+    import numpy as np
+
+    buffer = model.replay_buffer
+    with np.load(path, allow_pickle=False) as saved:
+        for name in REPLAY_ARRAYS:
+            mine = getattr(buffer, name, None)
+            if mine is None:
+                continue
+            if name not in saved or saved[name].shape != mine.shape:
+                raise ValueError(f"{name} does not fit the buffer ({mine.shape})")
+            mine[...] = saved[name]
+        buffer.pos, buffer.full = int(saved["pos"]), bool(saved["full"])
 
 
 def _link_or_copy(src: Path, dst: Path) -> None:
@@ -530,7 +562,7 @@ def check_model_file(path: str | Path) -> None:
                          f"corrupt: {exc})") from exc
 
 
-def load_model(path: str | Path, algo: str, env=None):
+def load_model(path: str | Path, algo: str, env=None, hyperparams: dict[str, Any] | None = None):
     """Load a model file of ``algo`` with a clear error when it is missing, broken or not a model of
     ``algo``: an SB3 model, or for an algorithm trained outside SB3 (mappo) what its policy
     adapter's ``load_model`` reads (``env`` is then unused)."""
@@ -542,8 +574,11 @@ def load_model(path: str | Path, algo: str, env=None):
         return spec.policy_adapter.load_model(path)
     cls = spec.load_class()
     check_model_file(path)
+    from containergym_marl.training.safe_sb3 import safe_custom_objects
+
+    objects = safe_custom_objects(path, cls, hyperparams)  # every pickled entry replaced: nothing from the file runs
     try:
-        return cls.load(path, env=env, device="cpu")
+        return cls.load(path, env=env, device="cpu", custom_objects=objects)
     except (zipfile.BadZipFile, KeyError, ValueError, RuntimeError, EOFError, OSError, AssertionError) as exc:
         raise ValueError(f"cannot read model file {str(path)!r} as a {algo} model: {exc}") from exc
 
@@ -565,7 +600,7 @@ def intact_checkpoints(run: Path) -> Iterator[tuple[int, Path]]:
 __all__ = [
     "LOCK_NAME", "METRIC_FIELDS", "RunError", "RunLock", "RunWarning", "TrainArgs",
     "TrainingProgress", "append_metrics", "atomic_save_model", "atomic_write", "atomic_write_text",
-    "check_model_file", "checkpoint_files", "checkpoint_interval", "checkpoints", "intact_checkpoints",
+    "check_model_file", "checkpoint_files", "load_replay_buffer", "save_replay_buffer", "checkpoint_interval", "checkpoints", "intact_checkpoints",
     "latest_checkpoint", "load_model", "model_suffix", "prepare_run_dir", "read_metrics", "read_progress",
     "read_run_summary", "remove_stale_temporaries", "run_args", "run_status", "model_file", "save_checkpoint",
     "truncate_metrics",

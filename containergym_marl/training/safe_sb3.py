@@ -1,0 +1,144 @@
+"""Loading SB3 model files without running code from them.
+
+An SB3 zip keeps the algorithm's attributes in its ``data`` member as JSON; the ones that are not
+plain values (the policy class, the spaces, the schedules, buffers) are cloudpickle blobs under a
+``":serialized:"`` key, which ``BaseAlgorithm.load`` unpickles, so a crafted file runs whatever
+its blob says. The weights (``policy.pth`` and the others) are read by SB3 with
+``torch.load(weights_only=True)`` already.
+
+:func:`safe_custom_objects` replaces *every* serialized entry before SB3 sees it (its
+``custom_objects`` argument, SB3's documented way), each with a value rebuilt from plain data:
+
+* ``policy_class``: the algorithm's own ``MlpPolicy`` (the only policy this package trains);
+* ``observation_space`` / ``action_space``: a ``Box`` from the numbers of its JSON description
+  (shape, bounds, dtype) or a ``Discrete`` from its ``n``;
+* schedules (``lr_schedule``, ``clip_range``, ``exploration_schedule``…): a constant or linear
+  schedule parsed from their description (``ConstantSchedule(val=0.2)``);
+* ``train_freq`` (DQN): from the run's settings (SB3's default, every 4 steps, when none is given);
+* anything else (last observations, episode buffers, buffer classes): None, which SB3 rebuilds.
+
+Entries that cannot be rebuilt this way are refused with a ValueError naming them; nothing is
+ever unpickled.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import re
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SERIALIZED = ":serialized:"
+_SCHEDULE = re.compile(r"^(ConstantSchedule|LinearSchedule)\((.*)\)$")
+_ARGUMENT = re.compile(r"^\s*(\w+)\s*=\s*([-+0-9.eE]+|inf|nan)\s*$")
+
+
+def _numbers(text: Any, what: str) -> np.ndarray:
+    """A 1-D float array from numpy's printed form (``'[ 0.  80. 832.5585]'``)."""
+    if not isinstance(text, str):
+        raise ValueError(f"{what}: expected numpy's printed array, got {type(text).__name__}")
+    body = text.strip()
+    if not (body.startswith("[") and body.endswith("]")) or "..." in body:
+        raise ValueError(f"{what}: not a complete printed array")
+    try:
+        return np.array([float(x) for x in body[1:-1].split()], dtype=np.float64)
+    except ValueError as exc:
+        raise ValueError(f"{what}: {exc}") from None
+
+
+def _space(entry: dict, key: str):
+    from gymnasium import spaces
+
+    kind = entry.get(":type:", "")
+    if kind.endswith("spaces.discrete.Discrete'>"):
+        try:
+            n, start = int(entry["n"]), int(entry.get("start", 0))
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{key}: a Discrete space without a readable n") from None
+        return spaces.Discrete(n, start=start)
+    if kind.endswith("spaces.box.Box'>"):
+        shape = entry.get("_shape")
+        if not (isinstance(shape, list) and all(isinstance(d, int) and d >= 0 for d in shape)):
+            raise ValueError(f"{key}: a Box space without a readable shape")
+        dtype = np.dtype(entry.get("dtype", "float32"))
+        if dtype.kind != "f":
+            raise ValueError(f"{key}: a Box space of {dtype}; this package's models observe floats")
+        size = int(np.prod(shape))
+        low, high = _numbers(entry.get("low"), f"{key}.low"), _numbers(entry.get("high"), f"{key}.high")
+        if low.size != size or high.size != size:
+            raise ValueError(f"{key}: bounds of {low.size} and {high.size} numbers for a shape {shape}")
+        return spaces.Box(low.reshape(shape).astype(dtype), high.reshape(shape).astype(dtype), dtype=dtype)
+    raise ValueError(f"{key}: a space of type {kind or '?'}; only Box and Discrete are rebuilt")
+
+
+def _schedule(entry: dict, key: str):
+    from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule, LinearSchedule
+
+    if entry.get(":type:", "").endswith("utils.LinearSchedule'>"):  # its numbers are plain entries
+        try:
+            return LinearSchedule(float(entry["start"]), float(entry["end"]), float(entry["end_fraction"]))
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{key}: a linear schedule without readable start, end and end_fraction") from None
+    text = entry.get("value_schedule") if "FloatSchedule" in entry.get(":type:", "") else None
+    m = _SCHEDULE.match(text.strip()) if isinstance(text, str) else None
+    if m is None:
+        raise ValueError(f"{key}: a schedule this package cannot rebuild from its description")
+    kwargs = {}
+    for part in filter(None, (p.strip() for p in m.group(2).split(","))):
+        arg = _ARGUMENT.match(part)
+        if arg is None:
+            raise ValueError(f"{key}: unreadable schedule argument {part!r}")
+        kwargs[arg.group(1)] = float(ast.literal_eval(arg.group(2)) if arg.group(2) not in ("inf", "nan")
+                                     else float(arg.group(2)))
+    try:
+        inner = ConstantSchedule(**kwargs) if m.group(1) == "ConstantSchedule" else LinearSchedule(**kwargs)
+    except TypeError as exc:
+        raise ValueError(f"{key}: {exc}") from None
+    return FloatSchedule(inner)
+
+
+def _train_freq(hyperparams: dict[str, Any]):
+    """An off-policy algorithm's training frequency, from the run's settings (SB3's default: every 4 steps)."""
+    from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
+
+    value = hyperparams.get("train_freq", 4)
+    if isinstance(value, (list, tuple)) and len(value) == 2:
+        return TrainFreq(int(value[0]), TrainFrequencyUnit(value[1]))
+    return TrainFreq(int(value), TrainFrequencyUnit.STEP)
+
+
+def safe_custom_objects(path: str | Path, algorithm_class, hyperparams: dict[str, Any] | None = None) -> dict[str, Any]:
+    """``custom_objects`` for ``algorithm_class.load(path, ...)`` that replace every serialized entry
+    of the file's ``data`` (see the module docstring); a ValueError naming an entry that cannot be
+    rebuilt, or a file whose ``data`` is not a JSON object. ``hyperparams``: the run's SB3 settings,
+    which rebuild an off-policy algorithm's ``train_freq`` for a resumed run."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            data = json.loads(z.read("data"))
+    except (OSError, KeyError, zipfile.BadZipFile, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"cannot read the data of model file {str(path)!r}: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"model file {str(path)!r}: its data is not a JSON object")
+    objects: dict[str, Any] = {}
+    for key, value in data.items():
+        if not (isinstance(value, dict) and SERIALIZED in value):
+            continue
+        kind = str(value.get(":type:", ""))
+        if key == "policy_class":
+            objects[key] = algorithm_class.policy_aliases["MlpPolicy"]
+        elif key in ("observation_space", "action_space"):
+            objects[key] = _space(value, key)
+        elif "Schedule" in kind:
+            objects[key] = _schedule(value, key)
+        elif key == "train_freq":
+            objects[key] = _train_freq(hyperparams or {})
+        else:
+            objects[key] = None
+    missing = [key for key in ("policy_class", "observation_space", "action_space") if key not in objects]
+    if missing:
+        raise ValueError(f"model file {str(path)!r}: no {', '.join(missing)}")
+    return objects
