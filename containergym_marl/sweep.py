@@ -147,21 +147,24 @@ def prepare_run(spec: RunSpec) -> tuple[str, int]:
     """What a training task does with its run directory, and from which sample count:
     ``("finished", budget)``, ``("resume", checkpoint samples)`` or ``("new", 0)``.
 
-    A run directory without a readable checkpoint (the run died before its first one) is removed
-    and the run starts over; checkpoints cut short by a kill are removed first."""
+    Everything is decided and cleaned while holding the run's lock (a directory that a running
+    ``train`` holds is never touched: :class:`~containergym_marl.training.runs.RunError`).
+    Checkpoints cut short by a kill are removed; a run directory without a readable checkpoint (the
+    run died before its first one) is cleared of what training wrote and the run starts over."""
+    from containergym_marl.training.runs import RunLock, clear_run, model_file
+
     run = Path(spec.run_dir)
     if check_budget(spec):
         return "finished", spec.timesteps
     if run.exists():
-        steps = latest_readable_checkpoint(run)
-        if steps is not None and (run / "args.json").is_file():
-            from containergym_marl.training.runs import model_file
-
-            best = run / model_file(run, "best")
-            if best.exists() and not _zip_ok(best):
-                best.unlink()  # cut short by a kill; the resumed run saves its next best
-            return "resume", steps
-        shutil.rmtree(run)
+        with RunLock(run):
+            steps = latest_readable_checkpoint(run)
+            if steps is not None and (run / "args.json").is_file():
+                best = run / model_file(run, "best")
+                if best.exists() and not _zip_ok(best):
+                    best.unlink()  # cut short by a kill; the resumed run saves its next best
+                return "resume", steps
+            clear_run(run)
     return "new", 0
 
 

@@ -110,11 +110,49 @@ def test_a_training_task_resumes_from_the_latest_readable_checkpoint(tmp_path):
     assert prepare_run(_spec(run, 4096)) == ("resume", 1024)
     assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["ckpt_1024_steps.zip"]
     assert not (run / "best_model.zip").exists()
-    # died before its first checkpoint: start over
+    # died before its first checkpoint: start over, with what training wrote cleared
     (run / "checkpoints" / "ckpt_1024_steps.zip").unlink()
     assert prepare_run(_spec(run, 4096)) == ("new", 0)
-    assert not run.exists()
+    assert [p.name for p in run.iterdir()] == [".lock"]
     assert prepare_run(_spec(run, 4096)) == ("new", 0)
+
+
+def test_a_run_directory_with_foreign_files_is_never_cleared(tmp_path):
+    from containergym_marl.training.runs import RunError
+
+    run = tmp_path / "ppo_n5_m2_dt120_s1"
+    run.mkdir()
+    (run / "notes.txt").write_text("mine")
+    with pytest.raises(RunError, match="notes.txt"):
+        prepare_run(_spec(run, 4096))
+    assert (run / "notes.txt").read_text() == "mine"
+
+
+def test_a_run_that_a_running_train_holds_is_never_cleared(tmp_path):
+    """compare --train against a run that `containergym-marl train` is training (it holds the run's
+    lock, before its first checkpoint): the sweep's preparation fails naming the holder and deletes
+    nothing (it used to remove the directory under the running writer)."""
+    import subprocess
+    import sys
+    import time
+
+    from containergym_marl.training.runs import RunError
+
+    run = tmp_path / "ppo_n5_m2_dt120_s1"
+    proc = subprocess.Popen([sys.executable, "-m", "containergym_marl.cli", "train", "--algo", "ppo", "--out", str(run),
+                             "--timesteps", "10000000", "--no-progress"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and not ((run / ".lock").is_file() and (run / ".lock").read_text()):
+            time.sleep(0.1)
+        assert (run / "args.json").is_file()
+        with pytest.raises(RunError, match="in use by another writer"):
+            prepare_run(_spec(run, 10_000_000))
+        assert (run / "args.json").is_file() and proc.poll() is None
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 def test_a_training_task_returns_what_a_driver_without_shared_storage_needs(tmp_path):

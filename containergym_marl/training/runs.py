@@ -232,6 +232,30 @@ def remove_stale_temporaries(run: str | Path) -> list[Path]:
     return found
 
 
+def clear_run(run: str | Path) -> None:
+    """Remove what training wrote in ``run`` (its files, ``checkpoints/``, ``tb/``, evaluations and
+    temporary files), for a fresh start; the caller holds the run's :class:`RunLock`. Anything else
+    found there is never deleted: a :class:`RunError` names it first."""
+    import shutil
+
+    from containergym_marl.files import temporary_target
+
+    run = Path(run)
+    ours = set(TRAINING_FILES) | {"checkpoints", "tb", LOCK_NAME}
+    foreign = sorted(p.name for p in run.iterdir() if p.name not in ours and temporary_target(p.name) is None
+                     and not (p.name.startswith("evaluation_") and p.suffix == ".json"))
+    if foreign:
+        raise RunError(f"run directory {str(run)!r} holds files that training does not write "
+                       f"({', '.join(foreign[:5])}); refusing to clear it: move them or choose another directory")
+    for path in run.iterdir():
+        if path.name == LOCK_NAME:
+            continue
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+
+
 def _contents(run: Path) -> list[str]:
     """What a run directory holds, without the lock file and temporary files."""
     if not run.is_dir():
@@ -598,7 +622,7 @@ def intact_checkpoints(run: Path) -> Iterator[tuple[int, Path]]:
 
 
 __all__ = [
-    "LOCK_NAME", "METRIC_FIELDS", "RunError", "RunLock", "RunWarning", "TrainArgs",
+    "clear_run", "LOCK_NAME", "METRIC_FIELDS", "RunError", "RunLock", "RunWarning", "TrainArgs",
     "TrainingProgress", "append_metrics", "atomic_save_model", "atomic_write", "atomic_write_text",
     "check_model_file", "checkpoint_files", "load_replay_buffer", "save_replay_buffer", "checkpoint_interval", "checkpoints", "intact_checkpoints",
     "latest_checkpoint", "load_model", "model_suffix", "prepare_run_dir", "read_metrics", "read_progress",
