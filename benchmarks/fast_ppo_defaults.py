@@ -49,6 +49,7 @@ def main(argv=None) -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     p.add_argument("--runs", default="runs/fast_ppo_defaults")
     p.add_argument("--out", default="benchmarks/fast_ppo_defaults")
+    p.add_argument("--report-only", action="store_true", help="train nothing: report the finished runs only")
     ns = p.parse_args(argv)
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -59,6 +60,8 @@ def main(argv=None) -> None:
                 for seed in ns.seeds:
                     run = Path(ns.runs) / f"{algo}_{variant}_{row}_s{seed}"
                     status = run_status(run)
+                    if status != "finished" and ns.report_only:
+                        continue
                     if status != "finished":
                         cpu = time.process_time()
                         train(TrainArgs(algo=algo, config=row, seed=seed, out=str(run), resume=status == "interrupted",

@@ -38,7 +38,7 @@ controllers; ``planner`` and ``planner_agents``, the rollout planner through eac
 individual rewards) and ``shared_ppo_team`` (the same with the team reward); ``fast_ppo``,
 ``fast_shared_ppo`` and ``fast_shared_ppo_team``, the same three trained by the package's native PPO
 (:mod:`containergym_marl.training.fast_ppo`: SB3's network and loss, 64 simulations, minibatches of
-4096; ``--hp`` then takes its settings, e.g. ``n_steps=128``). MAPPO is not one of
+1024; ``--hp`` then takes its settings, e.g. ``n_steps=128``). MAPPO is not one of
 them: ``baselines/train_mappo.py`` trains it with BenchMARL (the clients extra) and writes
 ``mappo_s<seed>.json`` evaluation files that the table reads beside these. Runs are
 ``<runs>/<method>_<config>_s<seed>/`` and train on the config as it is (the δ = 60 rows at

@@ -194,11 +194,11 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       reward_modes=("individual", "team")),
         AlgorithmSpec("fast_ppo", None, CentralisedActorCriticPolicy,
                       "centralised PPO, native trainer: SB3's network and loss on 64 simulations with "
-                      "minibatches of 4096", native=True, default_n_envs=64, minibatch=None, adam_eps=None,
+                      "minibatches of 1024", native=True, default_n_envs=64, minibatch=None, adam_eps=None,
                       model_suffix=".pt"),
         AlgorithmSpec("fast_shared_ppo", None, SharedActorCriticPolicy,
                       "decentralised PPO, native trainer: one policy shared by every container agent, "
-                      "64 simulations, minibatches of 4096", native=True, default_n_envs=64, minibatch=None,
+                      "64 simulations, minibatches of 1024", native=True, default_n_envs=64, minibatch=None,
                       adam_eps=None, reward_modes=("individual", "team"), model_suffix=".pt"),
         AlgorithmSpec("mappo", None, SharedActorPolicy,
                       "MAPPO (BenchMARL, CTDE): one actor shared by the container agents, a critic on the "

@@ -15,9 +15,12 @@ clipped at 0.5; 10 epochs per rollout; a time-limit cut bootstrapped with the va
 observation (``TimeLimit.truncated``), an overflow not. What differs is only the batch shape
 (:class:`PPOArgs`): SB3's paper runs step 8 simulations for 6144 samples per rollout and take
 minibatches of 64 (960 gradient steps per rollout, 0.156 per sample); here 64 simulations × 64
-steps and minibatches of 4096 take 64× fewer gradient steps per sample, each on a batch wide
-enough for the CPU's vector units. ``--n-envs 8 --hp n_steps=768 minibatch_size=64`` is SB3's
-centralised shape exactly (the validation in ``benchmarks/fast_ppo_validation.py`` runs both).
+steps and minibatches of 1024 take 16× fewer gradient steps per sample, each on a batch wide
+enough for the CPU's vector units. The shape was chosen on validation episodes
+(``benchmarks/fast_ppo_defaults.py``: minibatches of 4096 left the centralised controller
+overflowing on n11_m2_dt120, half the epochs or twice the rollout length lost return, 512 gained
+nothing for 25 % more compute). ``--n-envs 8 --hp n_steps=768 minibatch_size=64`` is SB3's
+centralised shape exactly (``benchmarks/fast_ppo_validation.py paper-shape`` runs it).
 
 Optional: ``--hp action_mask=true`` masks the emptying actions while no PU is free (in training and
 in evaluation, the model file records it).
@@ -67,7 +70,7 @@ class PPOArgs:
     """
 
     n_steps: int = 64  # steps of every simulation per rollout (SB3 paper runs: 768 with 8 simulations)
-    minibatch_size: int = 4096  # samples per gradient step (SB3: 64); the last one of an epoch may be smaller
+    minibatch_size: int = 1024  # samples per gradient step (SB3: 64); the last one of an epoch may be smaller
     n_epochs: int = 10  # passes over each rollout (SB3: 10)
     learning_rate: float = 3e-4  # Adam's step size (SB3: 3e-4), constant
     adam_eps: float = 1e-5  # Adam's eps (SB3's actor-critic policies: 1e-5)
