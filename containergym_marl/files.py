@@ -10,16 +10,33 @@ from pathlib import Path
 from typing import Callable
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+#: The process's umask when the package was imported: new files get 0o666 & ~umask, as open() gives.
+_UMASK = _umask()
+
+
 def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     """Write ``path`` crash-safe: ``write(tmp)`` fills a temporary file in the same directory, which
-    is flushed to disk and renamed over ``path``. A reader sees the old or the new file, never a part."""
+    is flushed to disk and renamed over ``path``. A reader sees the old or the new file, never a part.
+    The file keeps its permissions when it existed; a new one gets what ``open`` would give it
+    (0o666 less the umask), not the temporary file's private 0o600."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        mode = path.stat().st_mode & 0o7777
+    except FileNotFoundError:
+        mode = 0o666 & ~_UMASK
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp = Path(name)
     try:
         write(tmp)
+        os.chmod(tmp, mode)
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from containergym_marl.training import ALGORITHMS
+from containergym_marl.training import ALGORITHMS, get_algorithm
 
 BASELINES = Path(__file__).resolve().parents[1] / "baselines"
 # a tiny budget may end no training episode: evaluating "best" then warns and uses the final model
@@ -39,10 +39,11 @@ def test_learning_baseline_trains_and_evaluates(tmp_path, algo):
         assert all(1 <= e.steps <= 600 for e in result.episodes)  # the paper's test protocol
     saved = json.loads((out / "args.json").read_text())
     assert saved["algo"] == algo and saved["n_envs"] == 2
-    assert (out / "final_model.zip").is_file()
+    spec = get_algorithm(algo)
+    assert (out / spec.model_file("final")).is_file()
     # a best model exactly when a training episode finished (run.json says which)
     summary = json.loads((out / "run.json").read_text())
-    assert (out / "best_model.zip").is_file() == (summary["episodes"] > 0)
+    assert (out / spec.model_file("best")).is_file() == (summary["episodes"] > 0)
     assert (out / "evaluation_best.json").is_file()
 
 

@@ -515,3 +515,26 @@ def test_the_policy_of_a_team_reward_run_is_named_after_its_method(tmp_path):
                          "--override", "episode_length_steps=5"]) == 0
         names[mode] = policy_from_run(out, "best").name
     assert names == {"individual": "shared_ppo[s1,best]", "team": "shared_ppo_team[s1,best]"}
+
+
+def test_an_atomic_rewrite_keeps_the_file_s_mode_and_a_new_file_follows_the_umask(tmp_path):
+    import stat
+
+    kept = tmp_path / "README.md"
+    kept.write_text("old")
+    kept.chmod(0o644)
+    atomic_write_text(kept, "new")
+    assert stat.S_IMODE(kept.stat().st_mode) == 0o644 and kept.read_text() == "new"
+    kept.chmod(0o600)
+    atomic_write_text(kept, "newer")
+    assert stat.S_IMODE(kept.stat().st_mode) == 0o600
+    old = os.umask(0o027)
+    try:
+        from containergym_marl import files
+
+        expected = 0o666 & ~files._UMASK
+    finally:
+        os.umask(old)
+    fresh = tmp_path / "table.md"
+    atomic_write_text(fresh, "x")
+    assert stat.S_IMODE(fresh.stat().st_mode) == expected

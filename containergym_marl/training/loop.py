@@ -286,22 +286,41 @@ def train(args: TrainArgs) -> Path:
     n_envs = spec.default_n_envs if args.n_envs is None else int(args.n_envs)
     interval = checkpoint_interval(args.timesteps, spec.num_slots(plant.n_containers, n_envs), args.checkpoint_every)
     args = dataclasses.replace(args, n_envs=n_envs, checkpoint_every=interval)
-    run, lock = prepare_run_dir(args, plant)
+    torch.set_num_threads(max(int(args.torch_threads), 1))
+    # The env and a new SB3 model are built before anything is written: a size that does not fit or
+    # settings the algorithm refuses leave no run directory behind.
     try:
-        torch.set_num_threads(max(int(args.torch_threads), 1))
         env = make_training_env(spec, args, plant, n_envs)
+    except MemoryError:
+        raise ValueError(f"n_envs: {n_envs} simulations do not fit in this machine's memory") from None
+    try:
+        model = None
+        if spec.sb3 and not args.resume:
+            env.seed(args.seed)
+            model = _new_sb3_model(spec, algo_cls, args, env, args.run_dir())
+        run, lock = prepare_run_dir(args, plant)
         try:
             if _finished_already(run, spec, args):
                 return run
             if spec.native:
                 _train_native(run, spec, args, env, interval)
             else:
-                _train(run, spec, algo_cls, args, env, interval)
+                _train(run, spec, algo_cls, args, env, interval, model)
         finally:
-            env.close()
+            lock.release()
     finally:
-        lock.release()
+        env.close()
     return run
+
+
+def _new_sb3_model(spec: AlgorithmSpec, algo_cls, args: TrainArgs, env, run: Path):
+    """A new SB3 model of the run; a ValueError naming the settings the algorithm refuses."""
+    kwargs = spec.kwargs(env.num_envs, args.gamma, args.hyperparams)
+    try:
+        return algo_cls("MlpPolicy", env, seed=args.seed, verbose=0, tensorboard_log=str(run / "tb"), device="cpu",
+                        **kwargs)
+    except (TypeError, ValueError, AssertionError, KeyError) as exc:
+        raise ValueError(f"hp: {algo_cls.__name__} refuses the settings {args.hyperparams}: {exc}") from None
 
 
 def _finished_already(run: Path, spec: AlgorithmSpec, args: TrainArgs) -> bool:
@@ -313,12 +332,12 @@ def _finished_already(run: Path, spec: AlgorithmSpec, args: TrainArgs) -> bool:
     return False
 
 
-def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, env, interval: int):
+def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, env, interval: int, model=None):
     resumed = _resume(run, spec, args, env) if args.resume else None
     if resumed is None:
-        env.seed(args.seed)
-        model = algo_cls("MlpPolicy", env, seed=args.seed, verbose=0, tensorboard_log=str(run / "tb"),
-                         device="cpu", **spec.kwargs(env.num_envs, args.gamma, args.hyperparams))
+        if model is None:  # a resume that found no intact checkpoint starts again
+            env.seed(args.seed)
+            model = _new_sb3_model(spec, algo_cls, args, env, run)
         start, progress = 0, TrainingProgress()
     else:
         model, start, progress = resumed

@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from containergym_marl.config import MAX_SIMS
 from containergym_marl.files import atomic_write, atomic_write_text, temporary_target
 from containergym_marl.training.algorithms import get_algorithm, require_training_extra
 
@@ -121,6 +122,16 @@ class TrainArgs:
             value = getattr(self, name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
                 raise ValueError(f"{name}: expected a positive integer, got {value!r}")
+        if self.n_envs is not None and self.n_envs > MAX_SIMS:
+            raise ValueError(f"n_envs: at most {MAX_SIMS} simulations, got {self.n_envs}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed <= MAX_SEED:
+            raise ValueError(f"seed: expected an integer in [0, {MAX_SEED}] (numpy's seed range), got {self.seed!r}")
+        if isinstance(self.num_cpus, bool) or not isinstance(self.num_cpus, int) or self.num_cpus < 0:
+            raise ValueError(f"num_cpus: expected an integer >= 0 (0: no worker processes), got {self.num_cpus!r}")
+        if isinstance(self.torch_threads, bool) or not isinstance(self.torch_threads, int) or self.torch_threads < 1:
+            raise ValueError(f"torch_threads: expected a positive integer, got {self.torch_threads!r}")
+        if not isinstance(self.hyperparams, dict) or not all(isinstance(k, str) for k in self.hyperparams):
+            raise ValueError(f"hyperparams: expected a mapping of setting names to values, got {self.hyperparams!r}")
         if self.vec not in ("native", "supersuit"):
             raise ValueError(f"vec: unknown vectorisation {self.vec!r}; choose 'native' or 'supersuit'")
         if self.vec == "supersuit" and spec.view != "decentralised":
@@ -130,6 +141,8 @@ class TrainArgs:
         if not (isinstance(self.gamma, (int, float)) and not isinstance(self.gamma, bool)
                 and 0 < self.gamma <= 1):
             raise ValueError(f"gamma: expected a discount factor in (0, 1], got {self.gamma!r}")
+        if spec.sb3:
+            _check_sb3_settings(spec, self.hyperparams)
         if spec.native:
             if self.vec != "native":
                 raise ValueError(f"vec: {self.algo} trains on the native vector env only, not {self.vec!r}")
@@ -137,6 +150,23 @@ class TrainArgs:
             from containergym_marl.training.fast_ppo import PPOArgs
 
             PPOArgs.from_hyperparams(self.hyperparams)
+
+
+#: The largest training seed: SB3 seeds numpy's global generator, which takes seeds below 2**32.
+MAX_SEED = 2**32 - 1
+
+
+def _check_sb3_settings(spec, hyperparams: dict[str, Any]) -> None:
+    """Every ``--hp`` key is a keyword argument of the algorithm's SB3 class (a ValueError naming the
+    unknown ones and the choices); the values are checked when the model is built, before the run
+    directory is written."""
+    import inspect
+
+    cls = spec.load_class()
+    accepted = set(inspect.signature(cls.__init__).parameters) - {"self", "policy", "env", "kwargs", "args"}
+    unknown = sorted(set(hyperparams) - accepted)
+    if unknown:
+        raise ValueError(f"hp: unknown {cls.__name__} setting(s) {unknown}; choose from {sorted(accepted)}")
 
 
 class RunError(RuntimeError):
