@@ -280,7 +280,7 @@ def _figures(records: dict[str, dict[str, list]], out: Path) -> list[Path]:
         cfg = load_config(config)
         stem = fig_dir / _stem(config)
         plots.plot_emptying_volume_ecdfs(by_method, f"{stem}_emptying_volume_ecdfs", config=cfg)
-        plots.plot_reward_ecdf(by_method, f"{stem}_reward_ecdf")
+        plots.plot_reward_ecdf(by_method, f"{stem}_reward_ecdf", config=cfg)
         written += [Path(f"{stem}_emptying_volume_ecdfs"), Path(f"{stem}_reward_ecdf")]
         for method, rec_list in by_method.items():
             plots.plot_episode(rec_list[0], f"{stem}_episode_{method}", config=cfg)

@@ -54,6 +54,7 @@ import dataclasses
 import json
 import math
 import operator
+import re
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
@@ -320,7 +321,21 @@ def _check_range(value: float, lo: float, hi: float, where: str, what: str = "",
         raise ConfigError(f"{where} must lie in {left}{lo!r}, {hi!r}]{what}, got {value!r}")
 
 
+#: Plant and container names: they name agents, files and figures, so no path separators, no
+#: "..", no control characters (a letter or digit first, then letters, digits, '_', '.', '+', '-').
+SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}$")
+#: Most reward peaks per container (the paper's containers have one to three).
+MAX_REWARD_PEAKS = 16
+
+
+def _check_name(name: Any, where: str) -> None:
+    if not isinstance(name, str) or not SAFE_NAME.match(name) or ".." in name:
+        raise ConfigError(f"{where}: {name!r} is not a safe name (1-64 characters: a letter or digit, then "
+                          f"letters, digits, '_', '.', '+' or '-'; no '..')")
+
+
 def _validate(cfg: PlantConfig) -> None:
+    _check_name(cfg.name, "name")
     if not isinstance(cfg.containers, tuple) or len(cfg.containers) == 0:
         raise ConfigError("containers: a plant needs at least one container")
     if len(cfg.containers) > MAX_CONTAINERS:
@@ -377,6 +392,9 @@ def _validate_container(c: ContainerSpec) -> None:
     where = f"container {c.name!r}"
     if not isinstance(c.name, str) or not c.name:
         raise ConfigError(f"name: container names must be non-empty strings, got {c.name!r}")
+    _check_name(c.name, "containers: name")
+    if len(c.reward_peaks) > MAX_REWARD_PEAKS:
+        raise ConfigError(f"{where}: reward_peaks: at most {MAX_REWARD_PEAKS} peaks, got {len(c.reward_peaks)}")
     types = _field_types(ContainerSpec)
     for key in (k for k, t in types.items() if t == "float"):
         _check_finite(getattr(c, key), f"{where}: {key}")

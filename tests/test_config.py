@@ -641,17 +641,38 @@ def test_to_toml_round_trip(name, tmp_path):
 
 
 def test_to_toml_round_trip_awkward_strings(tmp_path):
-    """Names and descriptions with quotes, backslashes, newlines and non-ASCII text survive."""
+    """Descriptions with quotes, backslashes, newlines and non-ASCII text survive; names use every
+    character a safe name may hold."""
     base = load_config(_write(tmp_path, "ok.toml", _plant_dict()))
     cfg = base.replace(
-        name='plant "Süd" \\ 2',
-        description="line one\nline two: ü, 🙂, tab\there\r\nend\x7f",
-        containers=(dataclasses.replace(base.containers[0], name='C "1" \\ é 🙂'),
-                    base.containers[1]),
+        name="plant_2.b+c-d",
+        description='line one\nline two: "Süd" \\ ü, 🙂, tab\there\r\nend\x7f',
+        containers=(dataclasses.replace(base.containers[0], name="C1-20.a+b_c"), base.containers[1]),
     )
     again = load_config(_write(tmp_path, "awkward.toml", cfg.to_toml()))
     assert again == cfg
     assert again.description == cfg.description
+
+
+@pytest.mark.parametrize("name", ["x/../../somewhere/name", "../up", "a/b", "with space", "nul\x00", "new\nline",
+                                  "", ".hidden", "a..b", "é", "x" * 65])
+def test_unsafe_container_and_plant_names_are_refused(tmp_path, name):
+    """Names become agent names and parts of file names (figures, records): nothing that could
+    leave an output folder or break a line."""
+    base = load_config(_write(tmp_path, "ok.toml", _plant_dict()))
+    with pytest.raises(ConfigError, match="containers: name|container names must be"):
+        base.replace(containers=(dataclasses.replace(base.containers[0], name=name), base.containers[1]))
+    with pytest.raises(ConfigError, match="^name"):
+        base.replace(name=name)
+
+
+def test_reward_peaks_are_bounded(tmp_path):
+    base = load_config(_write(tmp_path, "ok.toml", _plant_dict()))
+    c = base.containers[0]
+    many = dataclasses.replace(c, reward_peaks=(10.0,) * 1000, reward_heights=(1.0,) * 1000,
+                               reward_widths=(1.0,) * 1000)
+    with pytest.raises(ConfigError, match="at most 16 peaks"):
+        base.replace(containers=(many, base.containers[1]))
 
 
 # ---- 7. non-editable install ---------------------------------------------------------------

@@ -129,7 +129,7 @@ def test_results_table_best_and_median_over_seeds(tmp_path):
     assert rows["ppo"].best == (30.0, 1.0, 2) and rows["ppo"].median == (20.0, 1.0, 3)
     assert rows["rule_based"].seeds == [-1]
     table = markdown_table(results)
-    assert "| ppo | centralised | 3 | 30.00 ± 1.00 | 20.00 ± 1.00 |" in table
+    assert "| ppo | centralised | 3 | 30.00 ± 1.00 | – | 20.00 ± 1.00 | – |" in table  # no fresh episodes here
     assert "| rule_based | centralised | – | 50.00 ± 0.00 |" in table
     assert "paper PPO (15 seeds)" in table and "51.43 ± 3.00" in table
 

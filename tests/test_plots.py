@@ -366,3 +366,22 @@ def test_records_loaded_from_npz_plot_the_same(tmp_path, central):
     fig = plots.plot_episode(again, tmp_path / "e", formats=("svg",))
     np.testing.assert_array_equal(by_gid(fig, "volume-C1-20")["volume-C1-20"].get_ydata(),
                                   central[0].volumes[:, 0])
+
+
+def test_compare_figures_of_a_config_given_as_a_path(tmp_path):
+    """A plant given as a file (named like no built-in) draws its figures from that file; the
+    reward ECDF used to look the plant up by name and fail after the evaluations."""
+    from pathlib import Path
+
+    from containergym_marl.compare import _figures
+    from containergym_marl.core.params import PlantParams
+    from containergym_marl.evaluation import EvalProtocol, evaluate
+    from containergym_marl.policies import RuleBasedController
+
+    cfg = load_config("n5_m2_dt120").replace(name="my_plant")
+    path = tmp_path / "my_plant.toml"
+    path.write_text(cfg.to_toml())
+    records = evaluate(RuleBasedController(PlantParams.from_config(cfg)), str(path),
+                       EvalProtocol(episodes=1, episode_length_steps=30)).records
+    written = _figures({str(path): {"rule_based": records}}, tmp_path / "out")
+    assert Path(f"{written[1]}.svg").is_file() and "my_plant_reward_ecdf" in str(written[1])

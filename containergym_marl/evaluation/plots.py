@@ -73,14 +73,16 @@ def figure_paths(path: str | Path, formats: Sequence[str] = FORMATS) -> list[Pat
 
 
 def _save(fig: Figure, path: str | Path, formats: Sequence[str]) -> Figure:
+    """Write the figure in each format, each file crash-safe (a reader never sees a part)."""
+    from containergym_marl.files import atomic_write
+
     for out in figure_paths(path, formats):
-        out.parent.mkdir(parents=True, exist_ok=True)
         fmt = out.suffix[1:].lower()
         # No creation date and fixed internal ids in vector files: the same data give
         # byte-identical files (figures can be versioned and diffed).
         meta = {"Date": None} if fmt in ("svg", "pdf") else None
         with rc_context({"svg.hashsalt": "containergym-marl"}):
-            fig.savefig(out, format=fmt, dpi=PNG_DPI, metadata=meta)
+            atomic_write(out, lambda tmp, fmt=fmt, meta=meta: fig.savefig(tmp, format=fmt, dpi=PNG_DPI, metadata=meta))
     return fig
 
 

@@ -76,7 +76,13 @@ class EpisodeRecord:
 
     def save_npz(self, path: str | Path) -> None:
         meta = {k: v for k, v in asdict(self).items() if k not in _ARRAYS}
-        np.savez_compressed(path, meta=json.dumps(meta), **{k: getattr(self, k) for k in _ARRAYS})
+        from containergym_marl.files import atomic_write
+
+        def write(tmp: Path) -> None:
+            with open(tmp, "wb") as f:  # a file object: numpy would otherwise append ".npz" to the name
+                np.savez_compressed(f, meta=json.dumps(meta), **{k: getattr(self, k) for k in _ARRAYS})
+
+        atomic_write(path, write)
 
     @classmethod
     def load_npz(cls, path: str | Path) -> "EpisodeRecord":
