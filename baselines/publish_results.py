@@ -37,9 +37,11 @@ from pathlib import Path
 from containergym_marl.compare import PAIRS
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text
+from containergym_marl.manifest import check as manifest_check
+from containergym_marl.manifest import read_manifest, write_manifest
 from containergym_marl.sweep import latest_readable_checkpoint
-from containergym_marl.training.runs import (checkpoint_files, checkpoints, model_file, model_suffix,
-                                             read_run_summary, run_args, run_status)
+from containergym_marl.training.runs import (RunLock, checkpoint_files, checkpoints, clear_run, model_file,
+                                             model_suffix, read_run_summary, run_args, run_status)
 
 SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
 
@@ -92,6 +94,7 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
         _copy(path, to / "evaluations" / path.parent.name / path.name)
         done["evaluations"] += 1
     if not any((to / "evaluations").glob("*/*.json")):
+        write_manifest(to)
         return done  # runs only (a sweep still training): no table yet
     for group in tables.load_evaluations(to / "evaluations"):
         if len(group.seeds) < min_seeds:
@@ -120,6 +123,7 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
     table = tables.build_table(tables.load_evaluations(to / "evaluations"), PAIRS)
     table.write(to, {"source": "baselines/publish_results.py"})
     atomic_write_text(to / "compute.md", training_compute(to / "runs"))
+    write_manifest(to)
     if readme is not None:
         show_table_in_readme(readme, readme_block(to), to)
     return done
@@ -201,13 +205,18 @@ def restore(to: Path, runs: Path, compare_out: Path) -> dict:
     """Copy published runs into ``runs`` where they are absent or further trained than there, and
     published evaluations into ``compare_out`` where absent."""
     done = {"runs": [], "evaluations": 0}
-    for src in sorted(p for p in (to / "runs").glob("*") if p.is_dir()):
+    manifest = read_manifest(to)
+    todo = [src for src in sorted(p for p in (to / "runs").glob("*") if p.is_dir())
+            if not ((runs / src.name).is_dir() and _trained_samples(runs / src.name) >= _trained_samples(src))]
+    for src in todo:  # every model and checkpoint checked before anything is copied
+        for path in (p for p in src.rglob("*") if p.is_file()):
+            manifest_check(to, path.relative_to(to).as_posix(), path.read_bytes(), manifest)
+    for src in todo:
         dst = runs / src.name
-        if dst.is_dir() and _trained_samples(dst) >= _trained_samples(src):
-            continue
         if dst.is_dir():
-            shutil.rmtree(dst)
-        shutil.copytree(src, dst)
+            with RunLock(dst):  # never under a process training it (RunError naming the holder)
+                clear_run(dst)
+        shutil.copytree(src, dst, dirs_exist_ok=True)
         done["runs"].append(src.name)
     for path in sorted((to / "evaluations").glob("*/*.json")):
         dst = compare_out / "evaluations" / path.parent.name / path.name

@@ -415,9 +415,12 @@ def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
     Reads the shipped folder only."""
     from containergym_marl.evaluation import EvalProtocol
     from containergym_marl.sweep import finished_budget, sha256
+    from containergym_marl.manifest import check as manifest_check
+    from containergym_marl.manifest import read_manifest
     from containergym_marl.training.runs import checkpoints, model_file
 
     folder = Path(args.shipped)
+    manifest = read_manifest(folder)
     protocol = asdict(EvalProtocol(episodes=args.episodes))
     shipped = _Shipped(folder)
     plan = _Plan([], set(), [], {}, [], shipped=shipped)
@@ -466,6 +469,8 @@ def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
                     shipped.unusable.append(f"{run.name} has no best model (no training episode finished)")
                     continue
                 files = _run_files(run)
+                for name, data in files["files"].items():  # never a model changed after publication
+                    manifest_check(folder, f"runs/{run.name}/{name}", data, manifest)
                 fingerprint = _fingerprint(args, config, method, run.name, sha256(files["files"][best_name]),
                                            timesteps=trained)
                 published = _cached(folder / "evaluations" / stem / f"{name}_s{seed}.json", fingerprint, protocol)

@@ -6,6 +6,7 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 
 from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.runs import evaluate_run
@@ -57,6 +58,21 @@ def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(t
         assert row[f"{which}_fresh_mean"] == np.mean(returns)
         assert f"{np.mean(returns):.2f} ± {np.std(returns):.2f}" in table
     assert _publish_module().publish(runs, out, to)["fresh"] == []  # the same models: nothing evaluated again
+
+    # every published model is listed with its sha256; a file changed afterwards is refused, named
+    from containergym_marl.compare import CompareArgs, _shipped_plan
+    from containergym_marl.manifest import ManifestError, read_manifest
+
+    listed = read_manifest(to)
+    assert f"runs/ppo_{config}_s1/best_model.zip" in listed and f"models/{config}/ppo_best.zip" in listed
+    tampered = to / "runs" / f"ppo_{config}_s2" / "best_model.zip"
+    tampered.write_bytes(tampered.read_bytes() + b"\0")
+    args = CompareArgs(configs=[config], methods=["ppo"], shipped=str(to), episodes=2, seeds=[])
+    with pytest.raises(ManifestError, match=f"ppo_{config}_s2/best_model.zip"):
+        _shipped_plan(args, tmp_path / "cmp2")
+    with pytest.raises(ManifestError, match="differs"):
+        _publish_module().restore(to, tmp_path / "restored", tmp_path / "cmp3")
+    assert not (tmp_path / "restored").exists()
 
 
 def test_an_interrupted_run_published_with_its_checkpoint_resumes_after_restore(tmp_path):
