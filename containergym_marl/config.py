@@ -492,8 +492,69 @@ def list_configs() -> list[str]:
     return sorted(p.name[: -len(".toml")] for p in _builtin_dir().iterdir() if p.name.endswith(".toml"))
 
 
+#: Largest config file read (the built-in ones are ~3 kB; a 16-container plant ~6 kB).
+MAX_CONFIG_BYTES = 1_000_000
+#: Deepest nesting of lists and tables in a config file (ours: 3).
+MAX_CONFIG_DEPTH = 16
+
+
+class _HugeInteger:
+    """A JSON integer too long to be any config value, kept as a marker so that the field that holds
+    it is named when it is refused (int() itself refuses past 4300 digits, naming nothing)."""
+
+    def __init__(self, digits: int):
+        self.digits = digits
+
+    def __repr__(self) -> str:
+        return f"<an integer of {self.digits} digits>"
+
+
+def _json_int(text: str) -> "int | _HugeInteger":
+    return int(text) if len(text.lstrip("-")) <= 30 else _HugeInteger(len(text.lstrip("-")))
+
+
+def _reject_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    keys = [k for k, _ in pairs]
+    dup = sorted({k for k in keys if keys.count(k) > 1})
+    if dup:
+        raise ConfigError(f"duplicate key(s) {dup} (the last value would silently win)")
+    return dict(pairs)
+
+
+def _nesting_depth(text: str) -> int:
+    """The deepest bracket nesting of a JSON or TOML text, outside strings (a cheap upper bound, read
+    before the parser recurses)."""
+    depth = deepest = 0
+    quote = None
+    escaped = False
+    for ch in text:
+        if quote:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == quote:
+                quote = None
+        elif ch in "\"'":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth -= 1
+    return deepest
+
+
 def _read_file(path: Path) -> PlantConfig:
+    if path.suffix not in (".toml", ".json"):  # before reading: a device or a huge file is never read
+        raise ConfigError(f"config file {str(path)!r}: expected a .toml or .json file")
     try:
+        if path.exists() and not path.is_file():
+            raise ConfigError(f"cannot read config file {str(path)!r}: not a regular file")
+        size = path.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"config file {str(path)!r}: {size} bytes, more than the {MAX_CONFIG_BYTES} a "
+                              f"config may have")
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read config file {str(path)!r}: {exc.strerror or exc}") from exc
@@ -501,15 +562,19 @@ def _read_file(path: Path) -> PlantConfig:
         raise ConfigError(
             f"config file {str(path)!r} is not UTF-8 text (byte {exc.start}: {exc.reason})"
         ) from exc
+    if _nesting_depth(text) > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"config file {str(path)!r}: lists or tables nested deeper than {MAX_CONFIG_DEPTH} levels")
     try:
         if path.suffix == ".toml":
-            data = tomllib.loads(text)
-        elif path.suffix == ".json":
-            data = json.loads(text)
+            data = tomllib.loads(text)  # TOML itself refuses a key defined twice
         else:
-            raise ConfigError(f"config file {str(path)!r}: expected a .toml or .json file")
+            data = json.loads(text, object_pairs_hook=_reject_duplicate_keys, parse_int=_json_int)
+    except ConfigError as exc:
+        raise ConfigError(f"config file {str(path)!r}: {exc}") from None
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(f"config file {str(path)!r} is not valid {path.suffix[1:].upper()}: {exc}") from exc
+    except (RecursionError, ValueError) as exc:  # a 5000-digit integer: Python's digit limit
+        raise ConfigError(f"config file {str(path)!r}: unreadable ({exc})") from None
     if isinstance(data, Mapping) and "ENABLED_CONTAINERS" in data:
         from containergym_marl.reference_format import config_from_reference_json
 

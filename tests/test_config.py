@@ -756,3 +756,42 @@ def test_reference_reward_params_must_be_triples():
         config_from_reference_json(data)
     data["REWARD_PARAMS"] = [[[25, 1, 2]]]
     assert config_from_reference_json(data).containers[0].reward_peaks == (25.0,)
+
+
+# ---- reading is bounded: size, depth, duplicate keys, huge numbers, devices ---------------------------
+def _json_plant(tmp_path, name: str, text: str):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_deep_nesting_is_refused_before_the_parser_recurses(tmp_path):
+    path = _json_plant(tmp_path, "deep.json", "[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ConfigError, match="nested deeper than 16"):
+        load_config(path)
+
+
+def test_a_duplicate_json_key_is_refused_not_silently_overwritten(tmp_path):
+    text = json.dumps(_plant_dict()).replace('"num_processing_units": ', '"num_processing_units": 3, "num_processing_units": ', 1)
+    with pytest.raises(ConfigError, match=r"duplicate key\(s\) \['num_processing_units'\]"):
+        load_config(_json_plant(tmp_path, "dup.json", text))
+
+
+def test_a_5000_digit_integer_is_refused_naming_its_field(tmp_path):
+    plant = _plant_dict()
+    text = json.dumps({**plant, "num_processing_units": 7}).replace(": 7", ": " + "9" * 5000, 1)
+    with pytest.raises(ConfigError, match=r"num_processing_units: expected an integer, got <an integer of 5000 digits>"):
+        load_config(_json_plant(tmp_path, "huge.json", text))
+
+
+def test_devices_and_huge_files_are_never_read(tmp_path):
+    link = tmp_path / "zero.json"
+    link.symlink_to("/dev/zero")
+    with pytest.raises(ConfigError, match="not a regular file"):
+        load_config(link)
+    with pytest.raises(ConfigError, match="expected a .toml or .json file"):
+        load_config("/dev/zero")
+    big = tmp_path / "big.json"
+    big.write_text(" " * 1_000_001)
+    with pytest.raises(ConfigError, match="more than the 1000000"):
+        load_config(big)
