@@ -182,17 +182,32 @@ def _cmd_evaluate(ns: argparse.Namespace) -> int:
     return _print_evaluation(_evaluate_target(ns.target, ns.config, ns.episodes, ns.model, ns.arbitration), ns.json)
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, taken as Ctrl-C: the same orderly stop (runs kept resumable, Ray shut down)."""
+
+
+def _raise_terminated(signum, frame):
+    raise _Terminated()
+
+
 def _cmd_compare(ns: argparse.Namespace) -> int:
+    import signal
+
     from containergym_marl.compare import args_from_namespace, compare
     from containergym_marl.sweep import SweepError
 
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         compare(args_from_namespace(ns, _parse_kv(ns.hp, "--hp")))
     except SweepError as exc:
         print(f"containergym-marl compare: {exc}", file=sys.stderr)
         return 1
+    except _Terminated:
+        return 143  # 128 + SIGTERM, as a shell reports a process ended by it
     except KeyboardInterrupt:
         return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     return 0
 
 

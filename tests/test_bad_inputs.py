@@ -472,3 +472,23 @@ def test_huge_integers_in_files_and_direct_construction_raise_config_error(tmp_p
     spec = dataclasses.replace(base.containers[0], reward_widths=(10**400,) * len(base.containers[0].reward_widths))
     with pytest.raises(ConfigError, match=r"'C1-20'.*reward_widths"):
         dataclasses.replace(base, containers=(spec, *base.containers[1:]))
+
+
+# ---- seeds: the same rule in every view (issue 23) ---------------------------------------------------
+@pytest.mark.parametrize("make", ["single", "agents", "vector"])
+def test_every_view_takes_numpy_integer_seeds_and_refuses_bools(make):
+    import numpy as np
+
+    from containergym_marl.envs.centralised import ContainerGymEnv
+    from containergym_marl.envs.container_agents_v0 import parallel_env
+    from containergym_marl.envs.vector import ContainerGymVectorEnv
+
+    env = {"single": lambda: ContainerGymEnv("n5_m2_dt120"), "agents": lambda: parallel_env(config="n5_m2_dt120"),
+           "vector": lambda: ContainerGymVectorEnv(2, "n5_m2_dt120")}[make]()
+    a = env.reset(seed=np.int64(7))[0]
+    b = env.reset(seed=7)[0]
+    first = lambda obs: obs if not isinstance(obs, dict) else next(iter(obs.values()))  # noqa: E731
+    np.testing.assert_array_equal(first(a), first(b))
+    for bad in (True, np.bool_(True), -1, 2.0, "3"):
+        with pytest.raises(ValueError, match="seed"):
+            env.reset(seed=bad)

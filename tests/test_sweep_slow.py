@@ -222,6 +222,25 @@ def test_ctrl_c_leaves_every_run_resumable_and_the_same_command_finishes_the_swe
     assert (out / "table.md").is_file()
 
 
+def test_sigterm_stops_compare_as_ctrl_c_does(tmp_path):
+    """SIGTERM to compare alone (what a service manager or `kill` sends) ends it like Ctrl-C: exit
+    143, runs resumable, Ray shut down; it used to abort with a stack dump (exit 134)."""
+    out = tmp_path / "cmp"
+    cmd = _compare_cmd(out, *KILL_ARGS)
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                            start_new_session=True)
+    try:
+        _wait_for_checkpoint(out, RUN1, proc)
+        proc.send_signal(signal.SIGTERM)
+        output, _ = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 143, output[-4000:]
+    assert "interrupted: finished runs are kept" in output
+
+
 # ---- SIGKILL of the whole compare at random moments, and Ctrl-C under load ------------------------
 SOAK_BUDGET = 8192
 SOAK_ARGS = ("--methods", "rule_based", "ppo", "--seeds", "1", "2", "--timesteps", str(SOAK_BUDGET),

@@ -36,6 +36,23 @@ def discrete_action(action, n_actions: int, who: str) -> int:
     return value
 
 
+# ---- seeds ------------------------------------------------------------------------------------------
+def is_integer(value) -> bool:
+    """A Python or numpy integer, not a bool."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def check_seed(value, name: str = "seed") -> int | None:
+    """None or a non-negative integer (Python or numpy) as a Python int, for every view alike;
+    anything else (``2.7``, ``"5"``, True, -1) is refused with a ValueError rather than cast."""
+    if value is None:
+        return None
+    if not is_integer(value) or value < 0:
+        raise ValueError(f"{name}: expected None or a non-negative integer, got {value!r} "
+                         f"({type(value).__name__})")
+    return int(value)
+
+
 # ---- the normalised global state ------------------------------------------------------------------
 def normalised_state_scale(params) -> np.ndarray:
     """(n + m,) float32 divisors of the global state ``[v, p]``: v_max,i for the volumes and the

@@ -11,7 +11,7 @@ from gymnasium import spaces
 from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.observations import global_state_bounds
 from containergym_marl.core.simulator import PlantSimulator
-from containergym_marl.envs._common import discrete_action
+from containergym_marl.envs._common import check_seed, discrete_action
 from containergym_marl.render import RENDER_FPS, RENDER_MODES, EnvRenderer
 
 
@@ -123,7 +123,7 @@ class ContainerGymEnv(gym.Env):
         return self._sim
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+        super().reset(seed=check_seed(seed))  # numpy integers as the vector envs take them; no bools
         self._sim.reset(generators=[self.np_random])
         if self.render_mode == "human":
             self.render()

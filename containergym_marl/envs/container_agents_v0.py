@@ -24,6 +24,7 @@ from containergym_marl.core.observations import (
 )
 from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
 from containergym_marl.envs._common import (
+    check_seed,
     discrete_action,
     normalised_state,
     normalised_state_bounds,
@@ -236,6 +237,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
     # ---- API ---------------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None):
+        seed = check_seed(seed)  # numpy integers as the vector envs take them; no bools
         if seed is not None:
             self._np_random, _ = seeding.np_random(seed)
         self._sim.reset(generators=[self.np_random])

@@ -54,6 +54,7 @@ from containergym_marl.core.observations import (
 )
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.simulator import PlantSimulator
+from containergym_marl.envs._common import check_seed, is_integer
 from containergym_marl.extras import missing_extra
 
 #: How to get the SB3 VecEnvs' optional dependency; named by the error raised without it.
@@ -124,24 +125,10 @@ class _AutoresetBatch:
 _NO_SIMS = np.zeros(0, dtype=np.int64)
 
 
-def _is_integer(value) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
-
-
 def _num_sims(value, name: str) -> int:
     """A number of simulations: an integer in [1, MAX_SIMS] (floats are refused, not cast)."""
-    if not _is_integer(value) or not 1 <= value <= MAX_SIMS:
+    if not is_integer(value) or not 1 <= value <= MAX_SIMS:
         raise ValueError(f"{name}: expected an integer in [1, {MAX_SIMS}], got {value!r}")
-    return int(value)
-
-
-def _seed(value, name: str) -> int | None:
-    """None or a non-negative integer, as a Python int; anything else is refused, not cast."""
-    if value is None:
-        return None
-    if not _is_integer(value) or value < 0:
-        raise ValueError(f"{name}: expected None or a non-negative integer, got {value!r} "
-                         f"({type(value).__name__})")
     return int(value)
 
 
@@ -155,8 +142,8 @@ def _seed_list(seed, count: int) -> list[int | None]:
             raise ValueError(f"seed: an array of seeds must hold integers, got dtype {seed.dtype}")
         if len(seed) != count:
             raise ValueError(f"seed: expected {count} seeds (one per simulation), got {len(seed)}")
-        return [_seed(s, f"seed[{b}]") for b, s in enumerate(seed)]
-    base = _seed(seed, "seed")
+        return [check_seed(s, f"seed[{b}]") for b, s in enumerate(seed)]
+    base = check_seed(seed, "seed")
     return [base + b for b in range(count)]
 
 
@@ -217,7 +204,7 @@ class _SB3Base(VecEnv):
 
     def seed(self, seed: int | None = None) -> list[int | None]:
         """Simulation b gets ``seed + b`` at the next ``reset()``."""
-        base = _seed(seed, "seed")
+        base = check_seed(seed, "seed")
         self._sim_seeds = [None if base is None else base + b for b in range(self.num_sims)]
         return list(self._sim_seeds)
 
