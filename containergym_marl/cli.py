@@ -211,6 +211,18 @@ def _cmd_compare(ns: argparse.Namespace) -> int:
     return 0
 
 
+def _version() -> str:
+    """The installed package's version (its metadata), else the source tree's."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("containergym-marl")
+    except PackageNotFoundError:
+        from containergym_marl import __version__
+
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     from containergym_marl.training.algorithms import ALGORITHMS, REGISTRY, RULE_BASED
 
@@ -218,6 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     reward_modes = tuple(dict.fromkeys(m for spec in trained.values() for m in spec.reward_modes))
     parser = argparse.ArgumentParser(prog="containergym-marl", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     t = sub.add_parser("train", help="train a baseline; writes a run directory")

@@ -55,7 +55,10 @@ import json
 import math
 import operator
 import re
-import tomllib
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the same parser as the tomli package
+    import tomli as tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path

@@ -111,3 +111,17 @@ def test_kernel_benchmark_compares_two_checkouts():
         bsz = int(r[0].split()[0][2:])
         assert _number(r[1]) > 0 and _number(r[3]) > 0 and r[5].endswith("×")
         assert abs(_number(r[2]) - 1000 * _number(r[1]) / bsz) <= 1000 * 0.05 / bsz + 1  # µs shown to 0.1
+
+
+def test_trainer_throughput_smoke_prints_both_ratios(tmp_path):
+    """benchmarks/trainer_throughput.py end to end at one rollout a burst: the four algorithms and
+    the two native/SB3 ratios, also as JSON (structure, not speed)."""
+    out_json = tmp_path / "trainer.json"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "trainer_throughput.py"), "--smoke",
+                           "--rounds", "1", "--config", "n5_m2_dt120", "--json", str(out_json)],
+                          capture_output=True, text=True, timeout=300, check=True, cwd=tmp_path)
+    assert "| fast_shared_ppo / shared_ppo |" in proc.stdout and "| fast_ppo / ppo |" in proc.stdout
+    summary = json.loads(out_json.read_text())
+    assert set(summary["algorithms"]) == {"ppo", "fast_ppo", "shared_ppo", "fast_shared_ppo"}
+    assert all(v["samples_per_cpu_s"] > 0 for v in summary["algorithms"].values())
+    assert not any(tmp_path.glob("runs"))  # bursts train in a temporary folder

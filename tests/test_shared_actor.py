@@ -39,7 +39,8 @@ def test_registry_evaluates_mappo_but_sb3_does_not_train_it():
     assert "mappo" in REGISTRY and "mappo" not in ALGORITHMS and not spec.sb3
     assert spec.policy_adapter is SharedActorPolicy and spec.view == view_of("mappo") == "decentralised"
     assert (spec.model_file("best"), spec.trainer) == ("best_model.pt", "baselines/train_mappo.py")
-    assert all(REGISTRY[a].sb3 and REGISTRY[a].model_file("final") == "final_model.zip" for a in ALGORITHMS)
+    assert all(REGISTRY[a].model_file("final") == ("final_model.zip" if REGISTRY[a].sb3 else "final_model.pt")
+               and REGISTRY[a].trained_here for a in ALGORITHMS)
     with pytest.raises(ValueError, match="baselines/train_mappo.py"):
         spec.load_class()
     with pytest.raises(ValueError, match="not trained by containergym-marl train"):
