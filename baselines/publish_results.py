@@ -41,7 +41,7 @@ from containergym_marl.manifest import check as manifest_check
 from containergym_marl.manifest import read_manifest, write_manifest
 from containergym_marl.sweep import latest_readable_checkpoint
 from containergym_marl.training.runs import (RunLock, checkpoint_files, checkpoints, clear_run, model_file,
-                                             model_suffix, read_run_summary, run_args, run_status)
+                                             model_suffix, read_run_summary, run_args, run_name, run_status)
 
 SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
 
@@ -99,7 +99,7 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
     for group in tables.load_evaluations(to / "evaluations"):
         if len(group.seeds) < min_seeds:
             continue  # a rule-based controller (nothing to ship), or a row still training
-        runs_of = [runs / f"{group.method}_{group.config}_s{seed}" for seed in group.seeds]
+        runs_of = [runs / run_name(group.method, group.config, seed) for seed in group.seeds]
         if not all(run_status(r) == "finished" for r in runs_of):
             continue
         means = group.seed_means
@@ -145,17 +145,17 @@ def evaluate_fresh(to: Path, min_seeds: int = 3) -> list[str]:
             continue
         for i in dict.fromkeys((group.best, group.median)):
             seed = group.seeds[i]
-            run = to / "runs" / f"{group.method}_{group.config}_s{seed}"
+            run = to / "runs" / run_name(group.method, group.config, seed)
             if run_status(run) != "finished":
                 continue
             model_sha = sha256(evaluated_model({name: (run / name).read_bytes() for name in evaluated_files(run)}))
-            path = to / tables.FRESH_FOLDER / group.config / f"{group.method}_s{seed}.json"
+            path = to / tables.FRESH_FOLDER / group.config / f"{tables.evaluation_key(group.method, seed)}.json"
             if path.is_file() and json.loads(path.read_text()).get("model_sha256") == model_sha:
                 continue
             data = json.loads(evaluate_run(run, protocol=FRESH, write=False).to_json())
             data["model_sha256"] = model_sha
             atomic_write_text(path, json.dumps(data, indent=2) + "\n")
-            done.append(f"{group.config}/{group.method}_s{seed}")
+            done.append(f"{group.config}/{tables.evaluation_key(group.method, seed)}")
     return done
 
 

@@ -113,8 +113,10 @@ from containergym_marl.training.runs import (
     append_metrics,
     read_metrics,
     read_run_summary,
+    run_name,
     truncate_metrics,
 )
+from containergym_marl.evaluation.table import evaluation_key
 from containergym_marl.training.script_args import parse_args
 
 try:
@@ -346,7 +348,7 @@ def train(args: Args) -> Path:
         raise SystemExit(f"--config: {args.config!r} is not a built-in config (a BenchMARL task of the package)")
     every = args.checkpoint_every if args.checkpoint_every is not None else min(200_000, budget // 10)
     interval = max(every // args.frames_per_batch, 1) * args.frames_per_batch  # whole iterations
-    run = Path(args.out or Path("runs") / f"mappo_{Path(args.config).stem}_s{args.seed}")
+    run = Path(args.out or Path("runs") / run_name("mappo", args.config, args.seed))
     saved_args = {"algo": "mappo", "config": args.config, "seed": args.seed, "timesteps": budget,
                   "budget_unit": "plant steps", "frames_per_batch": args.frames_per_batch, "n_envs": args.n_envs,
                   "checkpoint_every": interval, "reward_mode": DEFAULT_TASK_CONFIG["reward_mode"],
@@ -409,7 +411,7 @@ def main(args: Args) -> dict:
         raise SystemExit(f"train_mappo.py: error: {exc}") from None
     result = evaluate_run(run, which="best", protocol=EvalProtocol(episodes=args.episodes))
     if args.evaluations:
-        atomic_write_text(Path(args.evaluations) / Path(args.config).stem / f"mappo_s{args.seed}.json",
+        atomic_write_text(Path(args.evaluations) / Path(args.config).stem / f"{evaluation_key('mappo', args.seed)}.json",
                           result.to_json() + "\n")
     rows, s = read_metrics(run), result.summary()
     training = f"training return {rows[-1]['train_return_mean100']:.2f} (last 100 episodes); " if rows else ""

@@ -97,6 +97,7 @@ import numpy as np
 from containergym_marl.config import load_config
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write_text
+from containergym_marl.training.runs import run_name
 
 
 @dataclass(frozen=True)
@@ -238,7 +239,7 @@ def run_specs(args: CompareArgs, runs: Path) -> list:
             train = {"n_envs": args.n_envs, "checkpoint_every": args.checkpoint_every,
                      "hyperparams": dict(args.hyperparams), **dict(method.train)}
             for seed in args.seeds:
-                run = f"{name}_{_stem(config)}_s{seed}"
+                run = run_name(name, config, seed)
                 specs.append(RunSpec(run, name, method.algo, config, seed, budget(args, config),
                                      str(runs / run), train))
     return sorted(specs, key=lambda s: -s.timesteps)
@@ -310,7 +311,7 @@ def _eval_spec(args: CompareArgs, config: str, name: str, seed: int | None):
     from containergym_marl.sweep import EvalSpec
 
     method = METHODS[name]
-    return EvalSpec(name if seed is None else f"{name}_s{seed}", name, config, args.episodes, policy=method.policy,
+    return EvalSpec(tables.evaluation_key(name, seed), name, config, args.episodes, policy=method.policy,
                     seed=seed, arbitration=dict(method.train).get("arbitration", "fullest"))
 
 
@@ -346,7 +347,7 @@ def _plan(args: CompareArgs, out: Path, runs: Path) -> _Plan:
                 spec = _eval_spec(args, config, name, seed)
                 if seed is None:
                     fingerprint, source = _fingerprint(args, config, method, None, None), None
-                elif (run := by_run[f"{name}_{_stem(config)}_s{seed}"]).name in finished:
+                elif (run := by_run[run_name(name, config, seed)]).name in finished:
                     source = _run_files(run.run_dir)
                     model_sha = _model_sha(source)
                     fingerprint = _fingerprint(args, config, method, run.name, model_sha)
@@ -473,14 +474,15 @@ def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
                     manifest_check(folder, f"runs/{run.name}/{name}", data, manifest)
                 fingerprint = _fingerprint(args, config, method, run.name, sha256(files["files"][best_name]),
                                            timesteps=trained)
-                published = _cached(folder / "evaluations" / stem / f"{name}_s{seed}.json", fingerprint, protocol)
+                published = _cached(folder / "evaluations" / stem / f"{tables.evaluation_key(name, seed)}.json",
+                                    fingerprint, protocol)
                 found.append((seed, files, fingerprint, published))
                 plan.budgets[run.name] = trained
             if not found:
                 continue
             shipped.learned.setdefault(stem, {})[name] = [seed for seed, *_ in found]
             plan.seeds[(config, name)] = [seed for seed, *_ in found]
-            plan.finished |= {f"{name}_{stem}_s{seed}" for seed, *_ in found}
+            plan.finished |= {run_name(name, stem, seed) for seed, *_ in found}
             means = {seed: float(np.mean([e["cumulative_reward"] for e in p["episodes"]]))
                      for seed, _, _, p in found if p is not None}
             best = max(means, key=lambda s: (means[s], -s)) if means else None  # the table's rule: ties -> first seed
@@ -500,7 +502,7 @@ def _save_evaluation(args: CompareArgs, out: Path, spec, result, model_sha: str 
                      timesteps: int | None = None) -> dict:
     """The evaluation as JSON (EvaluationResult.to_json plus compare's fingerprint), written to
     ``<out>/evaluations/<config>/<key>.json``."""
-    run = None if spec.seed is None else f"{spec.method}_{_stem(spec.config)}_s{spec.seed}"
+    run = None if spec.seed is None else run_name(spec.method, spec.config, spec.seed)
     data = json.loads(result.to_json())
     data["compare"] = _fingerprint(args, spec.config, METHODS[spec.method], run, model_sha, timesteps)
     path = out / "evaluations" / _stem(spec.config) / f"{spec.key}.json"
@@ -567,7 +569,7 @@ def compare(args: CompareArgs, stream=None) -> dict:
 
             def save(spec, value) -> None:  # each evaluation is written as it lands
                 result, model_sha = value
-                run = None if spec.seed is None else f"{spec.method}_{_stem(spec.config)}_s{spec.seed}"
+                run = None if spec.seed is None else run_name(spec.method, spec.config, spec.seed)
                 evaluations[(spec.config, spec.key)] = _save_evaluation(args, out, spec, result, model_sha,
                                                                         plan.budgets.get(run))
                 report["evaluated"].append(f"{_stem(spec.config)}/{spec.key}")
@@ -687,7 +689,8 @@ def _groups(args: CompareArgs, evaluations: dict[tuple[str, str], dict],
     for config in args.configs:
         for name in args.methods:
             if METHODS[name].learned:
-                found = [(s, evaluations[(config, f"{name}_s{s}")]) for s in sorted(seeds.get((config, name), []))]
+                found = [(s, evaluations[(config, tables.evaluation_key(name, s))])
+                         for s in sorted(seeds.get((config, name), []))]
                 if found:
                     groups.append(tables.MethodEvaluations(_stem(config), name, [s for s, _ in found],
                                                            [d for _, d in found]))
@@ -711,7 +714,7 @@ def _figure_records(args: CompareArgs, groups, runs: Path, cluster, stream,
         if kept.get((spec.config, spec.key)):
             records.setdefault(spec.config, {})[spec.method] = kept[(spec.config, spec.key)]
             continue
-        source = None if seed is None else _run_files(runs / f"{g.method}_{g.config}_s{seed}")
+        source = None if seed is None else _run_files(runs / run_name(g.method, g.config, seed))
         jobs.append((spec, source))
     if not jobs:
         return _in_table_order(groups, records)

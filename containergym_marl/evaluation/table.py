@@ -73,6 +73,12 @@ _FILE = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")
 _CONFIG = re.compile(r"^n(\d+)_m(\d+)_dt(\d+)")
 
 
+def evaluation_key(method: str, seed: int | None) -> str:
+    """The stem of an evaluation file: ``<method>_s<seed>`` for a training seed's policy, ``<method>``
+    for a policy without seeds (what :func:`load_evaluations` parses back)."""
+    return method if seed is None else f"{method}_s{seed}"
+
+
 @dataclass
 class MethodEvaluations:
     """The evaluations of one method on one config: one per training seed, or a single one for a

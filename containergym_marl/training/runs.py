@@ -61,6 +61,12 @@ except ImportError:  # pragma: no cover - Windows: no OS lock (documented in Run
     fcntl = None
 
 
+def run_name(method: str, config: str | Path, seed: int) -> str:
+    """The name of a run directory: ``<method>_<config>_s<seed>``, the config by its file stem (a
+    built-in name, or a path's stem). The one place this rule is written."""
+    return f"{method}_{Path(str(config)).stem}_s{seed}"
+
+
 @dataclass
 class TrainArgs:
     """Arguments of one training run (also the CLI's ``train`` options).
@@ -110,8 +116,7 @@ class TrainArgs:
     def run_dir(self) -> Path:
         if self.out:
             return Path(self.out)
-        name = Path(str(self.config)).stem
-        return Path("runs") / f"{self.algo}_{name}_s{self.seed}"
+        return Path("runs") / run_name(self.algo, self.config, self.seed)
 
     def validate(self) -> None:
         """Refuse bad values up front (a ValueError naming the argument)."""
@@ -656,7 +661,7 @@ __all__ = [
     "TrainingProgress", "append_metrics", "atomic_save_model", "atomic_write", "atomic_write_text",
     "check_model_file", "checkpoint_files", "load_replay_buffer", "save_replay_buffer", "checkpoint_interval", "checkpoints", "intact_checkpoints",
     "latest_checkpoint", "load_model", "model_suffix", "prepare_run_dir", "read_metrics", "read_progress",
-    "read_run_summary", "remove_stale_temporaries", "run_args", "run_status", "model_file", "save_checkpoint",
+    "read_run_summary", "remove_stale_temporaries", "run_args", "run_name", "run_status", "model_file", "save_checkpoint",
     "truncate_metrics",
 ]
 
