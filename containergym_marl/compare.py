@@ -470,8 +470,8 @@ def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
                     shipped.unusable.append(f"{run.name} has no best model (no training episode finished)")
                     continue
                 files = _run_files(run)
-                for name, data in files["files"].items():  # never a model changed after publication
-                    manifest_check(folder, f"runs/{run.name}/{name}", data, manifest)
+                for file_name, data in files["files"].items():  # never a model changed after publication
+                    manifest_check(folder, f"runs/{run.name}/{file_name}", data, manifest)
                 fingerprint = _fingerprint(args, config, method, run.name, sha256(files["files"][best_name]),
                                            timesteps=trained)
                 published = _cached(folder / "evaluations" / stem / f"{tables.evaluation_key(name, seed)}.json",

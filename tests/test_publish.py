@@ -113,3 +113,27 @@ def test_an_interrupted_run_published_with_its_checkpoint_resumes_after_restore(
     assert (published / "final_model.zip").read_bytes() == (resumed / "final_model.zip").read_bytes()
     # A restore never replaces a run that is further trained where it is restored to.
     assert publish_results.restore(to, fresh_runs, fresh_out)["runs"] == []
+
+
+def test_published_native_ppo_runs_are_shipped_policies_of_the_main_job(tmp_path):
+    """The main job (compare on the shipped folder) takes native-PPO runs like SB3 ones: their
+    tensor-only best model is what it evaluates, checked against the manifest."""
+    from containergym_marl.compare import CompareArgs, _shipped_plan
+
+    runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
+    config = "n5_m2_dt120"
+    for seed in (1, 2):
+        run = train(TrainArgs(algo="fast_shared_ppo", config=config, seed=seed, timesteps=2000, n_envs=2,
+                              out=str(runs / f"fast_shared_ppo_{config}_s{seed}"), progress_bar=False,
+                              hyperparams={"n_steps": 16, "minibatch_size": 64}, overrides={"episode_length_steps": 20}))
+        result = evaluate_run(run, protocol=EvalProtocol(episodes=2, episode_length_steps=30), write=False)
+        path = out / "evaluations" / config / f"fast_shared_ppo_s{seed}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(result.to_json())
+    _publish_module().publish(runs, out, to, min_seeds=3)  # two seeds: no models, no fresh evaluations
+    assert (to / "runs" / f"fast_shared_ppo_{config}_s1" / "best_model.pt").is_file()
+    plan = _shipped_plan(CompareArgs(configs=[config], methods=["fast_shared_ppo"], shipped=str(to), episodes=2,
+                                     seeds=[]), tmp_path / "main")
+    assert plan.seeds[(config, "fast_shared_ppo")] == [1, 2]
+    to_evaluate = [(spec, source) for spec, source in plan.to_evaluate]
+    assert to_evaluate and all("best_model.pt" in source["files"] for _, source in to_evaluate)
