@@ -30,6 +30,7 @@ from containergym_marl.compare import (  # noqa: E402
 )
 from containergym_marl.evaluation import EvalProtocol  # noqa: E402
 from containergym_marl.evaluation.runs import evaluate_run  # noqa: E402
+from containergym_marl.manifest import write_manifest  # noqa: E402
 from containergym_marl.training import TrainArgs, train  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,7 +76,24 @@ def shipped(tmp_path_factory) -> Path:
     shutil.copytree(runs / f"ppo_{CONFIG}_s1", runs / f"shared_ppo_{CONFIG}_s1")
     shutil.copytree(runs / f"ppo_{CONFIG}_s1", runs / f"ppo_{CONFIG}_s5")
     (runs / f"ppo_{CONFIG}_s5" / "best_model.zip").unlink()
+    write_manifest(folder)  # as publish_results.py does: the shipped model files' sha256
     return folder
+
+
+def test_the_main_job_refuses_a_shipped_model_changed_after_publication(shipped, tmp_path):
+    """A model whose bytes differ from the manifest (a tampered or corrupted file) is never
+    evaluated: compare stops before any work, naming the file."""
+    from containergym_marl.manifest import ManifestError
+
+    copy = tmp_path / "paper_rows"
+    shutil.copytree(shipped, copy)
+    model = copy / "runs" / f"ppo_{CONFIG}_s2" / "best_model.zip"
+    model.write_bytes(model.read_bytes()[:-1] + b"x")
+    args = CompareArgs(configs=[CONFIG], methods=["ppo"], shipped=str(copy), episodes=EPISODES,
+                       out=str(tmp_path / "cmp"), num_cpus=1, bootstrap_reps=200)
+    with pytest.raises(ManifestError, match=f"ppo_{CONFIG}_s2/best_model.zip: its sha256 differs"):
+        compare(args, stream=io.StringIO())
+    assert not (tmp_path / "cmp" / "evaluations").exists()
 
 
 def _published_means(folder: Path) -> dict[int, float]:
