@@ -84,6 +84,9 @@ def defaults(ns) -> dict:
             except FileNotFoundError as exc:
                 print(f"skipped: {exc}")
                 continue
+            if len(ours) < ns.min_seeds:
+                print(f"skipped: {algo} on {config} has {len(ours)} published seed(s), fewer than {ns.min_seeds}")
+                continue
             entries.append(_compare(config, algo, ours, sb3, theirs, "no worse"))
     return {"mode": "defaults", "entries": entries}
 
@@ -115,6 +118,7 @@ def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("mode", choices=("paper-shape", "defaults"))
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    p.add_argument("--min-seeds", type=int, default=5, help="defaults: compare only native methods with this many seeds")
     p.add_argument("--rows", nargs="+", default=["n5_m2_dt120", "n11_m2_dt120", "n16_m2_dt120", "n11_m11_dt120"])
     p.add_argument("--runs", default="runs/fast_ppo_validation")
     p.add_argument("--results", default="results/paper_rows")
