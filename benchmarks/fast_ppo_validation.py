@@ -58,6 +58,8 @@ def paper_shape(ns) -> dict:
         for seed in ns.seeds:
             run = Path(ns.runs) / f"{algo}_paper_shape_{config}_s{seed}"
             status = run_status(run)
+            if status != "finished" and ns.report_only:
+                continue
             if status != "finished":
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -69,6 +71,9 @@ def paper_shape(ns) -> dict:
             episodes = json.loads(evaluation.read_text())["episodes"]
             means[seed] = float(np.mean([e["cumulative_reward"] for e in episodes]))
             print(f"{algo} s{seed}: {means[seed]:.2f}", flush=True)
+        if len(means) < 2:
+            print(f"skipped: {algo} has {len(means)} finished paper-shape run(s)")
+            continue
         theirs = sb3_seed_means(Path(ns.results), config, COUNTERPART[algo], set(ns.seeds))
         entries.append(_compare(config, algo, means, COUNTERPART[algo], theirs, "overlap"))
     return {"mode": "paper-shape", "config": config, "settings": PAPER_SHAPE, "n_envs": 8, "entries": entries}
@@ -118,6 +123,7 @@ def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("mode", choices=("paper-shape", "defaults"))
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    p.add_argument("--report-only", action="store_true", help="paper-shape: train nothing, report finished runs")
     p.add_argument("--min-seeds", type=int, default=5, help="defaults: compare only native methods with this many seeds")
     p.add_argument("--rows", nargs="+", default=["n5_m2_dt120", "n11_m2_dt120", "n16_m2_dt120", "n11_m11_dt120"])
     p.add_argument("--runs", default="runs/fast_ppo_validation")
