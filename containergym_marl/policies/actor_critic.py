@@ -140,11 +140,7 @@ class ActorCritic:
 
     def save(self, path: str | Path) -> Path:
         """Write the file crash-safe (temporary file, then rename)."""
-        from containergym_marl.files import atomic_write
-
-        torch = _torch()
-        data = self.to_dict()
-        return atomic_write(path, lambda tmp: torch.save(data, tmp))
+        return save_tensors(path, self.to_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> "ActorCritic":
@@ -156,15 +152,23 @@ class ActorCritic:
         return cls.from_dict(load_tensors(path), f"model file {str(path)!r}")
 
 
-def load_tensors(path: str | Path) -> Any:
+def load_tensors(path: str | Path, otherwise: str = "holds more than tensors") -> Any:
     """``torch.load(path, weights_only=True)``: plain containers and tensors, never pickled code;
-    a ValueError naming the file when it is broken or holds anything else."""
+    a ValueError naming the file when it is broken or ``otherwise`` (what else it may be)."""
     torch = _torch()
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises many kinds for a cut, foreign or unsafe file
-        raise ValueError(f"cannot read model file {str(path)!r}: the file is broken or holds more than "
-                         f"tensors ({type(exc).__name__}: {exc})") from exc
+        raise ValueError(f"cannot read model file {str(path)!r}: the file is broken or {otherwise} "
+                         f"({type(exc).__name__}: {exc})") from exc
+
+
+def save_tensors(path: str | Path, data: Any) -> Path:
+    """``torch.save(data)`` crash-safe (temporary file, then rename)."""
+    from containergym_marl.files import atomic_write
+
+    torch = _torch()
+    return atomic_write(path, lambda tmp: torch.save(data, tmp))
 
 
 class _ActorCriticPolicy:

@@ -96,24 +96,20 @@ class SharedActor:
 
     def save(self, path: str | Path) -> Path:
         """Write the file crash-safe (temporary file, then rename)."""
-        from containergym_marl.files import atomic_write
+        from containergym_marl.policies.actor_critic import save_tensors
 
-        torch = _torch()
-        data = self.to_dict()
-        return atomic_write(path, lambda tmp: torch.save(data, tmp))
+        return save_tensors(path, self.to_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> "SharedActor":
         """Read a saved actor, with an error that says what is wrong with a missing or broken file."""
-        torch = _torch()
+        from containergym_marl.policies.actor_critic import load_tensors
+
+        _torch()  # the missing extra is named before anything else
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"model file {str(path)!r} does not exist")
-        try:
-            data = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # noqa: BLE001 - torch raises many kinds for a cut or foreign file
-            raise ValueError(f"cannot read model file {str(path)!r}: the file is broken or not a saved "
-                             f"shared actor ({type(exc).__name__}: {exc})") from exc
+        data = load_tensors(path, otherwise="not a saved shared actor")
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise ValueError(f"model file {str(path)!r} is not a saved shared actor (format {FORMAT!r})")
         if data.get("version") != VERSION:
