@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from typing import Any
 
 from containergym_marl.config import ConfigError, list_configs, load_config
@@ -186,7 +187,13 @@ class _Terminated(KeyboardInterrupt):
     """SIGTERM, taken as Ctrl-C: the same orderly stop (runs kept resumable, Ray shut down)."""
 
 
+_terminated = threading.Event()
+
+
 def _raise_terminated(signum, frame):
+    # Remembered apart from the exception: libraries on the way up (Ray's waits) may turn it into a
+    # plain KeyboardInterrupt.
+    _terminated.set()
     raise _Terminated()
 
 
@@ -202,10 +209,8 @@ def _cmd_compare(ns: argparse.Namespace) -> int:
     except SweepError as exc:
         print(f"containergym-marl compare: {exc}", file=sys.stderr)
         return 1
-    except _Terminated:
-        return 143  # 128 + SIGTERM, as a shell reports a process ended by it
     except KeyboardInterrupt:
-        return 130
+        return 143 if _terminated.is_set() else 130  # 128 + the signal, as a shell reports it
     finally:
         signal.signal(signal.SIGTERM, previous)
     return 0

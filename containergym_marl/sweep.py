@@ -41,7 +41,9 @@ import json
 import logging
 import os
 import shutil
+import signal
 import socket
+import subprocess
 import sys
 import tempfile
 import threading
@@ -55,6 +57,8 @@ try:
     import fcntl
 except ImportError:  # not POSIX: no lock between sweeps
     fcntl = None
+
+from containergym_marl import ray_reaper
 
 #: Folders of a run directory that stay on the node that trained it.
 NODE_LOCAL = ("checkpoints", "tb")
@@ -401,6 +405,27 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
 EVALUATION_SLOTS = "containergym_evaluation_slots"
 
 
+@contextlib.contextmanager
+def _keeping_sigterm_handler():
+    """ray.init replaces the SIGTERM handler (in Python with ``sys.exit``, natively with a stack dump);
+    put the caller's back, so that the CLI's SIGTERM stays the same orderly stop as Ctrl-C."""
+    main = threading.current_thread() is threading.main_thread()
+    handler = signal.getsignal(signal.SIGTERM) if main else None
+    try:
+        yield
+    finally:
+        if handler is not None:
+            signal.signal(signal.SIGTERM, handler)
+
+
+def _child_pids() -> set[int]:
+    try:
+        import psutil
+    except ImportError:
+        return set()
+    return {child.pid for child in psutil.Process().children()}
+
+
 class Cluster:
     """A Ray session started on first use: a new local instance with ``num_cpus`` CPUs (default:
     this machine's cores), or the cluster at ``address`` (or ``$RAY_ADDRESS``). Quiet logging, no
@@ -412,6 +437,7 @@ class Cluster:
         self.max_retries = max_retries
         self._ray = None
         self._owned = False
+        self._reaper: subprocess.Popen | None = None
         self._tasks: dict[str, Any] = {}
 
     @property
@@ -427,13 +453,8 @@ class Cluster:
             raise SweepError(ray_missing_message()) from exc
         if not ray.is_initialized():
             opts = dict(include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False)
-            if self.address:
-                if self.num_cpus:
-                    raise ValueError("--num-cpus sizes a local Ray instance; a cluster at --address has its own CPUs")
-                ray.init(address=self.address, **opts)
-            else:
-                cpus = self.num_cpus or os.cpu_count() or 1
-                ray.init(address="local", num_cpus=cpus, resources={EVALUATION_SLOTS: cpus}, **opts)
+            with _keeping_sigterm_handler():
+                self._init(ray, opts)
             self._owned = True
         self._ray = ray
         # On a local instance evaluations take slots of their own rather than CPUs: a finished run
@@ -444,6 +465,18 @@ class Cluster:
         self._tasks = {"train": ray.remote(num_cpus=1, max_retries=self.max_retries)(train_run),
                        "evaluate": ray.remote(max_retries=self.max_retries, **evaluate_resources)(evaluate_policy)}
         return ray
+
+    def _init(self, ray, opts: dict) -> None:
+        if self.address:
+            if self.num_cpus:
+                raise ValueError("--num-cpus sizes a local Ray instance; a cluster at --address has its own CPUs")
+            ray.init(address=self.address, **opts)
+            return
+        cpus = self.num_cpus or os.cpu_count() or 1
+        before = _child_pids()
+        ray.init(address="local", num_cpus=cpus, resources={EVALUATION_SLOTS: cpus}, **opts)
+        # the processes this ray.init started, stopped by the reaper if this driver is killed
+        self._reaper = ray_reaper.watch(sorted(_child_pids() - before))
 
     def cpus(self) -> int:
         return int(self.ray().cluster_resources().get("CPU", 1))
@@ -467,7 +500,13 @@ class Cluster:
     def close(self) -> None:
         if self._ray is not None and self._owned:
             self._ray.shutdown()
-        self._ray, self._owned = None, False
+        if self._reaper is not None:
+            self._reaper.stdin.close()  # the reaper stops whatever ray.shutdown() left behind
+            try:
+                self._reaper.wait(timeout=ray_reaper.GRACE_S + ray_reaper.POLL_S + 5)
+            except subprocess.TimeoutExpired:
+                self._reaper.kill()
+        self._ray, self._owned, self._reaper = None, False, None
 
     def __enter__(self) -> "Cluster":
         return self

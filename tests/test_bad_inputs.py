@@ -484,7 +484,7 @@ def test_every_view_takes_numpy_integer_seeds_and_refuses_bools(make):
     from containergym_marl.envs.vector import ContainerGymVectorEnv
 
     env = {"single": lambda: ContainerGymEnv("n5_m2_dt120"), "agents": lambda: parallel_env(config="n5_m2_dt120"),
-           "vector": lambda: ContainerGymVectorEnv(2, "n5_m2_dt120")}[make]()
+           "vector": lambda: ContainerGymVectorEnv("n5_m2_dt120", 2)}[make]()
     a = env.reset(seed=np.int64(7))[0]
     b = env.reset(seed=7)[0]
     first = lambda obs: obs if not isinstance(obs, dict) else next(iter(obs.values()))  # noqa: E731
@@ -492,3 +492,20 @@ def test_every_view_takes_numpy_integer_seeds_and_refuses_bools(make):
     for bad in (True, np.bool_(True), -1, 2.0, "3"):
         with pytest.raises(ValueError, match="seed"):
             env.reset(seed=bad)
+
+
+def test_batched_envs_take_config_then_size():
+    """Every batched env of the package takes (config, size): the Gymnasium vector env as the SB3
+    ones; the old (num_envs, config) order is refused by name rather than misread."""
+    import gymnasium as gym
+
+    from containergym_marl.envs.vector import ContainerGymVectorEnv
+
+    venv = ContainerGymVectorEnv("n5_m2_dt120", 3)
+    assert venv.num_envs == 3 and venv.config.name == "n5_m2_dt120"
+    with pytest.raises(TypeError, match="config"):
+        ContainerGymVectorEnv(3, "n5_m2_dt120")
+    made = gym.make_vec("containergym_marl/ContainerGym-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                        config="n5_m2_dt120")
+    assert made.num_envs == 2
+    made.close()

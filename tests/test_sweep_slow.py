@@ -241,6 +241,39 @@ def test_sigterm_stops_compare_as_ctrl_c_does(tmp_path):
     assert "interrupted: finished runs are kept" in output
 
 
+def _running(proc) -> bool:
+    """Alive and not a zombie (one whose parent died lingers until init reaps it: it has ended)."""
+    import psutil
+
+    try:
+        return proc.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+def test_no_ray_process_outlives_a_killed_driver(tmp_path):
+    """SIGKILL to compare's driver alone (an OOM kill): every process its local Ray instance started
+    ends within seconds (the reaper), where Ray's own agents used to linger for a minute or more."""
+    psutil = pytest.importorskip("psutil")
+    out = tmp_path / "cmp"
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    proc = subprocess.Popen(_compare_cmd(out, *KILL_ARGS), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env=env, start_new_session=True)
+    try:
+        _wait_for_checkpoint(out, RUN1, proc)
+        started = psutil.Process(proc.pid).children(recursive=True)
+        assert any("raylet" in p.name() for p in started)
+        proc.kill()
+        proc.wait()
+        deadline = time.monotonic() + 15
+        while (alive := [p for p in started if _running(p)]) and time.monotonic() < deadline:
+            time.sleep(0.5)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert not alive, [(p.pid, p.name()) for p in alive]
+
+
 # ---- SIGKILL of the whole compare at random moments, and Ctrl-C under load ------------------------
 SOAK_BUDGET = 8192
 SOAK_ARGS = ("--methods", "rule_based", "ppo", "--seeds", "1", "2", "--timesteps", str(SOAK_BUDGET),

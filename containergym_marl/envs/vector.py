@@ -352,9 +352,13 @@ class ContainerGymVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    def __init__(self, num_envs: int = 8, config: str | PlantConfig = "n5_m2_dt120", *,
+    def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_envs: int = 8, *,
                  protocol: str | None = None, render_mode: str | None = None,
                  **overrides: Any):
+        if is_integer(config):
+            # the order of every other batched env of the package: (config, size)
+            raise TypeError(f"config: expected a config name, path or PlantConfig, got {config!r}; "
+                            "the arguments are (config, num_envs)")
         if render_mode is not None:
             raise ValueError("render_mode: the vector env does not render; render a single env instead")
         self.config = load_config(config, protocol=protocol, **overrides)
