@@ -39,9 +39,19 @@ from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.manifest import check as manifest_check
 from containergym_marl.manifest import read_manifest, write_manifest
-from containergym_marl.sweep import latest_readable_checkpoint
-from containergym_marl.training.runs import (RunLock, checkpoint_files, checkpoints, clear_run, model_file,
-                                             model_suffix, read_run_summary, run_args, run_name, run_status)
+from containergym_marl.rundir import (
+    checkpoint_files,
+    checkpoints,
+    clear_run,
+    latest_intact_checkpoint,
+    model_file,
+    model_suffix,
+    read_run_summary,
+    run_args,
+    run_name,
+    run_status,
+    RunLock,
+)
 
 SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
 
@@ -65,7 +75,7 @@ def _copy_run(run: Path, dst: Path) -> None:
         if (run / name).is_file():
             _copy(run / name, dst / name)
     keep = set()
-    if run_status(run) != "finished" and (steps := latest_readable_checkpoint(run)) is not None:
+    if run_status(run) != "finished" and (steps := latest_intact_checkpoint(run)) is not None:
         for path in checkpoint_files(run, steps, model_suffix(run)).values():
             if path.is_file():
                 _copy(path, dst / "checkpoints" / path.name)
@@ -85,7 +95,7 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
         if status == "finished":
             _copy_run(run, to / "runs" / run.name)
             done["runs"].append(run.name)
-        elif status == "interrupted" and with_checkpoints and latest_readable_checkpoint(run) is not None:
+        elif status == "interrupted" and with_checkpoints and latest_intact_checkpoint(run) is not None:
             dst = to / "runs" / run.name
             if _trained_samples(run) >= (_trained_samples(dst) if dst.is_dir() else 0):
                 _copy_run(run, dst)
@@ -137,7 +147,7 @@ def evaluate_fresh(to: Path, min_seeds: int = 3) -> list[str]:
     model evaluated, and evaluated again only when that model changes. Returns what was evaluated."""
     from containergym_marl.evaluation.protocol import FRESH
     from containergym_marl.evaluation.runs import evaluate_run, evaluated_files, evaluated_model
-    from containergym_marl.sweep import sha256
+    from containergym_marl.manifest import sha256_bytes
 
     done = []
     for group in tables.load_evaluations(to / "evaluations"):
@@ -148,7 +158,7 @@ def evaluate_fresh(to: Path, min_seeds: int = 3) -> list[str]:
             run = to / "runs" / run_name(group.method, group.config, seed)
             if run_status(run) != "finished":
                 continue
-            model_sha = sha256(evaluated_model({name: (run / name).read_bytes() for name in evaluated_files(run)}))
+            model_sha = sha256_bytes(evaluated_model({name: (run / name).read_bytes() for name in evaluated_files(run)}))
             path = to / tables.FRESH_FOLDER / group.config / f"{tables.evaluation_key(group.method, seed)}.json"
             if path.is_file() and json.loads(path.read_text()).get("model_sha256") == model_sha:
                 continue

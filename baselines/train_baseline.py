@@ -3,7 +3,7 @@
     python baselines/train_baseline.py --algo ppo --config n5_m2_dt120 --seed 1
     python baselines/train_baseline.py --algo shared_ppo --config n11_m2_dt120 --seed 2 --vec supersuit
 
-The algorithms (``--algo``; containergym_marl.training.algorithms.REGISTRY):
+The algorithms (``--algo``; containergym_marl.algorithms.REGISTRY):
 
 * ``ppo``, ``trpo``, ``maskable_ppo``: one centralised controller picks which container to empty
   (MaskablePPO never picks an emptying while no PU is free). 6144 samples per update spread over

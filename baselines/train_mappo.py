@@ -105,17 +105,17 @@ from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.runs import evaluate_run
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.shared_actor import SharedActor
-from containergym_marl.training.algorithms import paper_budget
-from containergym_marl.training.runs import (
-    RunError,
-    RunLock,
-    TrainingProgress,
+from containergym_marl.algorithms import paper_budget
+from containergym_marl.rundir import (
     append_metrics,
     read_metrics,
     read_run_summary,
     run_name,
+    RunError,
+    RunLock,
     truncate_metrics,
 )
+from containergym_marl.training.runs import TrainingProgress
 from containergym_marl.evaluation.table import evaluation_key
 from containergym_marl.training.script_args import parse_args
 

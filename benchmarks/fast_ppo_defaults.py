@@ -24,7 +24,7 @@ from containergym_marl.evaluation import evaluate
 from containergym_marl.evaluation.protocol import VALIDATION
 from containergym_marl.evaluation.runs import policy_from_run
 from containergym_marl.training import TrainArgs, train
-from containergym_marl.training.runs import read_run_summary, run_status
+from containergym_marl.rundir import read_run_summary, run_status
 
 #: The batch shapes tried (``--hp`` settings; 64 simulations each), against a start of 64 steps per
 #: rollout and minibatches of 4096 ("wide"): smaller minibatches (4x and 8x the gradient steps),

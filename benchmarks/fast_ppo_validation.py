@@ -31,9 +31,9 @@ from containergym_marl.evaluation import stats as st
 from containergym_marl.evaluation.runs import evaluate_run
 from containergym_marl.evaluation.table import bootstrap_rng, load_evaluations
 from containergym_marl.training import TrainArgs, train
-from containergym_marl.training.runs import run_status
+from containergym_marl.rundir import run_status
 
-#: SB3's batch shape on n5_m2_dt120 (containergym_marl.training.algorithms.rollout_steps).
+#: SB3's batch shape on n5_m2_dt120 (containergym_marl.algorithms.rollout_steps).
 PAPER_SHAPE = {"fast_ppo": {"n_steps": 768, "minibatch_size": 64},
                "fast_shared_ppo": {"n_steps": 152, "minibatch_size": 64}}
 COUNTERPART = {"fast_ppo": "ppo", "fast_shared_ppo": "shared_ppo", "fast_shared_ppo_team": "shared_ppo_team"}

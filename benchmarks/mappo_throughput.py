@@ -60,7 +60,7 @@ SMOKE = ["--n-envs", "4", "--hp", "on_policy_n_minibatch_iters=1", "num_cells=[8
 def measure(script, config: str, iterations: int, folder: Path, frames_per_batch: int = 6000,
             extra: tuple[str, ...] = ()) -> dict:
     from containergym_marl.config import load_config
-    from containergym_marl.training.algorithms import paper_budget
+    from containergym_marl.algorithms import paper_budget
 
     run = folder / f"mappo_{config}"
     wall0, cpu0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)

@@ -65,7 +65,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from containergym_marl.config import PlantConfig, list_configs, load_config  # noqa: E402
-from containergym_marl.core import PlantParams, PlantSimulator, PlantState  # noqa: E402
+from containergym_marl.core import PlantSimulator, PlantState  # noqa: E402
 from containergym_marl.core.dynamics import ARBITRATION_RULES  # noqa: E402
 
 RULES = tuple(ARBITRATION_RULES)

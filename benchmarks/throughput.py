@@ -329,7 +329,7 @@ def ppo_throughput(algo: str, sims: int, updates: int, n_steps: int | None) -> d
     from stable_baselines3 import PPO
 
     from containergym_marl.envs.vector import ContainerAgentsVecEnv, ContainerGymVecEnv
-    from containergym_marl.training.algorithms import get_algorithm
+    from containergym_marl.algorithms import get_algorithm
     from containergym_marl.training.loop import _no_distribution_validation
 
     torch.set_num_threads(1)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from containergym_marl.config import load_config
 from containergym_marl.training import TrainArgs, train
-from containergym_marl.training.algorithms import get_algorithm, rollout_steps
+from containergym_marl.algorithms import get_algorithm, rollout_steps
 from containergym_marl.training.fast_ppo import PPOArgs
 
 PAIRS = (("ppo", "fast_ppo"), ("shared_ppo", "fast_shared_ppo"))

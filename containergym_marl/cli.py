@@ -68,7 +68,7 @@ def _print_training_end(run) -> None:
     """What the run reached and the command to run next."""
     import shlex
 
-    from containergym_marl.training.runs import read_run_summary
+    from containergym_marl.rundir import read_run_summary
 
     s = read_run_summary(run) or {}
     print(f"run directory: {run}")
@@ -116,7 +116,7 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
 
     from containergym_marl.evaluation import PAPER, EvalProtocol, evaluate
     from containergym_marl.policies.planner import PLANNERS
-    from containergym_marl.training.algorithms import RULE_BASED
+    from containergym_marl.algorithms import RULE_BASED
 
     built_in = {**RULE_BASED, **PLANNERS}
     protocol = EvalProtocol(episodes=episodes) if episodes != PAPER.episodes else PAPER
@@ -127,7 +127,7 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
                         on_episode=_EpisodeProgress(protocol.episodes))
     if Path(target).is_dir():
         from containergym_marl.evaluation.runs import evaluate_run
-        from containergym_marl.training.runs import RunWarning
+        from containergym_marl.rundir import RunWarning
 
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", RunWarning)
@@ -173,7 +173,7 @@ def _print_evaluation(result, json_path: str | None) -> int:
           f"{_share(s['good_emptying_share'])}, r<0 {_share(s['negative_emptying_share'])}; denied/episode "
           f"{s['denied_requests_mean']:.1f}; PU utilisation {s['pu_utilisation']:.2f}")
     if json_path:
-        from containergym_marl.training.runs import atomic_write_text
+        from containergym_marl.files import atomic_write_text
 
         atomic_write_text(json_path, result.to_json())
     return 0
@@ -229,7 +229,7 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from containergym_marl.training.algorithms import ALGORITHMS, REGISTRY, RULE_BASED
+    from containergym_marl.algorithms import ALGORITHMS, REGISTRY, RULE_BASED
 
     trained = {name: REGISTRY[name] for name in ALGORITHMS}  # the SB3 ones (mappo: baselines/train_mappo.py)
     reward_modes = tuple(dict.fromkeys(m for spec in trained.values() for m in spec.reward_modes))
@@ -298,8 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from containergym_marl.training.algorithms import MissingExtraError
-    from containergym_marl.training.runs import RunError
+    from containergym_marl.extras import MissingExtraError
+    from containergym_marl.rundir import RunError
 
     ns = build_parser().parse_args(argv)
     try:

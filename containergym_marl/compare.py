@@ -97,7 +97,7 @@ import numpy as np
 from containergym_marl.config import load_config
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write_text
-from containergym_marl.training.runs import run_name
+from containergym_marl.rundir import run_name
 
 
 @dataclass(frozen=True)
@@ -217,7 +217,7 @@ def budget(args: CompareArgs, config: str) -> int:
     """Samples per training run on ``config``: ``args.timesteps``, or the paper's budget."""
     if args.timesteps is not None:
         return int(args.timesteps)
-    from containergym_marl.training.algorithms import paper_budget
+    from containergym_marl.algorithms import paper_budget
 
     return paper_budget(load_config(config).n_containers)
 
@@ -250,13 +250,13 @@ def _fingerprint(args: CompareArgs, config: str, method: Method, run: str | None
     """What an evaluation depends on besides the code: stored with it, compared to reuse it.
     ``timesteps``: the run's budget (default: this comparison's budget of ``config``)."""
     from containergym_marl.evaluation import EvalProtocol
-    from containergym_marl.sweep import sha256
+    from containergym_marl.manifest import sha256_bytes
 
     plant = EvalProtocol(episodes=args.episodes).plant(config)
     if method.learned and timesteps is None:
         timesteps = budget(args, config)
     return {"run": run, "timesteps": timesteps if method.learned else None,
-            "model_sha256": model_sha, "plant_sha256": sha256(plant.to_toml().encode()),
+            "model_sha256": model_sha, "plant_sha256": sha256_bytes(plant.to_toml().encode()),
             "arbitration": dict(method.train).get("arbitration", "fullest")}
 
 
@@ -324,9 +324,9 @@ def _run_files(run_dir: str | Path) -> dict[str, dict[str, bytes]]:
 
 def _model_sha(source: dict[str, dict[str, bytes]]) -> str:
     from containergym_marl.evaluation.runs import evaluated_model
-    from containergym_marl.sweep import sha256
+    from containergym_marl.manifest import sha256_bytes
 
-    return sha256(evaluated_model(source["files"]))
+    return sha256_bytes(evaluated_model(source["files"]))
 
 
 def _plan(args: CompareArgs, out: Path, runs: Path) -> _Plan:
@@ -415,10 +415,11 @@ def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
     same model, plant and protocol are evaluated, the other seeds' published evaluations reused.
     Reads the shipped folder only."""
     from containergym_marl.evaluation import EvalProtocol
-    from containergym_marl.sweep import finished_budget, sha256
+    from containergym_marl.manifest import sha256_bytes
+    from containergym_marl.rundir import finished_budget
     from containergym_marl.manifest import check as manifest_check
     from containergym_marl.manifest import read_manifest
-    from containergym_marl.training.runs import checkpoints, model_file
+    from containergym_marl.rundir import checkpoints, model_file
 
     folder = Path(args.shipped)
     manifest = read_manifest(folder)
@@ -472,7 +473,7 @@ def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
                 files = _run_files(run)
                 for file_name, data in files["files"].items():  # never a model changed after publication
                     manifest_check(folder, f"runs/{run.name}/{file_name}", data, manifest)
-                fingerprint = _fingerprint(args, config, method, run.name, sha256(files["files"][best_name]),
+                fingerprint = _fingerprint(args, config, method, run.name, sha256_bytes(files["files"][best_name]),
                                            timesteps=trained)
                 published = _cached(folder / "evaluations" / stem / f"{tables.evaluation_key(name, seed)}.json",
                                     fingerprint, protocol)
@@ -517,7 +518,8 @@ def compare(args: CompareArgs, stream=None) -> dict:
     tasks failed after Ray's retries; KeyboardInterrupt leaves every run resumable.
 
     With ``args.shipped`` it trains nothing and evaluates the shipped policies (module docstring)."""
-    from containergym_marl.sweep import Cluster, SweepError, estimate_rate, execute, format_duration, write_files
+    from containergym_marl.rundir import write_files
+    from containergym_marl.sweep import Cluster, SweepError, estimate_rate, execute, format_duration
 
     stream = stream or sys.stdout
 
@@ -672,7 +674,7 @@ def _shipped_summary(shipped: _Shipped, report: dict, methods: list[str]) -> lis
 
 
 def _resume_point(spec) -> int:
-    from containergym_marl.training.runs import latest_checkpoint
+    from containergym_marl.rundir import latest_checkpoint
 
     ckpt = latest_checkpoint(Path(spec.run_dir)) if Path(spec.run_dir).is_dir() else None
     return ckpt[1] if ckpt else 0

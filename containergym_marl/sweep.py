@@ -9,7 +9,7 @@ What Ray does here, and what this module adds:
 * **Retries**: training and evaluation tasks carry ``max_retries``; when the worker process or its
   node dies, Ray runs the task again. A training task decides for itself what to do with its run
   directory (:func:`prepare_run`): a finished run is returned as is, a run with a checkpoint is
-  resumed from its latest readable checkpoint (``train(TrainArgs(..., resume=True))``, losing at
+  resumed from its latest intact checkpoint (``train(TrainArgs(..., resume=True))``, losing at
   most one checkpoint interval), a run that died before its first checkpoint starts over. So a
   retried task, a rerun after Ctrl-C and a rerun after a crash all continue where the run stands.
 * **Dependencies**: an evaluation task takes the training task's result (the run's small files,
@@ -26,18 +26,15 @@ is copied; without one the driver still gets every file the table, the figures a
 need, while checkpoints stay on the node that trained (a run interrupted there resumes only if Ray
 schedules it on that node again, otherwise it starts over).
 
-Each training task also holds ``<runs>/.sweep/<run>.pid`` (its worker's process id, locked while it
-trains and removed when it ends, so two sweeps never train one run at once) and appends one line
-per attempt to ``<runs>/.sweep/<run>.log``. Runs trained by other means (``containergym-marl train``,
-scripts) take no lock: do not point a sweep at their directories while they train.
+Each training task holds its run's lock (:class:`~containergym_marl.rundir.RunLock`, the one a
+``containergym-marl train`` takes) from deciding what to do with the run to the end of the training,
+so two sweeps, or a sweep and a ``train``, never write one run at once; it appends one line per
+attempt to ``<runs>/.sweep/<run>.log``. Run directories follow :mod:`containergym_marl.rundir`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import csv
-import hashlib
-import json
 import logging
 import os
 import shutil
@@ -48,7 +45,6 @@ import sys
 import tempfile
 import threading
 import time
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, TextIO
@@ -59,9 +55,22 @@ except ImportError:  # not POSIX: no lock between sweeps
     fcntl = None
 
 from containergym_marl import ray_reaper
+from containergym_marl.manifest import sha256_bytes
+from containergym_marl.rundir import (
+    RunError,
+    RunLock,
+    check_model_file,
+    clear_run,
+    finished_budget,
+    latest_intact_checkpoint,
+    measured_rate,
+    model_file,
+    read_metrics,
+    run_args,
+    small_files,
+    write_files,
+)
 
-#: Folders of a run directory that stay on the node that trained it.
-NODE_LOCAL = ("checkpoints", "tb")
 #: Samples per second per CPU assumed for an ETA before any run has reported (PPO, n = 5 or 11, here).
 DEFAULT_RATE = 2_000.0
 
@@ -102,29 +111,6 @@ class RunSpec:
         return Path(self.run_dir).parent / ".sweep"
 
 
-def _zip_ok(path: Path) -> bool:
-    try:
-        with zipfile.ZipFile(path) as z:
-            return z.testzip() is None
-    except (OSError, zipfile.BadZipFile, EOFError):
-        return False
-
-
-def finished_budget(run: str | Path) -> int | None:
-    """The budget of a finished run (a readable final model, ``final_model.zip`` or ``.pt``, and
-    ``args.json``), else None. Reads small files; no Ray, no torch."""
-    from containergym_marl.training.runs import model_file
-
-    run = Path(run)
-    final, saved = run / model_file(run, "final"), run / "args.json"
-    if not (final.is_file() and saved.is_file() and _zip_ok(final)):
-        return None
-    try:
-        return int(json.loads(saved.read_text())["timesteps"])
-    except (ValueError, KeyError, TypeError):
-        return None
-
-
 def check_budget(spec: RunSpec) -> bool:
     """True when ``spec``'s run is finished here with the same budget; a finished run with another
     budget is an error (never retrained or overwritten)."""
@@ -135,104 +121,29 @@ def check_budget(spec: RunSpec) -> bool:
     return budget is not None
 
 
-def latest_readable_checkpoint(run: str | Path) -> int | None:
-    """Samples of the run's latest readable checkpoint; checkpoints cut short by a kill are removed."""
-    from containergym_marl.training.runs import latest_checkpoint  # one definition of checkpoint names
-
-    while (ckpt := latest_checkpoint(Path(run))) is not None:
-        path, steps = ckpt
-        if _zip_ok(path):
-            return steps
-        path.unlink()
-    return None
-
-
-def prepare_run(spec: RunSpec) -> tuple[str, int]:
+def prepare_run(spec: RunSpec, held_lock: RunLock | None = None) -> tuple[str, int]:
     """What a training task does with its run directory, and from which sample count:
     ``("finished", budget)``, ``("resume", checkpoint samples)`` or ``("new", 0)``.
 
-    Everything is decided and cleaned while holding the run's lock (a directory that a running
-    ``train`` holds is never touched: :class:`~containergym_marl.training.runs.RunError`).
-    Checkpoints cut short by a kill are removed; a run directory without a readable checkpoint (the
-    run died before its first one) is cleared of what training wrote and the run starts over."""
-    from containergym_marl.training.runs import RunLock, clear_run, model_file
-
+    Everything is decided and cleaned while holding the run's lock (``held_lock``, or taken here: a
+    directory that a running ``train`` holds is never touched, :class:`~containergym_marl.rundir.RunError`).
+    Broken checkpoints are set aside; a run directory without an intact checkpoint (the run died
+    before its first one) is cleared of what training wrote and the run starts over."""
     run = Path(spec.run_dir)
     if check_budget(spec):
         return "finished", spec.timesteps
-    if run.exists():
-        with RunLock(run):
-            steps = latest_readable_checkpoint(run)
-            if steps is not None and (run / "args.json").is_file():
-                best = run / model_file(run, "best")
-                if best.exists() and not _zip_ok(best):
+    with contextlib.nullcontext() if held_lock is not None else RunLock(run):
+        steps = latest_intact_checkpoint(run)
+        if steps is not None and (run / "args.json").is_file():
+            best = run / model_file(run, "best")
+            if best.exists():
+                try:
+                    check_model_file(best)
+                except ValueError:
                     best.unlink()  # cut short by a kill; the resumed run saves its next best
-                return "resume", steps
-            clear_run(run)
+            return "resume", steps
+        clear_run(run)
     return "new", 0
-
-
-def small_files(run: str | Path) -> dict[str, bytes]:
-    """The run directory's files except :data:`NODE_LOCAL` folders, the lock file and temporary files
-    of writes cut short, as ``{relative path: bytes}``."""
-    from containergym_marl.files import temporary_target
-    from containergym_marl.training.runs import LOCK_NAME
-
-    run = Path(run)
-    out = {}
-    for path in sorted(run.rglob("*")):
-        rel = path.relative_to(run)
-        if (path.is_file() and rel.parts[0] not in NODE_LOCAL and path.name != LOCK_NAME
-                and temporary_target(path.name) is None):
-            out[rel.as_posix()] = path.read_bytes()
-    return out
-
-
-def write_files(run: str | Path, files: dict[str, bytes]) -> int:
-    """Write ``files`` into ``run`` where they differ from what is there, each crash-safe
-    (:func:`containergym_marl.files.atomic_write`); returns how many were written."""
-    from containergym_marl.files import atomic_write
-
-    run = Path(run)
-    written = 0
-    for rel, data in files.items():
-        path = run / rel
-        if path.is_file() and path.read_bytes() == data:
-            continue
-        atomic_write(path, lambda tmp, data=data: tmp.write_bytes(data))
-        written += 1
-    return written
-
-
-def sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-# ---- rates from metrics.csv -------------------------------------------------------------------------
-def _metrics_rows(run: Path) -> list[dict[str, float]]:
-    path = run / "metrics.csv"
-    if not path.is_file():
-        return []
-    try:
-        with path.open() as f:
-            return [{k: float(v) for k, v in r.items() if v not in (None, "")} for r in csv.DictReader(f)]
-    except (OSError, ValueError):
-        return []
-
-
-def measured_rate(run: str | Path) -> float | None:
-    """Samples per second of a run's last uninterrupted stretch, from its metrics.csv."""
-    rows = [r for r in _metrics_rows(Path(run)) if "timesteps" in r and "wall_time_s" in r]
-    if not rows:
-        return None
-    start = len(rows) - 1
-    while start > 0 and rows[start - 1]["wall_time_s"] < rows[start]["wall_time_s"]:
-        start -= 1  # wall time restarts at 0 when a run resumes
-    first, last = rows[start], rows[-1]
-    if last is first:
-        return last["timesteps"] / last["wall_time_s"] if last["wall_time_s"] > 0 and start == 0 else None
-    dt = last["wall_time_s"] - first["wall_time_s"]
-    return (last["timesteps"] - first["timesteps"]) / dt if dt > 0 else None
 
 
 class MetricsReporter(threading.Thread):
@@ -242,13 +153,13 @@ class MetricsReporter(threading.Thread):
         super().__init__(daemon=True, name=f"metrics-{name}")
         self.run_dir, self.run_name, self.events = run_dir, name, events
         self.start_samples, self.every_s = start_samples, every_s
-        self.skip = len(_metrics_rows(run_dir))  # rows of earlier attempts
+        self.skip = len(read_metrics(run_dir, quiet=True))  # rows of earlier attempts
         self.stopped = threading.Event()
 
     def run(self) -> None:  # the thread's body
         seen = self.skip
         while not self.stopped.wait(self.every_s):
-            rows = _metrics_rows(self.run_dir)
+            rows = read_metrics(self.run_dir, quiet=True)
             if len(rows) > seen:
                 seen = len(rows)
                 last = rows[-1]
@@ -284,7 +195,9 @@ def _emit(events, item) -> None:
 # ---- the tasks ----------------------------------------------------------------------------------
 def train_run(spec: RunSpec, events=None) -> dict[str, Any]:
     """Body of a training task: finish, resume or start ``spec``'s run; returns its small files and
-    timings. Idempotent: running it again on a finished run trains nothing."""
+    timings. Idempotent: running it again on a finished run trains nothing. The run's lock is held
+    from the decision to the end of the training (handed to ``train``), so two sweeps never train
+    one run at once."""
     import torch
 
     torch.set_num_threads(1)
@@ -292,37 +205,12 @@ def train_run(spec: RunSpec, events=None) -> dict[str, Any]:
 
     run = Path(spec.run_dir)
     spec.sweep_dir.mkdir(parents=True, exist_ok=True)
-    pid_file = _claim(spec.sweep_dir / f"{spec.name}.pid", spec.name)
-    try:
-        return _train_claimed(spec, run, events, train)
-    finally:
-        with contextlib.suppress(OSError):
-            Path(pid_file.name).unlink()
-        pid_file.close()  # releases the lock
+    with RunLock(run) as lock:
+        return _train_locked(spec, run, events, train, lock)
 
 
-def _claim(path: Path, name: str):
-    """Open and lock ``<runs>/.sweep/<run>.pid`` and write this process's id into it; the lock (held
-    until the task ends or its process dies) keeps two sweeps from training one run at once."""
-    f = path.open("a+")
-    if fcntl is not None:
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            f.seek(0)
-            other = f.read().strip()
-            f.close()
-            raise RuntimeError(f"{name} is being trained by another process (pid {other or '?'}, see {path}); "
-                               f"one sweep at a time per runs directory") from None
-    f.seek(0)
-    f.truncate()
-    f.write(f"{os.getpid()}\n")
-    f.flush()
-    return f
-
-
-def _train_claimed(spec: RunSpec, run: Path, events, train) -> dict[str, Any]:
-    state, start = prepare_run(spec)
+def _train_locked(spec: RunSpec, run: Path, events, train, lock: RunLock) -> dict[str, Any]:
+    state, start = prepare_run(spec, lock)
     host = socket.gethostname()
     action = {"finished": "finished already", "resume": f"resume from {start} samples", "new": "start"}[state]
     with (spec.sweep_dir / f"{spec.name}.log").open("a") as log:
@@ -333,7 +221,7 @@ def _train_claimed(spec: RunSpec, run: Path, events, train) -> dict[str, Any]:
         reporter = MetricsReporter(run, spec.name, events, start)
         reporter.start()
         try:
-            train(spec.train_args(resume=state == "resume"))
+            train(spec.train_args(resume=state == "resume"), held_lock=lock)
         finally:
             reporter.stop()
     wall = time.perf_counter() - t0
@@ -391,7 +279,7 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
         from containergym_marl.evaluation.runs import evaluated_model, policy_from_run
 
         files = run["files"]  # evaluation.runs.evaluated_files of the run
-        model_sha = sha256(evaluated_model(files))
+        model_sha = sha256_bytes(evaluated_model(files))
         with tempfile.TemporaryDirectory(prefix="cgm-eval-") as tmp:
             write_files(tmp, {k: v for k, v in files.items()
                               if k in ("args.json", "run.json") or k.startswith(("best_model.", "final_model."))})
@@ -737,8 +625,7 @@ def estimate_rate(runs_root: str | Path) -> float:
     """Samples/s per run measured by earlier SB3 runs under ``runs_root`` (median), else
     :data:`DEFAULT_RATE`. Runs that compare does not train (MAPPO's, which count plant steps at a
     tenth of the rate) share the folder but say nothing about the sweep's runs."""
-    from containergym_marl.training.algorithms import ALGORITHMS
-    from containergym_marl.training.runs import RunError, run_args
+    from containergym_marl.algorithms import ALGORITHMS
 
     def sweep_run(run: Path) -> bool:
         try:
@@ -752,5 +639,4 @@ def estimate_rate(runs_root: str | Path) -> float:
 
 
 __all__ = ["Cluster", "EvalSpec", "Outcome", "Progress", "RunSpec", "SweepError", "check_budget", "estimate_rate",
-           "evaluate_policy", "execute", "finished_budget", "format_duration", "measured_rate", "prepare_run",
-           "small_files", "train_run", "write_files"]
+           "evaluate_policy", "execute", "format_duration", "prepare_run", "train_run"]

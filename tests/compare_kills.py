@@ -104,7 +104,7 @@ def check_intact(root: Path) -> None:
     import tomllib
 
     from containergym_marl.files import temporary_target
-    from containergym_marl.training.runs import METRIC_FIELDS, RunWarning, read_metrics
+    from containergym_marl.rundir import METRIC_FIELDS, read_metrics, RunWarning
 
     for path in root.rglob("*") if root.is_dir() else []:
         if not path.is_file() or "tb" in path.relative_to(root).parts:

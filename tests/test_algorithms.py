@@ -11,7 +11,7 @@ from containergym_marl import load_config
 from containergym_marl.cli import build_parser
 from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
 from containergym_marl.training import ALGORITHMS, METHODS, REGISTRY, get_algorithm, view_of
-from containergym_marl.training.algorithms import rollout_steps
+from containergym_marl.algorithms import rollout_steps
 
 
 def test_registry_entries_load_their_classes_and_views():

@@ -20,7 +20,6 @@ from containergym_marl.config import (
     MAX_CONTAINERS,
     MAX_PROCESSING_UNITS,
     ConfigError,
-    PlantConfig,
 )
 from containergym_marl.core import PlantParams, PlantSimulator, dynamics
 from containergym_marl.envs.centralised import ContainerGymEnv

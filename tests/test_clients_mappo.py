@@ -29,7 +29,7 @@ from containergym_marl.evaluation import table as tables  # noqa: E402
 from containergym_marl.evaluation.runs import policy_from_run  # noqa: E402
 from containergym_marl.policies.shared_actor import SharedActor, SharedActorPolicy  # noqa: E402
 from containergym_marl.policies.torchrl_policy import TorchRLAgentsPolicy  # noqa: E402
-from containergym_marl.training.runs import METRIC_FIELDS, read_metrics  # noqa: E402
+from containergym_marl.rundir import METRIC_FIELDS, read_metrics  # noqa: E402
 from tests.conftest import load_script  # noqa: E402
 
 TINY = ["--frames-per-batch", "600", "--n-envs", "4", "--episodes", "2", "--override", "episode_length_steps=50",
@@ -192,7 +192,7 @@ def test_a_finished_run_is_published_with_its_torch_models(trained, tmp_path):
     its small files and both .pt models, and the best/median model of the (row, method)."""
     import shutil
 
-    from containergym_marl.training.runs import run_status
+    from containergym_marl.rundir import run_status
 
     run, evaluations, evaluation, _ = trained
     runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "published"

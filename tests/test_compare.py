@@ -9,6 +9,7 @@ import io
 import json
 import time
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,7 +17,8 @@ import pytest
 from containergym_marl.cli import build_parser, main
 from containergym_marl.compare import METHODS, PAIRS, CompareArgs, args_from_namespace, compare, run_specs
 from containergym_marl.evaluation import table as tables
-from containergym_marl.sweep import MetricsReporter, Progress, RunSpec, measured_rate, prepare_run, small_files
+from containergym_marl.rundir import RunError, RunWarning, measured_rate, small_files
+from containergym_marl.sweep import MetricsReporter, Progress, RunSpec, prepare_run
 
 
 # ---- methods, runs, budgets ---------------------------------------------------------------------
@@ -78,9 +80,11 @@ def test_compare_help_shows_the_defaults(capsys):
 
 
 def _zip(path, payload=b"x"):
+    """A file with an SB3 model zip's members (what the run-directory rules check, not load)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with zipfile.ZipFile(path, "w") as z:
         z.writestr("data", payload)
+        z.writestr("policy.pth", payload)
 
 
 def _spec(run_dir, timesteps=256) -> RunSpec:
@@ -99,7 +103,7 @@ def test_a_finished_run_with_another_budget_is_refused_without_ray(tmp_path):
         prepare_run(_spec(run, 512))
 
 
-def test_a_training_task_resumes_from_the_latest_readable_checkpoint(tmp_path):
+def test_a_training_task_resumes_from_the_latest_intact_checkpoint(tmp_path):
     run = tmp_path / "ppo_n5_m2_dt120_s1"
     (run / "checkpoints").mkdir(parents=True)
     (run / "args.json").write_text(json.dumps({"algo": "ppo", "timesteps": 4096}))
@@ -107,8 +111,10 @@ def test_a_training_task_resumes_from_the_latest_readable_checkpoint(tmp_path):
     (run / "checkpoints" / "ckpt_2048_steps.zip").write_bytes(b"PK\x03\x04 cut short by a kill")
     (run / "best_model.zip").write_bytes(b"PK\x03\x04 cut short")
     (run / "final_model.zip").write_bytes(b"PK\x03\x04 cut short")  # not a finished run
-    assert prepare_run(_spec(run, 4096)) == ("resume", 1024)
-    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["ckpt_1024_steps.zip"]
+    with pytest.warns(RunWarning, match="set aside"):
+        assert prepare_run(_spec(run, 4096)) == ("resume", 1024)
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["ckpt_1024_steps.zip",
+                                                                        "ckpt_2048_steps.zip.broken"]
     assert not (run / "best_model.zip").exists()
     # died before its first checkpoint: start over, with what training wrote cleared
     (run / "checkpoints" / "ckpt_1024_steps.zip").unlink()
@@ -118,7 +124,6 @@ def test_a_training_task_resumes_from_the_latest_readable_checkpoint(tmp_path):
 
 
 def test_a_run_directory_with_foreign_files_is_never_cleared(tmp_path):
-    from containergym_marl.training.runs import RunError
 
     run = tmp_path / "ppo_n5_m2_dt120_s1"
     run.mkdir()
@@ -136,7 +141,6 @@ def test_a_run_that_a_running_train_holds_is_never_cleared(tmp_path):
     import sys
     import time
 
-    from containergym_marl.training.runs import RunError
 
     run = tmp_path / "ppo_n5_m2_dt120_s1"
     proc = subprocess.Popen([sys.executable, "-m", "containergym_marl.cli", "train", "--algo", "ppo", "--out", str(run),
@@ -159,7 +163,9 @@ def test_a_training_task_returns_what_a_driver_without_shared_storage_needs(tmp_
     """The task body without Ray: it trains, returns the run's small files (no checkpoints, no
     TensorBoard logs) from which another machine's copy is a finished run that evaluates the same;
     run again, it trains nothing."""
-    from containergym_marl.sweep import EvalSpec, evaluate_policy, finished_budget, sha256, train_run, write_files
+    from containergym_marl.manifest import sha256_bytes
+    from containergym_marl.rundir import finished_budget, write_files
+    from containergym_marl.sweep import EvalSpec, evaluate_policy, train_run
 
     spec = RunSpec("ppo_n5_m2_dt120_s1", "ppo", "ppo", "n5_m2_dt120", 1, 256, str(tmp_path / "node" / "run"),
                    {"n_envs": 1, "checkpoint_every": 128, "hyperparams": {"n_steps": 128, "batch_size": 64}})
@@ -177,7 +183,7 @@ def test_a_training_task_returns_what_a_driver_without_shared_storage_needs(tmp_
     spec_eval = EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", episodes=1, seed=1)
     here, sha = evaluate_policy(spec_eval, {"files": small_files(driver)})
     there, _ = evaluate_policy(spec_eval, result)
-    assert sha == sha256(result["files"]["best_model.zip"]) and here.returns.tolist() == there.returns.tolist()
+    assert sha == sha256_bytes(result["files"]["best_model.zip"]) and here.returns.tolist() == there.returns.tolist()
     assert here.records == []  # records only when the figures ask for them
 
     again = train_run(spec)
@@ -202,7 +208,7 @@ def test_the_driver_writes_a_run_s_files_crash_safe(tmp_path, monkeypatch):
     is killed) the old file stays whole and no part of the new one is left behind."""
     import os
 
-    from containergym_marl.sweep import write_files
+    from containergym_marl.rundir import write_files
 
     run = tmp_path / "run"
     write_files(run, {"args.json": b'{"timesteps": 1}'})
@@ -220,26 +226,43 @@ def test_the_driver_writes_a_run_s_files_crash_safe(tmp_path, monkeypatch):
 
 
 def test_two_sweeps_never_train_one_run_at_once(tmp_path):
-    fcntl = pytest.importorskip("fcntl")
+    """A training task takes the run's lock (the one `train` takes); while another process holds it,
+    the task fails naming the holder and leaves the run untouched."""
+    pytest.importorskip("fcntl")
+    import subprocess
+    import sys
+
     from containergym_marl.sweep import train_run
 
     spec = _spec(tmp_path / "runs" / "ppo_n5_m2_dt120_s1")
-    spec.sweep_dir.mkdir(parents=True)
-    with (spec.sweep_dir / f"{spec.name}.pid").open("a+") as other:  # another sweep's task holds the run
-        other.write("4242\n")
-        other.flush()
-        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        with pytest.raises(RuntimeError, match=r"being trained by another process \(pid 4242"):
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from containergym_marl.rundir import RunLock; "
+                               f"lock = RunLock({spec.run_dir!r}).acquire(); print('held', flush=True); time.sleep(60)"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(RunError, match=rf"in use by another writer \(pid {holder.pid} "):
             train_run(spec)
-    assert not (tmp_path / "runs" / "ppo_n5_m2_dt120_s1").exists()
+    finally:
+        holder.kill()
+        holder.wait()
+    assert sorted(p.name for p in Path(spec.run_dir).iterdir()) == [".lock"]
+
+
+def _metrics(run: Path, rows: list[tuple[int, float]]) -> None:
+    from containergym_marl.rundir import METRIC_FIELDS
+
+    run.mkdir(parents=True, exist_ok=True)
+    full = [{**dict.fromkeys(METRIC_FIELDS, 0), "timesteps": t, "wall_time_s": w} for t, w in rows]
+    (run / "metrics.csv").write_text(",".join(METRIC_FIELDS) + "\n" + "".join(
+        ",".join(str(r[k]) for k in METRIC_FIELDS) + "\n" for r in full))
 
 
 def test_samples_per_second_of_the_last_uninterrupted_stretch(tmp_path):
     rows = [(1000, 1.0), (2000, 2.0), (3000, 3.0)]
-    (tmp_path / "metrics.csv").write_text("timesteps,wall_time_s\n" + "".join(f"{t},{w}\n" for t, w in rows))
+    _metrics(tmp_path, rows)
     assert measured_rate(tmp_path) == pytest.approx(1000.0)
     rows += [(4000, 0.5), (6000, 1.5)]  # resumed: wall time starts again
-    (tmp_path / "metrics.csv").write_text("timesteps,wall_time_s\n" + "".join(f"{t},{w}\n" for t, w in rows))
+    _metrics(tmp_path, rows)
     assert measured_rate(tmp_path) == pytest.approx(2000.0)
     assert measured_rate(tmp_path / "missing") is None
 
@@ -251,9 +274,8 @@ def test_the_eta_rate_is_the_median_of_the_sweeps_own_runs(tmp_path):
 
     def run(name: str, algo: str, rate: float) -> None:
         folder = tmp_path / name
-        folder.mkdir()
+        _metrics(folder, [(round(rate), 1.0), (round(2 * rate), 2.0)])
         (folder / "args.json").write_text(json.dumps({"algo": algo}))
-        (folder / "metrics.csv").write_text(f"timesteps,wall_time_s\n{rate:.0f},1.0\n{2 * rate:.0f},2.0\n")
 
     assert estimate_rate(tmp_path) == DEFAULT_RATE
     run("ppo_a_s1", "ppo", 3000)
@@ -268,14 +290,13 @@ def test_a_training_task_reports_samples_and_rate_from_its_metrics(tmp_path):
     class Events(list):
         put_nowait = list.append
 
-    header = "timesteps,wall_time_s\n"
-    (tmp_path / "metrics.csv").write_text(header + "1000,9.0\n")  # a row of an earlier attempt
+    _metrics(tmp_path, [(1000, 9.0)])  # a row of an earlier attempt
     events = Events()
     reporter = MetricsReporter(tmp_path, "run", events, start_samples=1000, every_s=0.02)
     reporter.start()
     time.sleep(0.2)
     assert events == []
-    (tmp_path / "metrics.csv").write_text(header + "1000,9.0\n1500,1.0\n2000,2.0\n")
+    _metrics(tmp_path, [(1000, 9.0), (1500, 1.0), (2000, 2.0)])
     deadline = time.monotonic() + 10
     while not events and time.monotonic() < deadline:
         time.sleep(0.02)

@@ -4,14 +4,10 @@ written, the optional action mask."""
 
 from __future__ import annotations
 
-import json
-import os
-import pickle
 import signal
 import subprocess
 import sys
 import time
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +20,8 @@ from containergym_marl.evaluation.runs import evaluate_run, policy_from_run
 from containergym_marl.policies.actor_critic import ActorCritic
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, load_checkpoint, update
-from containergym_marl.training.runs import checkpoints, read_metrics, read_progress, read_run_summary
+from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
+from containergym_marl.training.runs import read_progress
 
 REPO = Path(__file__).resolve().parents[1]
 # 2 simulations, rollouts of 16 steps, training episodes of T = 20 steps (they finish)

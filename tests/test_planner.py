@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from containergym_marl import ContainerGymEnv, load_config
-from containergym_marl.core import PlantState, dynamics, overflow_probabilities, simulate_futures
+from containergym_marl.core import dynamics, overflow_probabilities, simulate_futures
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.simulator import PlantSimulator
 from containergym_marl.envs.container_agents_v0 import parallel_env

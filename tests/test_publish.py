@@ -78,7 +78,7 @@ def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(t
 def test_an_interrupted_run_published_with_its_checkpoint_resumes_after_restore(tmp_path):
     """--with-checkpoints keeps only the newest checkpoint; --restore brings the run back to a fresh
     runs folder, where training resumes from that checkpoint and finishes."""
-    from containergym_marl.training.runs import checkpoints, run_status
+    from containergym_marl.rundir import checkpoints, run_status
 
     publish_results = _publish_module()
     runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"

@@ -23,16 +23,9 @@ from containergym_marl.cli import main as cli_main
 from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.runs import evaluate_run, policy_from_run
 from containergym_marl.training import RunError, RunWarning, TrainArgs, train
-from containergym_marl.training.runs import (
-    RunLock,
-    atomic_write_text,
-    checkpoint_files,
-    checkpoint_interval,
-    checkpoints,
-    read_metrics,
-    read_progress,
-    read_run_summary,
-)
+from containergym_marl.files import atomic_write_text
+from containergym_marl.rundir import checkpoint_files, checkpoints, read_metrics, read_run_summary, RunLock
+from containergym_marl.training.runs import checkpoint_interval, read_progress
 
 # RunWarnings are what these tests provoke; each test asserts the ones it is about.
 pytestmark = pytest.mark.filterwarnings("ignore::containergym_marl.training.runs.RunWarning")
@@ -215,7 +208,7 @@ def test_read_metrics_ignores_a_partial_last_row(run_copy):
 def test_atomic_write_keeps_the_old_file_when_the_writer_dies(tmp_path):
     path = tmp_path / "args.json"
     atomic_write_text(path, "old")
-    from containergym_marl.training.runs import atomic_write
+    from containergym_marl.files import atomic_write
 
     def dies(tmp):
         tmp.write_text("half")
@@ -343,13 +336,14 @@ def test_a_run_without_a_finished_episode_says_so(tmp_path, capsys):
 
     # compare evaluates such a run too (its final model, named so), from the files it ships to a worker
     from containergym_marl.compare import _run_files
-    from containergym_marl.sweep import EvalSpec, evaluate_policy, sha256
+    from containergym_marl.manifest import sha256_bytes
+    from containergym_marl.sweep import EvalSpec, evaluate_policy
 
     source = _run_files(out)
     assert sorted(source["files"]) == ["args.json", "final_model.zip", "run.json"]
     with pytest.warns(RunWarning, match="no training episode finished"):
         result, model_sha = evaluate_policy(EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", 1, seed=1), source)
-    assert model_sha == sha256((out / "final_model.zip").read_bytes()) and len(result.returns) == 1
+    assert model_sha == sha256_bytes((out / "final_model.zip").read_bytes()) and len(result.returns) == 1
 
 
 def test_train_ends_with_the_training_return_and_the_next_command(tmp_path, capsys):
@@ -378,7 +372,7 @@ def test_train_shows_samples_per_second_and_the_latest_training_return_while_it_
 def test_a_second_writer_fails_fast_naming_the_holder(tmp_path):
     out = tmp_path / "r"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from containergym_marl.training.runs import RunLock; "
+        [sys.executable, "-c", "import sys, time; from containergym_marl.rundir import RunLock; "
          "lock = RunLock(sys.argv[1]).acquire(); print('locked', flush=True); time.sleep(60)", str(out)],
         stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
     try:

@@ -20,7 +20,7 @@ from containergym_marl.evaluation import table as tables  # noqa: E402
 from containergym_marl.evaluation.runs import policy_from_run  # noqa: E402
 from containergym_marl.policies.shared_actor import SharedActor, SharedActorPolicy  # noqa: E402
 from containergym_marl.training import ALGORITHMS, REGISTRY, TrainArgs, get_algorithm, view_of  # noqa: E402
-from containergym_marl.training.runs import RunWarning  # noqa: E402
+from containergym_marl.rundir import RunWarning  # noqa: E402
 
 F5 = 12 + 2 + 5  # agent observation size of n5_m2
 

@@ -84,9 +84,10 @@ def test_compare_killed_once_then_the_same_command_resumes_and_finishes(tmp_path
     import numpy as np
 
     from containergym_marl.compare import run_specs
-    from containergym_marl.sweep import sha256
+    from containergym_marl.manifest import sha256_bytes
     from containergym_marl.training import train
-    from containergym_marl.training.runs import checkpoints, load_model, read_metrics, read_run_summary
+    from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
+    from containergym_marl.training.runs import load_model
     from tests import compare_kills as kills
 
     budget, name = 2048, "ppo_n5_m2_dt120_s1"
@@ -117,7 +118,7 @@ def test_compare_killed_once_then_the_same_command_resumes_and_finishes(tmp_path
         str(point)]
     assert load_model(run / "final_model.zip", "ppo").num_timesteps == budget
     evaluation = json.loads((out / "evaluations" / "n5_m2_dt120" / "ppo_s1.json").read_text())
-    assert evaluation["compare"]["model_sha256"] == sha256((run / "best_model.zip").read_bytes())
+    assert evaluation["compare"]["model_sha256"] == sha256_bytes((run / "best_model.zip").read_bytes())
 
     args = CompareArgs(methods=["ppo"], seeds=[1], timesteps=budget, n_envs=1, checkpoint_every=512,
                        hyperparams={"n_steps": 128, "batch_size": 64})

@@ -351,8 +351,9 @@ def test_compare_killed_at_random_moments_then_rerun_ends_as_an_uninterrupted_co
     Then no temporary file is left in any run directory: the process that resumed a run removed
     those that killed writers had left."""
     from containergym_marl.evaluation import table as tables
-    from containergym_marl.sweep import sha256
-    from containergym_marl.training.runs import checkpoints, load_model, read_metrics, read_run_summary
+    from containergym_marl.manifest import sha256_bytes
+    from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
+    from containergym_marl.training.runs import load_model
 
     marker, env = kills.marked_env("CONTAINERGYM_SOAK")
     reference = tmp_path / "reference"
@@ -404,7 +405,7 @@ def test_compare_killed_at_random_moments_then_rerun_ends_as_an_uninterrupted_co
         if run is None:
             assert mine == plain_eval, rel
         else:
-            assert mine["compare"]["model_sha256"] == sha256((out / "runs" / run / "best_model.zip").read_bytes())
+            assert mine["compare"]["model_sha256"] == sha256_bytes((out / "runs" / run / "best_model.zip").read_bytes())
             assert {**mine["compare"], "model_sha256": None} == {**plain_eval["compare"], "model_sha256": None}
 
     # The runs.

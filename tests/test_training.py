@@ -14,7 +14,8 @@ from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
 from containergym_marl.evaluation.runs import evaluate_run
 from containergym_marl.training import RunError, TrainArgs, train
-from containergym_marl.training.runs import latest_checkpoint, load_model, read_metrics
+from containergym_marl.rundir import latest_checkpoint, read_metrics
+from containergym_marl.training.runs import load_model
 
 NO_EPISODE = pytest.mark.filterwarnings(  # TINY runs end no training episode: "best" is the final model
     "ignore:.*no training episode finished:containergym_marl.training.runs.RunWarning")

@@ -1,19 +1,20 @@
 """Training glue: the algorithm registry, run directories and the training loop (SB3 / sb3-contrib /
 SuperSuit, imported only when a run starts)."""
 
-from containergym_marl.training.algorithms import (
+from containergym_marl.algorithms import (
     ALGORITHMS,
     METHODS,
     REGISTRY,
     RULE_BASED,
     AlgorithmSpec,
-    MissingExtraError,
     get_algorithm,
     paper_budget,
     view_of,
 )
+from containergym_marl.extras import MissingExtraError
+from containergym_marl.rundir import RunError, RunWarning, read_metrics, run_status
 from containergym_marl.training.loop import train
-from containergym_marl.training.runs import RunError, RunWarning, TrainArgs, read_metrics, run_status
+from containergym_marl.training.runs import TrainArgs
 
 __all__ = [
     "ALGORITHMS",

@@ -49,12 +49,8 @@ import numpy as np
 import torch
 
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors
-from containergym_marl.training.runs import (
-    TrainArgs,
-    TrainingProgress,
-    append_metrics,
-    save_checkpoint,
-)
+from containergym_marl.rundir import append_metrics
+from containergym_marl.training.runs import save_checkpoint, TrainArgs, TrainingProgress
 
 CHECKPOINT_FORMAT = "containergym-marl ppo checkpoint"
 CHECKPOINT_VERSION = 1

@@ -27,35 +27,38 @@ from typing import Any
 
 import numpy as np
 
-from containergym_marl.config import PlantConfig, load_config
-from containergym_marl.training.algorithms import (
+from containergym_marl.algorithms import (
     ROLLOUT_SAMPLES,
     AlgorithmSpec,
     get_algorithm,
     paper_budget,
 )
-from containergym_marl.training.runs import (
+from containergym_marl.config import PlantConfig, load_config
+from containergym_marl.files import atomic_write, atomic_write_text
+from containergym_marl.rundir import (
+    RunLock,
     RunWarning,
-    TrainArgs,
-    TrainingProgress,
     append_metrics,
-    atomic_save_model,
-    atomic_write,
-    atomic_write_text,
     checkpoint_files,
-    checkpoint_interval,
     checkpoints,
     intact_checkpoints,
+    read_metrics,
+    read_run_summary,
+    run_args,
+    truncate_metrics,
+)
+from containergym_marl.training.runs import (
+    TrainArgs,
+    TrainingProgress,
+    atomic_save_model,
+    checkpoint_interval,
     load_model,
     load_replay_buffer,
     prepare_run_dir,
-    read_metrics,
     read_progress,
-    read_run_summary,
-    run_args,
     save_checkpoint,
-    truncate_metrics,
 )
+
 
 def no_episode_note(best_name: str = "best_model.zip") -> str:
     """run.json's note for a run in which no training episode ended."""
@@ -269,9 +272,11 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, load=None):
 
 
 # ---- train ----------------------------------------------------------------------------------------
-def train(args: TrainArgs) -> Path:
+def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
     """Train one run; returns its directory. Resumable, crash-safe, never overwrites results,
-    one writer per directory."""
+    one writer per directory: the run's lock is taken here, or handed over as ``held_lock`` by a
+    caller that holds it (a sweep task, which decides what to do with the run under it) and then
+    left to that caller to release."""
     spec = get_algorithm(args.algo)
     args.validate()
     # a MissingExtraError naming the extra, before anything is written
@@ -298,7 +303,7 @@ def train(args: TrainArgs) -> Path:
         if spec.sb3 and not args.resume:
             env.seed(args.seed)
             model = _new_sb3_model(spec, algo_cls, args, env, args.run_dir())
-        run, lock = prepare_run_dir(args, plant)
+        run, lock = prepare_run_dir(args, plant, held_lock)
         try:
             if _finished_already(run, spec, args):
                 return run
@@ -307,7 +312,8 @@ def train(args: TrainArgs) -> Path:
             else:
                 _train(run, spec, algo_cls, args, env, interval, model)
         finally:
-            lock.release()
+            if held_lock is None:
+                lock.release()
     finally:
         env.close()
     return run

@@ -1,70 +1,39 @@
-"""Run directories: their layout, arguments, metrics, checkpoints, crash-safe writes and the lock.
+"""Training runs: their arguments (:class:`TrainArgs`), the run directory a training creates or
+resumes, the best-model tracker a checkpoint carries, checkpoints and models saved and loaded.
 
-A run directory holds everything needed to inspect, resume and evaluate a run::
-
-    RUN/
-      args.json           the TrainArgs of the run (resolved)
-      config.toml         the plant the run trains on (after overrides)
-      metrics.csv         one row per rollout: timesteps, plant return of training episodes…
-      best_model.zip      the policy with the best training cumulative reward (paper, section 6.1);
-                          absent when no training episode finished (run.json says so)
-      final_model.zip     the policy at the end of the budget
-      run.json            written when training ends: samples, episodes, training returns, notes
-      checkpoints/        ckpt_<S>_steps.zip every checkpoint interval, used by --resume, with
-                          ckpt_<S>_steps.json (episode counter, 100-episode window, best so far),
-                          best_model_<S>_steps.zip (the best model at that point) and, for
-                          replay-buffer algorithms, ckpt_replay_buffer_<S>_steps.npz (plain arrays)
-      tb/                 TensorBoard logs
-      .lock               held (flock) by the process training in the directory
-      evaluation_best.json / evaluation_final.json   written by `containergym-marl evaluate RUN`
-
-Every file is written crash-safe: to a temporary file in the same directory, flushed to disk, then
-renamed over the target, so a reader sees the old or the new file, never a part (metrics.csv is
-appended one fsynced row at a time, and a partial last row is ignored with a warning); the
-temporary file of a write cut short by a kill has a hidden name no reader takes, and the next
-process that trains the run removes it (:func:`remove_stale_temporaries`). Readers
-treat an unreadable model file as broken and say so; --resume falls back to the newest intact
-checkpoint.
+The layout of a run directory, its lock, metrics and checkpoint names are
+:mod:`containergym_marl.rundir`'s.
 
 Budgets are SB3 timesteps, i.e. samples: one per environment step for the centralised algorithms
 and one per *agent* step for shared PPO (a simulation step of an n-container plant gives n samples).
-
-MAPPO runs (``baselines/train_mappo.py``, BenchMARL) follow this layout where it applies: their
-models are ``best_model.pt`` / ``final_model.pt`` (a plain torch actor), their checkpoints are
-BenchMARL's (``benchmarl/<experiment>/checkpoints/``), their budget and metrics count plant steps,
-and run.json's ``"training"`` states the budget in plant steps and agent steps.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
 import os
-import re
-import socket
-import time
 import warnings
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
+from containergym_marl.algorithms import get_algorithm, require_training_extra
 from containergym_marl.config import MAX_SIMS
-from containergym_marl.files import atomic_write, atomic_write_text, temporary_target
-from containergym_marl.training.algorithms import get_algorithm, require_training_extra
-
-try:
-    import fcntl
-except ImportError:  # pragma: no cover - Windows: no OS lock (documented in RunLock)
-    fcntl = None
-
-
-def run_name(method: str, config: str | Path, seed: int) -> str:
-    """The name of a run directory: ``<method>_<config>_s<seed>``, the config by its file stem (a
-    built-in name, or a path's stem). The one place this rule is written."""
-    return f"{method}_{Path(str(config)).stem}_s{seed}"
+from containergym_marl.files import atomic_write, atomic_write_text
+from containergym_marl.rundir import (
+    RunError,
+    RunLock,
+    RunWarning,
+    check_model_file,
+    checkpoint_files,
+    remove_stale_temporaries,
+    run_args,
+    run_contents,
+    run_name,
+)
 
 
 @dataclass
@@ -72,7 +41,7 @@ class TrainArgs:
     """Arguments of one training run (also the CLI's ``train`` options).
 
     Attributes:
-        algo: one of :data:`~containergym_marl.training.algorithms.ALGORITHMS` (ppo, trpo, dqn,
+        algo: one of :data:`~containergym_marl.algorithms.ALGORITHMS` (ppo, trpo, dqn,
             maskable_ppo: centralised; shared_ppo: one policy shared by all container agents,
             trained on the decentralised view).
         config: built-in config name or path; training uses its δ and T (1500 for the paper's).
@@ -174,12 +143,8 @@ def _check_sb3_settings(spec, hyperparams: dict[str, Any]) -> None:
         raise ValueError(f"hp: unknown {cls.__name__} setting(s) {unknown}; choose from {sorted(accepted)}")
 
 
-class RunError(RuntimeError):
-    """A run directory cannot be used as asked (would overwrite results, nothing to resume, in use…)."""
 
 
-class RunWarning(UserWarning):
-    """Something in a run directory was unreadable or incomplete and was skipped (said what)."""
 
 
 # ---- crash-safe writes (containergym_marl.files) ----------------------------------------------
@@ -197,167 +162,40 @@ def _jsonable(x):
     return json.loads(json.dumps(x, default=str))
 
 
-# ---- one writer per directory ---------------------------------------------------------------------
-LOCK_NAME = ".lock"
 
 
-class RunLock:
-    """An exclusive OS lock (``flock``) on ``RUN/.lock`` for the process that writes the run.
-
-    The OS releases it when the process ends, however it ends (a crash or ``kill -9`` included), so
-    a stale lock file never blocks a rerun. A second writer fails at once with a :class:`RunError`
-    naming the holder's pid and host (written into the lock file). Platforms without ``fcntl``
-    (Windows) get no lock.
-    """
-
-    def __init__(self, run: str | Path):
-        self.path = Path(run) / LOCK_NAME
-        self._file = None
-
-    def acquire(self) -> "RunLock":
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        f = open(self.path, "a+")
-        if fcntl is not None:
-            try:
-                fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                f.seek(0)
-                holder = f.read().strip() or "unknown process"
-                f.close()
-                raise RunError(
-                    f"run directory {str(self.path.parent)!r} is in use by another writer ({holder}); "
-                    f"wait for it to finish or stop it, or choose another directory"
-                ) from None
-        f.seek(0)
-        f.truncate()
-        f.write(f"pid {os.getpid()} on host {socket.gethostname()}, since {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
-        f.flush()
-        self._file = f
-        return self
-
-    def release(self) -> None:
-        if self._file is not None:
-            self._file.close()  # closing the descriptor releases the flock
-            self._file = None
-
-    def __enter__(self) -> "RunLock":
-        return self.acquire()
-
-    def __exit__(self, *exc) -> None:
-        self.release()
 
 
-#: The files of a run directory that training writes (checkpoints/ is the training's too).
-TRAINING_FILES = ("args.json", "config.toml", "metrics.csv", "best_model.zip", "final_model.zip", "best_model.pt",
-                  "final_model.pt", "run.json")
 
 
-def remove_stale_temporaries(run: str | Path) -> list[Path]:
-    """Remove the temporary files that writers of the run killed while writing left behind (a
-    hidden ``.<name>.<random>.tmp`` per file cut short, a half-written model or replay buffer among
-    them); returns them. Only for the process that holds the run's :class:`RunLock`: no other
-    writer of these files can be at work. Temporary files of other files (``containergym-marl
-    evaluate`` writes evaluation_*.json without the lock) are left alone."""
-    run = Path(run)
-    found = [p for p in (run.iterdir() if run.is_dir() else []) if temporary_target(p.name) in TRAINING_FILES]
-    ckpts = run / "checkpoints"
-    found += [p for p in (ckpts.iterdir() if ckpts.is_dir() else []) if temporary_target(p.name)]
-    for path in found:
-        path.unlink(missing_ok=True)
-    return found
 
 
-def clear_run(run: str | Path) -> None:
-    """Remove what training wrote in ``run`` (its files, ``checkpoints/``, ``tb/``, evaluations and
-    temporary files), for a fresh start; the caller holds the run's :class:`RunLock`. Anything else
-    found there is never deleted: a :class:`RunError` names it first."""
-    import shutil
-
-    from containergym_marl.files import temporary_target
-
-    run = Path(run)
-    ours = set(TRAINING_FILES) | {"checkpoints", "tb", LOCK_NAME}
-    foreign = sorted(p.name for p in run.iterdir() if p.name not in ours and temporary_target(p.name) is None
-                     and not (p.name.startswith("evaluation_") and p.suffix == ".json"))
-    if foreign:
-        raise RunError(f"run directory {str(run)!r} holds files that training does not write "
-                       f"({', '.join(foreign[:5])}); refusing to clear it: move them or choose another directory")
-    for path in run.iterdir():
-        if path.name == LOCK_NAME:
-            continue
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)
-        else:
-            path.unlink()
 
 
-def _contents(run: Path) -> list[str]:
-    """What a run directory holds, without the lock file and temporary files."""
-    if not run.is_dir():
-        return []
-    return sorted(p.name for p in run.iterdir() if p.name != LOCK_NAME and not p.name.endswith(".tmp"))
 
 
-# ---- arguments, summary, status -------------------------------------------------------------------
-def run_args(run: str | Path) -> dict[str, Any]:
-    path = Path(run) / "args.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"{str(run)!r} is not a run directory (no args.json)")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise RunError(f"{str(path)!r} is broken (not valid JSON: {exc})") from exc
 
 
-def read_run_summary(run: str | Path) -> dict[str, Any] | None:
-    """``run.json`` (written when training ends), or None (unfinished run, or one trained before
-    run.json existed)."""
-    path = Path(run) / "run.json"
-    if not path.is_file():
-        return None
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError:
-        warnings.warn(f"{path} is unreadable; ignored", RunWarning, stacklevel=2)
-        return None
 
 
-def run_status(run: str | Path) -> str:
-    """"absent" (nothing there), "finished" (a final model: the file its algorithm's registry entry
-    names, ``final_model.zip`` or a MAPPO run's ``final_model.pt``), or "interrupted" (started, not
-    finished: rerunning with ``resume=True`` continues it)."""
-    run = Path(run)
-    if not _contents(run):
-        return "absent"
-    return "finished" if (run / model_file(run, "final")).is_file() else "interrupted"
 
 
-def model_file(run: str | Path, which: str) -> str:
-    """The name of a run's ``which`` ("best" or "final") model, from the algorithm its args.json
-    names (SB3's ``.zip`` names for a run without a readable args.json: the only kind trained before
-    args.json)."""
-    try:
-        spec = get_algorithm(run_args(run)["algo"])
-    except (FileNotFoundError, RunError, KeyError, ValueError):
-        spec = get_algorithm("ppo")
-    return spec.model_file(which)
 
 
-def model_suffix(run: str | Path) -> str:
-    """The suffix of a run's model and checkpoint files (``.zip`` for SB3, ``.pt`` otherwise)."""
-    return Path(model_file(run, "final")).suffix
 
 
-def prepare_run_dir(args: TrainArgs, plant) -> tuple[Path, RunLock]:
-    """Create (or check, for ``args.resume``) the run directory and take its lock; returns both.
-    Never overwrites results."""
+def prepare_run_dir(args: TrainArgs, plant, held_lock: RunLock | None = None) -> tuple[Path, RunLock]:
+    """Create (or check, for ``args.resume``) the run directory and take its lock (or use
+    ``held_lock``, the run's lock that the caller holds); returns both. Never overwrites results."""
     run = args.run_dir()
-    if args.resume and not _contents(run):
+    if args.resume and not run_contents(run):
         raise RunError(f"--resume: run directory {str(run)!r} does not exist or is empty; nothing to resume")
-    lock = RunLock(run).acquire()
+    if held_lock is not None and not (held_lock.held and held_lock.path.parent.resolve() == run.resolve()):
+        raise ValueError(f"held_lock: not a held lock of the run directory {str(run)!r}")
+    lock = held_lock or RunLock(run).acquire()
     try:
         remove_stale_temporaries(run)
-        existing = _contents(run)
+        existing = run_contents(run)
         if args.resume:
             saved = run_args(run)
             for key in ("algo", "config", "seed", "vec", "reward_mode", "arbitration", "overrides"):
@@ -373,77 +211,19 @@ def prepare_run_dir(args: TrainArgs, plant) -> tuple[Path, RunLock]:
         atomic_write_text(run / "args.json", json.dumps(_jsonable(dataclasses.asdict(args)), indent=2))
         return run, lock
     except BaseException:
-        lock.release()
+        if held_lock is None:
+            lock.release()
         raise
 
 
-# ---- metrics --------------------------------------------------------------------------------------
-METRIC_FIELDS = ("timesteps", "episodes", "train_return_mean100", "train_episode_length_mean100",
-                 "best_train_return", "saved_best", "wall_time_s")
 
 
-def append_metrics(run: Path, row: dict) -> None:
-    """Append one row to metrics.csv, flushed to disk before returning."""
-    path = Path(run) / "metrics.csv"
-    new = not path.exists() or path.stat().st_size == 0
-    with path.open("a", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=METRIC_FIELDS)
-        if new:
-            w.writeheader()
-        w.writerow(row)
-        f.flush()
-        os.fsync(f.fileno())
 
 
-def truncate_metrics(run: Path, max_timesteps: int) -> int:
-    """Keep the rows of metrics.csv up to ``max_timesteps`` samples (crash-safe rewrite, the kept
-    rows byte for byte); returns how many rows were dropped (later ones, and a partial last row)."""
-    path = Path(run) / "metrics.csv"
-    if not path.is_file():
-        return 0
-    lines = path.read_bytes().decode(errors="replace").splitlines(keepends=True)
-    kept, dropped = [",".join(METRIC_FIELDS) + "\r\n"], 0
-    for line in lines[1:]:
-        if _row_steps(line) <= max_timesteps:
-            kept.append(line)
-        else:
-            dropped += 1
-    if dropped or not lines or lines[0].strip() != kept[0].strip():
-        atomic_write(path, lambda tmp: tmp.write_bytes("".join(kept).encode()))
-    return dropped
 
 
-def _row_steps(line: str) -> float:
-    """The timesteps of a complete metrics line; inf for a partial or unreadable one."""
-    cells = next(csv.reader([line]), [])
-    if not line.endswith("\n") or len(cells) != len(METRIC_FIELDS):
-        return math.inf
-    try:
-        return float(cells[0])
-    except ValueError:
-        return math.inf
 
 
-def read_metrics(run: str | Path) -> list[dict[str, float]]:
-    """The rows of metrics.csv as floats. A row that cannot be read (a partial last row, cut by a
-    crash while it was written) is skipped with a :class:`RunWarning`."""
-    path = Path(run) / "metrics.csv"
-    if not path.exists():
-        return []
-    text = path.read_bytes().decode(errors="replace")
-    lines = text.splitlines(keepends=True)
-    rows = []
-    for number, row in enumerate(csv.DictReader(lines), start=2):
-        try:
-            if None in row or any(v is None or v == "" for v in row.values()) or set(row) != set(METRIC_FIELDS):
-                raise ValueError("wrong number of fields")
-            if number - 1 == len(lines) - 1 and not lines[-1].endswith("\n"):
-                raise ValueError("the row was cut short")
-            rows.append({k: float(row[k]) for k in METRIC_FIELDS})
-        except (TypeError, ValueError) as exc:
-            warnings.warn(f"{path}: row {number} is incomplete or unreadable ({exc}); ignored",
-                          RunWarning, stacklevel=2)
-    return rows
 
 
 # ---- training progress: what a checkpoint must carry besides the model ----------------------------
@@ -482,8 +262,6 @@ class TrainingProgress:
                    best_timesteps=data.get("best_timesteps"), wall_time_s=float(data.get("wall_time_s", 0.0)))
 
 
-# ---- checkpoints ----------------------------------------------------------------------------------
-_CKPT = re.compile(r"^ckpt_(\d+)_steps\.(zip|pt)$")
 
 
 def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -> int:
@@ -495,29 +273,10 @@ def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -
     return max(samples // num_slots, 1) * num_slots
 
 
-def checkpoint_files(run: str | Path, steps: int, suffix: str = ".zip") -> dict[str, Path]:
-    """The files of the checkpoint at ``steps``; ``suffix`` is the algorithm's model suffix (SB3's
-    ``.zip``, the native PPO's ``.pt``)."""
-    d = Path(run) / "checkpoints"
-    return {"model": d / f"ckpt_{steps}_steps{suffix}", "progress": d / f"ckpt_{steps}_steps.json",
-            "best": d / f"best_model_{steps}_steps{suffix}",
-            "replay_buffer": d / f"ckpt_replay_buffer_{steps}_steps.npz"}
 
 
-def checkpoints(run: str | Path) -> list[tuple[int, Path]]:
-    """(samples, model file) of every checkpoint, newest first."""
-    found = []
-    for p in (Path(run) / "checkpoints").glob("ckpt_*_steps.*"):
-        m = _CKPT.match(p.name)
-        if m:
-            found.append((int(m.group(1)), p))
-    return sorted(found, reverse=True)
 
 
-def latest_checkpoint(run: str | Path) -> tuple[Path, int] | None:
-    """The newest checkpoint by name (intact or not): (model file, samples), or None."""
-    found = checkpoints(run)
-    return (found[0][1], found[0][0]) if found else None
 
 
 def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_buffer: bool = False,
@@ -595,30 +354,8 @@ def read_progress(run: str | Path, steps: int) -> TrainingProgress | None:
         return None
 
 
-# ---- models ---------------------------------------------------------------------------------------
-_MODEL_MEMBERS = ("data", "policy.pth")
 
 
-def check_model_file(path: str | Path) -> None:
-    """Raise a ValueError saying the file is broken unless ``path`` is a complete model file: an SB3
-    model zip (``.zip``) or a torch file (``.pt``, itself a zip holding a ``data.pkl``). Reads the
-    archive's members, never their contents."""
-    path = Path(path)
-    try:
-        with zipfile.ZipFile(path) as z:
-            names = z.namelist()
-            if path.suffix == ".pt":
-                missing = [] if any(n.endswith("/data.pkl") for n in names) else ["data.pkl"]
-            else:
-                missing = [m for m in _MODEL_MEMBERS if m not in names]
-            if missing:
-                raise ValueError(f"it lacks {', '.join(missing)}")
-            bad = z.testzip()
-            if bad is not None:
-                raise ValueError(f"member {bad!r} is corrupt")
-    except (zipfile.BadZipFile, ValueError, EOFError, OSError) as exc:
-        raise ValueError(f"cannot read model file {str(path)!r}: the file is broken (cut short or "
-                         f"corrupt: {exc})") from exc
 
 
 def load_model(path: str | Path, algo: str, env=None, hyperparams: dict[str, Any] | None = None):
@@ -642,26 +379,9 @@ def load_model(path: str | Path, algo: str, env=None, hyperparams: dict[str, Any
         raise ValueError(f"cannot read model file {str(path)!r} as a {algo} model: {exc}") from exc
 
 
-def intact_checkpoints(run: Path) -> Iterator[tuple[int, Path]]:
-    """Checkpoints newest first, skipping (with a warning, and renaming to ``*.broken``) the
-    broken ones."""
-    for steps, path in checkpoints(run):
-        try:
-            check_model_file(path)
-        except ValueError as exc:
-            warnings.warn(f"{exc}; set aside as {path.name}.broken, trying the previous checkpoint",
-                          RunWarning, stacklevel=2)
-            os.replace(path, path.with_name(path.name + ".broken"))
-            continue
-        yield steps, path
 
 
 __all__ = [
-    "clear_run", "LOCK_NAME", "METRIC_FIELDS", "RunError", "RunLock", "RunWarning", "TrainArgs",
-    "TrainingProgress", "append_metrics", "atomic_save_model", "atomic_write", "atomic_write_text",
-    "check_model_file", "checkpoint_files", "load_replay_buffer", "save_replay_buffer", "checkpoint_interval", "checkpoints", "intact_checkpoints",
-    "latest_checkpoint", "load_model", "model_suffix", "prepare_run_dir", "read_metrics", "read_progress",
-    "read_run_summary", "remove_stale_temporaries", "run_args", "run_name", "run_status", "model_file", "save_checkpoint",
-    "truncate_metrics",
+    "TrainArgs", "TrainingProgress", "atomic_save_model", "checkpoint_interval", "load_model", "load_replay_buffer",
+    "prepare_run_dir", "read_progress", "save_checkpoint", "save_replay_buffer",
 ]
-

@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from containergym_marl.extras import MissingExtraError, missing_extra
+from containergym_marl.extras import missing_extra
 from containergym_marl.policies import (
     CentralisedModelPolicy,
     RuleBasedAgents,
