@@ -18,9 +18,15 @@ seeds, the best model of its best and of its median seed by mean test return (th
 ``<method>.json`` naming the seeds and their returns (git stores each of these once: they are the
 runs' own files). Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
 (``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same), ``<to>/compute.md``
-sums the finished runs' training wall times per row, and with ``--readme README.md`` both are shown in
-the README between its results-table markers (a test checks that the README shows the committed
-files). Rerunning it is safe: files are replaced atomically, nothing else is touched.
+sums the finished runs' training wall times per row. With ``--readme README.md`` the README shows a
+compact table of IQMs (rows × methods) between its results-table markers, and with
+``--docs docs/results.md`` the generated blocks of the results page are rewritten (the compact table,
+the full table, one table per row); tests check that both show the committed files. Rerunning it is
+safe: files are replaced atomically, nothing else is touched.
+
+    python baselines/publish_results.py --pages-only --readme README.md --docs docs/results.md
+
+rewrites only the README's table and the results page from what ``--to`` holds now.
 
 ``--restore`` goes the other way before a sweep is rerun on a fresh machine: runs of ``<to>/runs``
 that RUNS lacks or holds less far trained are copied there, evaluations OUT lacks are copied to
@@ -31,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -88,7 +95,7 @@ def _copy_run(run: Path, dst: Path) -> None:
 
 
 def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_checkpoints: bool = False,
-            readme: Path | None = None) -> dict:
+            readme: Path | None = None, pages: tuple[Path, ...] = ()) -> dict:
     done = {"runs": [], "interrupted": [], "evaluations": 0, "models": []}
     for run in sorted(p for p in runs.iterdir() if p.is_dir() and not p.name.startswith(".")):
         status = run_status(run)
@@ -134,8 +141,8 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
     table.write(to, {"source": "baselines/publish_results.py"})
     atomic_write_text(to / "compute.md", training_compute(to / "runs"))
     write_manifest(to)
-    if readme is not None:
-        show_table_in_readme(readme, readme_block(to), to)
+    if readme is not None or pages:
+        write_pages(to, ([readme] if readme is not None else []) + list(pages))
     return done
 
 
@@ -188,9 +195,142 @@ def training_compute(runs: Path) -> str:
             f"two at a time). Per row: {rows}.\n")
 
 
+#: The columns of the compact table, in order (a method without any published evaluation is left out).
+COMPACT_METHODS = ("rule_based", "rule_based_agents", "ppo", "shared_ppo", "shared_ppo_team", "mappo",
+                   "fast_ppo", "fast_shared_ppo", "fast_shared_ppo_team")
+#: The reference column of the compact table: the rollout planner of ``results/planner/rows.json``.
+PLANNER = ("planner_agents", "default")
+
+
+def _table_json(to: Path) -> dict:
+    return json.loads((to / "table.json").read_text())
+
+
+def _planner_returns(to: Path) -> dict[str, float]:
+    """The rollout planner's mean test return per row (``<to>/../planner/rows.json``), if published."""
+    path = to.parent / "planner" / "rows.json"
+    if not path.is_file():
+        return {}
+    return {e["row"]: float(e["return_mean"]) for e in json.loads(path.read_text())["evaluations"]
+            if (e["method"], e["setting"]) == PLANNER}
+
+
+def compact_table(to: Path) -> str:
+    """One row per config, one column per method: the IQM over training seeds of the mean test return
+    (with the number of seeds), the mean test return for the rule-based controllers and the planner."""
+    rows = _table_json(to)["rows"]
+    by_key = {(r["config"], r["method"]): r for r in rows}
+    configs = list(dict.fromkeys(r["config"] for r in rows))
+    methods = [m for m in COMPACT_METHODS if any(r["method"] == m for r in rows)]
+    planner = _planner_returns(to)
+    header = ["row", *(f"`{m}`" for m in methods)] + (["`planner_agents`"] if planner else [])
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for config in configs:
+        cells = [f"`{config}`"]
+        for m in methods:
+            r = by_key.get((config, m))
+            cells.append("–" if r is None else f"{r['iqm']:.1f}" + (f" ({r['seeds']})" if r["seeds"] else ""))
+        if planner:
+            cells.append(f"{planner[config]:.1f}" if config in planner else "–")
+        lines.append("| " + " | ".join(cells) + " |")
+    runs = sum(r["seeds"] for r in rows)
+    note = (f"Test return (the paper's protocol: δ = 120 s, T = 600, 15 episodes). Learned methods: interquartile "
+            f"mean over training seeds of each seed's mean test return, seeds in brackets ({runs} evaluated "
+            f"policies); rule-based controllers" + (" and the rollout planner" if planner else "")
+            + ": mean over the test episodes. Generated by `baselines/publish_results.py` from "
+            "`results/paper_rows/table.json`" + (" and `results/planner/rows.json`" if planner else "") + ".")
+    return "\n".join(lines) + "\n\n" + note + "\n"
+
+
 def readme_block(to: Path) -> str:
-    """What the README shows between its results-table markers: the table and the training compute."""
-    return (to / "table.md").read_text().rstrip("\n") + "\n\n" + (to / "compute.md").read_text()
+    """What the README shows between its results-table markers: the compact table."""
+    return compact_table(to)
+
+
+def _overflowing_seeds(group) -> int:
+    return sum(any(e["overflow"] for e in ev["episodes"]) for ev in group.evaluations)
+
+
+def row_block(to: Path, config: str) -> str:
+    """The results page's table of one row: every method with its seeds' spread, the best seed's
+    behaviour, the paper's PPO and the probabilities of improvement."""
+    data = _table_json(to)
+    groups = {g.method: g for g in tables.load_evaluations(to / "evaluations") if g.config == config}
+    lines = ["| method | view | seeds | IQM [95 % CI] | median seed | lowest – highest seed | seeds with an "
+             "overflowing test episode | best seed: overflow rate | emptyings | r ≥ 0.75 | denied req. |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in (r for r in data["rows"] if r["config"] == config):
+        g = groups[r["method"]]
+        means = g.seed_means
+        seeded = bool(r["seeds"])
+        lines.append(
+            f"| `{r['method']}` | {r['view']} | {r['seeds'] or '–'} | "
+            + (f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}]" if seeded else f"{r['iqm']:.2f}")
+            + f" | {r['median_mean']:.2f} | "
+            + (f"{means.min():.2f} – {means.max():.2f}" if seeded else "–") + " | "
+            + (f"{_overflowing_seeds(g)} of {len(means)}" if seeded else "–")
+            + f" | {r['overflow_rate']:.2f} | {r['emptyings']:.1f} | {r['good_share']:.2f} | {r['denied']:.1f} |")
+    paper = tables.PAPER_TABLE_1.get(config, {}).get("ppo")
+    if paper:
+        lines += ["", f"The paper's PPO on this row (15 seeds): best seed {paper[0][0]:.2f}, median seed {paper[1][0]:.2f}."]
+    imps = [i for i in data["improvements"] if i["config"] == config]
+    if imps:
+        lines += ["", "Probability of improvement [95 % bootstrap CI]: " + "; ".join(
+            f"P(`{i['decentralised']}` > `{i['centralised']}`) = {i['probability']:.2f} [{i['low']:.2f}, "
+            f"{i['high']:.2f}] (over {i['unit']})" for i in imps) + "."]
+    return "\n".join(lines) + "\n"
+
+
+def page_blocks(to: Path) -> dict[str, str]:
+    """Every block the publishing step writes into the documentation, by name: ``compact``, ``table``
+    (the full table with the training compute) and ``row:<config>`` for each published row."""
+    blocks = {"compact": compact_table(to),
+              "table": (to / "table.md").read_text().rstrip("\n") + "\n\n" + (to / "compute.md").read_text()}
+    for config in dict.fromkeys(r["config"] for r in _table_json(to)["rows"]):
+        blocks[f"row:{config}"] = row_block(to, config)
+    return blocks
+
+
+PAGE_START = "<!-- generated by baselines/publish_results.py: {name}; do not edit -->"
+_PAGE_START = re.compile(r"^<!-- generated by baselines/publish_results\.py: (?P<name>\S+); do not edit -->$")
+PAGE_END = "<!-- end of generated block: {name} -->"
+
+
+def fill_page(text: str, blocks: dict[str, str]) -> str:
+    """``text`` with the content of every generated block (between its start and end markers)
+    replaced by ``blocks[name]``; a block the publishing step does not know is an error."""
+    lines = text.splitlines(keepends=True)
+    out, i = [], 0
+    while i < len(lines):
+        m = _PAGE_START.match(lines[i].rstrip("\n"))
+        out.append(lines[i])
+        i += 1
+        if not m:
+            continue
+        name = m["name"]
+        end = PAGE_END.format(name=name)
+        try:
+            j = next(k for k in range(i, len(lines)) if lines[k].rstrip("\n") == end)
+        except StopIteration:
+            raise SystemExit(f"generated block {name!r} has no end marker ({end})") from None
+        if name not in blocks:
+            raise SystemExit(f"generated block {name!r}: unknown (known: {', '.join(blocks)})")
+        out += ["\n", blocks[name].rstrip("\n") + "\n", "\n", lines[j]]
+        i = j + 1
+    return "".join(out)
+
+
+def write_pages(to: Path, pages: list[Path]) -> None:
+    """Fill the generated blocks of each page (the README's results-table block included)."""
+    blocks = page_blocks(to)
+    for page in pages:
+        text = page.read_text()
+        if README_START_PREFIX in text:
+            show_table_in_readme(page, blocks["compact"], to)
+            text = page.read_text()
+        new = fill_page(text, blocks)
+        if new != text:
+            atomic_write_text(page, new)
 
 
 README_START = "<!-- results table: written by baselines/publish_results.py from {source}; do not edit -->"
@@ -239,22 +379,32 @@ def restore(to: Path, runs: Path, compare_out: Path) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("--runs", required=True, type=Path, help="compare's --runs folder")
-    parser.add_argument("--compare", required=True, type=Path, help="compare's --out folder")
+    parser.add_argument("--runs", type=Path, help="compare's --runs folder (required unless --pages-only)")
+    parser.add_argument("--compare", type=Path, help="compare's --out folder (required unless --pages-only)")
     parser.add_argument("--to", default=Path("results/paper_rows"), type=Path, help="destination in the repository")
     parser.add_argument("--min-seeds", type=int, default=3, help="ship models of a (row, method) from this many seeds on")
     parser.add_argument("--with-checkpoints", action="store_true",
                         help="also publish interrupted runs with their newest checkpoint (resumable elsewhere)")
     parser.add_argument("--readme", type=Path, default=None,
-                        help="also show the table in this README, between its results-table markers")
+                        help="also show the compact table in this README, between its results-table markers")
+    parser.add_argument("--docs", type=Path, nargs="*", default=[], metavar="PAGE",
+                        help="also fill the generated blocks of these documentation pages (docs/results.md)")
+    parser.add_argument("--pages-only", action="store_true",
+                        help="only rewrite the README's table and the --docs pages from what --to holds now")
     parser.add_argument("--restore", action="store_true",
                         help="copy published runs and evaluations back into --runs and --compare instead")
     ns = parser.parse_args(argv)
+    if ns.pages_only:
+        write_pages(ns.to, ([ns.readme] if ns.readme else []) + ns.docs)
+        print(f"wrote the generated blocks of {', '.join(str(p) for p in [ns.readme, *ns.docs] if p)} from {ns.to}/")
+        return 0
+    if ns.runs is None or ns.compare is None:
+        parser.error("--runs and --compare are required (unless --pages-only)")
     if ns.restore:
         done = restore(ns.to, ns.runs, ns.compare)
         print(f"restored {len(done['runs'])} run(s) and {done['evaluations']} evaluation(s) from {ns.to}/")
         return 0
-    done = publish(ns.runs, ns.compare, ns.to, ns.min_seeds, ns.with_checkpoints, ns.readme)
+    done = publish(ns.runs, ns.compare, ns.to, ns.min_seeds, ns.with_checkpoints, ns.readme, tuple(ns.docs))
     size = sum(p.stat().st_size for p in (ns.to / "models").rglob("*") if p.suffix in (".zip", ".pt"))
     print(f"published {len(done['runs'])} finished run(s), {len(done['interrupted'])} interrupted one(s) with "
           f"their newest checkpoint, {done['evaluations']} evaluation(s), models of "

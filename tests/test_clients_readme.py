@@ -1,8 +1,8 @@
-"""The code of README.md's "With your MARL library" section runs as written.
+"""The code of the documentation's integrations page (docs/integrations.md) runs as written.
 
-Each ```python block of that section starts with a comment naming its library (``# TorchRL: …``).
-Every test here takes one block from README.md unchanged, executes it (in a temporary working
-directory: BenchMARL writes its logs there) and checks what the block built, so a README that
+Each ```python block of that page starts with a comment naming its library (``# TorchRL: …``).
+Every test here takes one block from the page unchanged, executes it (in a temporary working
+directory: BenchMARL writes its logs there) and checks what the block built, so a page that
 drifts from the libraries' or the package's API fails here.
 
 TorchRL, BenchMARL, Tianshou and RLlib come from the ``clients`` extra (``./run test-clients``,
@@ -19,32 +19,29 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-README = Path(__file__).resolve().parents[1] / "README.md"
-SECTION = "## With your MARL library"
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "integrations.md"
 LIBRARIES = ("TorchRL", "BenchMARL", "RLlib", "Tianshou", "SB3")
 
 
 def readme_snippets() -> dict[str, str]:
-    """The section's python blocks, by the library named in their first line (``# Name: …``)."""
-    text = README.read_text(encoding="utf-8")
-    assert SECTION in text, f"README.md has no {SECTION!r} section"
-    section = text.split(SECTION, 1)[1].split("\n## ", 1)[0]
+    """The page's python blocks, by the library named in their first line (``# Name: …``)."""
+    text = PAGE.read_text(encoding="utf-8")
     snippets = {}
-    for block in re.findall(r"^```python\n(.*?)^```", section, flags=re.S | re.M):
+    for block in re.findall(r"^```python\n(.*?)^```", text, flags=re.S | re.M):
         first = block.split("\n", 1)[0]
         match = re.match(r"# ([^\s:]+)", first)
-        assert match, f"a python block of {SECTION!r} does not start with '# Library: ...': {first!r}"
+        assert match, f"a python block of {PAGE.name} does not start with '# Library: ...': {first!r}"
         assert match[1] not in snippets, f"two blocks for {match[1]}"
         snippets[match[1]] = block
     return snippets
 
 
 def run_snippet(name: str, monkeypatch, tmp_path) -> dict:
-    """Executes the README block of ``name`` in ``tmp_path``; returns its variables."""
+    """Executes the page's block of ``name`` in ``tmp_path``; returns its variables."""
     code = readme_snippets()[name]
     monkeypatch.chdir(tmp_path)
     namespace: dict = {"__name__": f"readme_{name.lower()}"}
-    exec(compile(code, f"README.md[{name}]", "exec"), namespace)
+    exec(compile(code, f"docs/integrations.md[{name}]", "exec"), namespace)
     return namespace
 
 
@@ -63,7 +60,7 @@ def test_section_has_one_block_per_library():
     snippets = readme_snippets()
     assert tuple(snippets) == LIBRARIES
     for name, code in snippets.items():
-        compile(code, f"README.md[{name}]", "exec")  # valid Python even where the library is missing
+        compile(code, f"docs/integrations.md[{name}]", "exec")  # valid Python even where the library is missing
         assert len(code.splitlines()) <= 20, f"the {name} block is no longer short"
 
 

@@ -4,7 +4,7 @@ n × the plant return in team mode (RLlib sums the agents' returns).
 
 RLlib's action-masking module (``ActionMaskingTorchRLModule`` from its examples) reads the features
 under ``"observations"``; :class:`ContainerActionMasking` below takes ours (``"observation"``); the
-README's RLlib block points here for it. Needs ``ray[rllib]`` (the ``clients`` extra) and starts a local Ray
+The RLlib block of docs/integrations.md points here for it. Needs ``ray[rllib]`` (the ``clients`` extra) and starts a local Ray
 instance (~30 s): ``slow``.
 """
 

@@ -1,6 +1,7 @@
 """The published comparison (results/paper_rows/) is consistent with itself and with the README: the
 committed table is the table of the committed evaluation files, rebuilt from them alone (what a fresh
-clone does), and the README shows that table between its results-table markers."""
+clone does), and the README's compact table and the results page's generated blocks are what
+baselines/publish_results.py writes from it now."""
 
 from __future__ import annotations
 
@@ -25,13 +26,59 @@ def test_committed_table_is_the_table_of_the_committed_evaluations(tmp_path):
 
 
 def test_readme_shows_the_committed_table():
+    """The README's compact table is what the publishing step writes from the committed table now
+    (``python baselines/publish_results.py --pages-only --readme README.md --docs docs/results.md``)."""
     publish_results = _publish_module()
     readme = (ROOT / "README.md").read_text()
     start = readme.index(publish_results.README_START.format(source="results/paper_rows"))
     end = readme.index(publish_results.README_END)
     shown = readme[start:end].split("\n", 1)[1].strip()
     assert shown == publish_results.readme_block(PUBLISHED).strip()
-    assert shown.startswith((PUBLISHED / "table.md").read_text().strip())
+
+
+def test_results_page_shows_the_committed_tables():
+    """Every generated block of docs/results.md is what the publishing step writes now, and every
+    published row has its block."""
+    publish_results = _publish_module()
+    page = (ROOT / "docs" / "results.md").read_text()
+    blocks = publish_results.page_blocks(PUBLISHED)
+    assert publish_results.fill_page(page, blocks) == page, (
+        "docs/results.md is stale: python baselines/publish_results.py --pages-only --readme README.md "
+        "--docs docs/results.md")
+    for name in blocks:
+        assert publish_results.PAGE_START.format(name=name) in page, f"docs/results.md has no block {name!r}"
+    assert (PUBLISHED / "table.md").read_text().strip() in page
+
+
+def test_compact_table_has_one_row_per_config_and_the_iqm_of_each_method(tmp_path):
+    """Hand-made table.json: two configs, a rule-based controller and one learned method on one of them."""
+    import json
+
+    publish_results = _publish_module()
+    to = tmp_path / "paper_rows"
+    to.mkdir()
+    rows = [{"config": "n5_m2_dt120", "method": "rule_based", "seeds": 0, "iqm": 58.855},
+            {"config": "n5_m2_dt120", "method": "ppo", "seeds": 5, "iqm": 50.11},
+            {"config": "n11_m2_dt120", "method": "rule_based", "seeds": 0, "iqm": 76.8}]
+    (to / "table.json").write_text(json.dumps({"rows": rows}))
+    lines = publish_results.compact_table(to).splitlines()
+    assert lines[0] == "| row | `rule_based` | `ppo` |"
+    assert lines[2] == "| `n5_m2_dt120` | 58.9 | 50.1 (5) |"
+    assert lines[3] == "| `n11_m2_dt120` | 76.8 | – |"
+    assert "(5 evaluated policies)" in lines[5]
+
+
+def test_fill_page_replaces_known_blocks_and_refuses_unknown_ones():
+    publish_results = _publish_module()
+    start, end = publish_results.PAGE_START.format(name="a"), publish_results.PAGE_END.format(name="a")
+    page = f"intro\n{start}\nold\n{end}\noutro\n"
+    assert publish_results.fill_page(page, {"a": "new"}) == f"intro\n{start}\n\nnew\n\n{end}\noutro\n"
+    try:
+        publish_results.fill_page(page, {"b": "x"})
+    except SystemExit as exc:
+        assert "unknown" in str(exc)
+    else:
+        raise AssertionError("an unknown block was accepted")
 
 
 def test_committed_compute_is_the_sum_of_the_committed_runs_wall_times():
