@@ -41,11 +41,11 @@ import re
 import shutil
 from pathlib import Path
 
-from containergym_marl.compare import PAIRS
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.manifest import check as manifest_check
 from containergym_marl.manifest import read_manifest, write_manifest
+from containergym_marl.methods import PAIRS
 from containergym_marl.rundir import (
     checkpoint_files,
     checkpoints,

@@ -11,8 +11,8 @@ is trained by a script of its own (``trainer``) and only evaluated here: ``mappo
 MAPPO, ``baselines/train_mappo.py``), whose run directories ``containergym-marl evaluate`` reads like
 any other. :data:`ALGORITHMS` lists the ones that ``containergym-marl train`` and ``compare`` train.
 
-The non-learned controllers that are evaluated next to the algorithms (the paper's rule) are in
-:data:`RULE_BASED`; :data:`METHODS` lists everything a comparison can hold.
+The methods a comparison holds (these algorithms with their reward modes, the rules and the
+planners) are :mod:`containergym_marl.methods`'.
 """
 
 from __future__ import annotations
@@ -23,12 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from containergym_marl.extras import missing_extra
-from containergym_marl.policies import (
-    CentralisedModelPolicy,
-    RuleBasedAgents,
-    RuleBasedController,
-    SharedModelPolicy,
-)
+from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
 from containergym_marl.policies.actor_critic import CentralisedActorCriticPolicy, SharedActorCriticPolicy
 from containergym_marl.policies.shared_actor import SharedActorPolicy
 
@@ -210,10 +205,6 @@ REGISTRY: dict[str, AlgorithmSpec] = {
 #: The names of the algorithms that ``containergym-marl train --algo`` and ``compare`` train (SB3 and
 #: native), in registry order. The other entries (mappo) are trained by their own script.
 ALGORITHMS: tuple[str, ...] = tuple(name for name, spec in REGISTRY.items() if spec.trained_here)
-#: The paper's rule-based controllers, by name (no training; evaluated with the algorithms).
-RULE_BASED: dict[str, type] = {cls.name: cls for cls in (RuleBasedController, RuleBasedAgents)}
-#: The rule-based controllers, then the algorithms that ``containergym-marl train`` trains.
-METHODS: tuple[str, ...] = (*RULE_BASED, *ALGORITHMS)
 
 
 def get_algorithm(name: str) -> AlgorithmSpec:
@@ -222,15 +213,6 @@ def get_algorithm(name: str) -> AlgorithmSpec:
         return REGISTRY[name]
     except (KeyError, TypeError):
         raise ValueError(f"algo: unknown algorithm {name!r}; choose one of {tuple(REGISTRY)}") from None
-
-
-def view_of(method: str) -> str:
-    """"centralised" or "decentralised" for an algorithm or a rule-based controller."""
-    if method in RULE_BASED:
-        return RULE_BASED[method].view
-    if method in REGISTRY:
-        return REGISTRY[method].view
-    raise ValueError(f"method: unknown method {method!r}; choose one of {METHODS}")
 
 
 def require_training_extra(modules: tuple[str, ...] = ("stable_baselines3",)) -> None:

@@ -115,14 +115,12 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
     from pathlib import Path
 
     from containergym_marl.evaluation import PAPER, EvalProtocol, evaluate
-    from containergym_marl.policies.planner import PLANNERS
-    from containergym_marl.algorithms import RULE_BASED
+    from containergym_marl.methods import CONTROLLERS
 
-    built_in = {**RULE_BASED, **PLANNERS}
     protocol = EvalProtocol(episodes=episodes) if episodes != PAPER.episodes else PAPER
-    if target in built_in:
+    if target in CONTROLLERS:
         plant = load_config(config or "n5_m2_dt120")
-        policy = built_in[target](PlantParams.from_config(plant))
+        policy = CONTROLLERS[target](PlantParams.from_config(plant))
         return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest",
                         on_episode=_EpisodeProgress(protocol.episodes))
     if Path(target).is_dir():
@@ -140,7 +138,7 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
                 warnings.showwarning(w.message, w.category, w.filename, w.lineno)
         return result
     raise SystemExit(
-        f"evaluate: {target!r} is neither a run directory nor a built-in policy ({', '.join(built_in)})"
+        f"evaluate: {target!r} is neither a run directory nor a built-in policy ({', '.join(CONTROLLERS)})"
     )
 
 
@@ -229,7 +227,8 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from containergym_marl.algorithms import ALGORITHMS, REGISTRY, RULE_BASED
+    from containergym_marl.algorithms import ALGORITHMS, REGISTRY
+    from containergym_marl.methods import CONTROLLERS
 
     trained = {name: REGISTRY[name] for name in ALGORITHMS}  # the SB3 ones (mappo: baselines/train_mappo.py)
     reward_modes = tuple(dict.fromkeys(m for spec in trained.values() for m in spec.reward_modes))
@@ -270,9 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("evaluate", help="evaluate a run directory or a built-in policy (paper protocol)")
-    from containergym_marl.policies.planner import PLANNERS
-
-    e.add_argument("target", help=f"a run directory or one of {(*RULE_BASED, *PLANNERS)}")
+    e.add_argument("target", help=f"a run directory or one of {tuple(CONTROLLERS)}")
     e.add_argument("--config", default=None, help="plant (default: the run's own, or n5_m2_dt120)")
     e.add_argument("--episodes", type=_positive_int, default=15)
     e.add_argument("--model", choices=("best", "final"), default="best")

@@ -31,16 +31,11 @@ Both write, to ``--out``:
 * ``evaluations/<config>/``: every evaluation as a small JSON file;
 * ``figures/``: episode rollouts, ECDFs, PU timelines and reward functions of the best seed of each method.
 
-Methods (:data:`METHODS`): ``rule_based`` (centralised) and ``rule_based_agents`` (decentralised)
-controllers; ``planner`` and ``planner_agents``, the rollout planner through each view
-(:mod:`containergym_marl.policies.planner`, default settings); ``ppo``, ``trpo``, ``dqn``,
-``maskable_ppo`` (centralised, SB3); ``shared_ppo`` (one PPO policy shared by the container agents,
-individual rewards) and ``shared_ppo_team`` (the same with the team reward); ``fast_ppo``,
-``fast_shared_ppo`` and ``fast_shared_ppo_team``, the same three trained by the package's native PPO
-(:mod:`containergym_marl.training.fast_ppo`: SB3's network and loss, 64 simulations, minibatches of
-1024; ``--hp`` then takes its settings, e.g. ``n_steps=128``). MAPPO is not one of
-them: ``baselines/train_mappo.py`` trains it with BenchMARL (the clients extra) and writes
-``mappo_s<seed>.json`` evaluation files that the table reads beside these. Runs are
+Methods: those of :mod:`containergym_marl.methods` that compare runs (:data:`~containergym_marl.methods.COMPARABLE`):
+the rule-based controllers, the rollout planners through each view, and the learned methods that
+``containergym-marl train`` trains (SB3's and the native PPO's; ``--hp`` takes the algorithm's
+settings). MAPPO is trained by ``baselines/train_mappo.py`` (BenchMARL, the clients extra), which
+writes ``mappo_s<seed>.json`` evaluation files that the table reads beside these. Runs are
 ``<runs>/<method>_<config>_s<seed>/`` and train on the config as it is (the δ = 60 rows at
 δ = 60 s); ``--timesteps paper`` gives each config the paper's budget (2M samples for n = 5, 5M for
 n >= 11).
@@ -97,50 +92,10 @@ import numpy as np
 from containergym_marl.config import load_config
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write_text
+from containergym_marl.methods import COMPARABLE, METHODS, PAIRS, Method
 from containergym_marl.rundir import run_name
 
 
-@dataclass(frozen=True)
-class Method:
-    """A method of the comparison: a rule-based controller (``policy``, a class of
-    containergym_marl.policies) or a training algorithm (``algo``, TrainArgs.algo) with its
-    ``train`` settings; ``counterpart`` is the centralised method a decentralised one is compared with.
-    Its view is the policy's or the algorithm's own (``training.algorithms.view_of``)."""
-
-    name: str
-    algo: str | None = None
-    policy: str | None = None
-    train: tuple[tuple[str, Any], ...] = ()
-    counterpart: str | None = None
-
-    @property
-    def learned(self) -> bool:
-        return self.algo is not None
-
-
-#: The methods compare knows, by name.
-METHODS: dict[str, Method] = {m.name: m for m in (
-    Method("rule_based", policy="RuleBasedController"),
-    Method("rule_based_agents", policy="RuleBasedAgents", counterpart="rule_based"),
-    Method("planner", policy="RolloutPlanner"),
-    Method("planner_agents", policy="PlannerAgents", counterpart="planner"),
-    Method("ppo", algo="ppo"),
-    Method("trpo", algo="trpo"),
-    Method("dqn", algo="dqn"),
-    Method("maskable_ppo", algo="maskable_ppo"),
-    Method("shared_ppo", algo="shared_ppo", train=(("reward_mode", "individual"),),
-           counterpart="ppo"),
-    Method("shared_ppo_team", algo="shared_ppo", train=(("reward_mode", "team"),),
-           counterpart="ppo"),
-    Method("fast_ppo", algo="fast_ppo"),
-    Method("fast_shared_ppo", algo="fast_shared_ppo", train=(("reward_mode", "individual"),),
-           counterpart="fast_ppo"),
-    Method("fast_shared_ppo_team", algo="fast_shared_ppo", train=(("reward_mode", "team"),),
-           counterpart="fast_ppo"),
-)}
-#: (decentralised, centralised) pairs whose probability of improvement the table reports; MAPPO
-#: (trained by baselines/train_mappo.py, whose evaluation files the table reads) against PPO too.
-PAIRS = tuple((m.name, m.counterpart) for m in METHODS.values() if m.counterpart) + (("mappo", "ppo"),)
 #: The samples per run of ``compare --train`` (a look in minutes, not a result).
 QUICK_TIMESTEPS = 30_000
 #: The rows of the comparison the repository publishes (baselines/sweep_paper_rows.sh): the paper's
@@ -189,7 +144,10 @@ class CompareArgs:
 def _validate(args: CompareArgs) -> None:
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown:
-        raise ValueError(f"methods: unknown method(s) {unknown}; choose from {list(METHODS)}")
+        raise ValueError(f"methods: unknown method(s) {unknown}; choose from {list(COMPARABLE)}")
+    by_script = [f"{m} (trained by {METHODS[m].algorithm.trainer})" for m in args.methods if m not in COMPARABLE]
+    if by_script:
+        raise ValueError(f"methods: compare does not train {', '.join(by_script)}; choose from {list(COMPARABLE)}")
     for what in ("configs", "methods", "seeds"):
         values = getattr(args, what)
         repeated = sorted({v for v in values if values.count(v) > 1}, key=str)
@@ -237,7 +195,7 @@ def run_specs(args: CompareArgs, runs: Path) -> list:
             if not method.learned:
                 continue
             train = {"n_envs": args.n_envs, "checkpoint_every": args.checkpoint_every,
-                     "hyperparams": dict(args.hyperparams), **dict(method.train)}
+                     "hyperparams": dict(args.hyperparams), **method.train_settings()}
             for seed in args.seeds:
                 run = run_name(name, config, seed)
                 specs.append(RunSpec(run, name, method.algo, config, seed, budget(args, config),
@@ -257,7 +215,7 @@ def _fingerprint(args: CompareArgs, config: str, method: Method, run: str | None
         timesteps = budget(args, config)
     return {"run": run, "timesteps": timesteps if method.learned else None,
             "model_sha256": model_sha, "plant_sha256": sha256_bytes(plant.to_toml().encode()),
-            "arbitration": dict(method.train).get("arbitration", "fullest")}
+            "arbitration": method.arbitration}
 
 
 def _cached(path: Path, fingerprint: dict, protocol: dict) -> dict | None:
@@ -311,8 +269,8 @@ def _eval_spec(args: CompareArgs, config: str, name: str, seed: int | None):
     from containergym_marl.sweep import EvalSpec
 
     method = METHODS[name]
-    return EvalSpec(tables.evaluation_key(name, seed), name, config, args.episodes, policy=method.policy,
-                    seed=seed, arbitration=dict(method.train).get("arbitration", "fullest"))
+    return EvalSpec(tables.evaluation_key(name, seed), name, config, args.episodes, seed=seed,
+                    arbitration=method.arbitration)
 
 
 def _run_files(run_dir: str | Path) -> dict[str, dict[str, bytes]]:
@@ -463,7 +421,7 @@ def _shipped_plan(args: CompareArgs, out: Path) -> _Plan:
                 if saved.get("algo") != method.algo:
                     shipped.unusable.append(f"{run.name} was trained as {saved.get('algo')}, not as {name}")
                     continue
-                if (differ := [f"{k}={saved.get(k)}" for k, v in method.train if saved.get(k) != v]):
+                if (differ := [f"{k}={saved.get(k)}" for k, v in method.train_settings().items() if saved.get(k) != v]):
                     shipped.unusable.append(f"{run.name} was trained with {', '.join(differ)}, not as {name}")
                     continue
                 best_name = model_file(run, "best")
@@ -781,8 +739,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help=f"plant configurations: built-in ({', '.join(list_configs())}) or paths (default: the "
                            f"paper rows, {' '.join(PAPER_ROWS)}, for the shipped policies; {' '.join(d.configs)} "
                            f"with --train)")
-    what.add_argument("--methods", nargs="+", default=None, choices=list(METHODS), metavar="METHOD",
-                      help=f"methods to compare, from: {', '.join(METHODS)} (default: {' '.join(PAPER_METHODS)} "
+    what.add_argument("--methods", nargs="+", default=None, choices=list(COMPARABLE), metavar="METHOD",
+                      help=f"methods to compare, from: {', '.join(COMPARABLE)} (default: {' '.join(PAPER_METHODS)} "
                            f"for the shipped policies; {' '.join(d.methods)} with --train)")
     what.add_argument("--episodes", type=int, default=d.episodes, help="test episodes per evaluation")
     what.add_argument("--out", default=d.out, help="tables, evaluations and figures")

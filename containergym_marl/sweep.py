@@ -245,15 +245,14 @@ def _node_id() -> str | None:
 
 @dataclass(frozen=True)
 class EvalSpec:
-    """One evaluation: a rule-based controller (``policy`` = its class in containergym_marl.policies)
-    or a run's best model (its files come with the task), under the test protocol."""
+    """One evaluation under the test protocol: a controller (a method of
+    :mod:`containergym_marl.methods` with one), or a run's best model (its files come with the task)."""
 
     key: str  # the evaluation file's stem: <method>_s<seed> or <method>
     method: str
     config: str
     episodes: int
     arbitration: str = "fullest"
-    policy: str | None = None
     seed: int | None = None
 
 
@@ -268,11 +267,11 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
     from containergym_marl.evaluation import EvalProtocol, evaluate
 
     protocol = EvalProtocol(episodes=spec.episodes)
-    if spec.policy is not None:
-        from containergym_marl import policies
+    if run is None:
         from containergym_marl.core.params import PlantParams
+        from containergym_marl.methods import get_method
 
-        policy = getattr(policies, spec.policy)(PlantParams.from_config(load_config(spec.config)))
+        policy = get_method(spec.method).controller(PlantParams.from_config(load_config(spec.config)))
         model_sha = None
         result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
     else:

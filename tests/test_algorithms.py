@@ -10,7 +10,7 @@ import pytest
 from containergym_marl import load_config
 from containergym_marl.cli import build_parser
 from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
-from containergym_marl.training import ALGORITHMS, METHODS, REGISTRY, get_algorithm, view_of
+from containergym_marl.training import ALGORITHMS, REGISTRY, get_algorithm
 from containergym_marl.algorithms import rollout_steps
 
 
@@ -30,15 +30,10 @@ def test_registry_entries_load_their_classes_and_views():
     assert get_algorithm("fast_shared_ppo").method_name("team") == "fast_shared_ppo_team"
     assert get_algorithm("shared_ppo").policy_adapter is SharedModelPolicy
     assert all(REGISTRY[a].policy_adapter is CentralisedModelPolicy for a in ("ppo", "trpo", "dqn", "maskable_ppo"))
-    assert [view_of(m) for m in METHODS] == ["centralised", "decentralised", "centralised", "centralised",
-                                             "centralised", "centralised", "decentralised", "centralised",
-                                             "decentralised"]
     assert get_algorithm("dqn").replay_buffer and not get_algorithm("ppo").replay_buffer
     assert get_algorithm("dqn").default_n_envs == 1 and get_algorithm("ppo").default_n_envs == 8
     with pytest.raises(ValueError, match="unknown algorithm 'a2c'"):
         get_algorithm("a2c")
-    with pytest.raises(ValueError, match="unknown method"):
-        view_of("a2c")
 
 
 def test_cli_choices_come_from_the_registry():

@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from containergym_marl.cli import build_parser, main
-from containergym_marl.compare import METHODS, PAIRS, CompareArgs, args_from_namespace, compare, run_specs
+from containergym_marl.compare import CompareArgs, args_from_namespace, compare, run_specs
 from containergym_marl.evaluation import table as tables
+from containergym_marl.methods import METHODS, PAIRS
 from containergym_marl.rundir import RunError, RunWarning, measured_rate, small_files
 from containergym_marl.sweep import MetricsReporter, Progress, RunSpec, prepare_run
 

@@ -17,7 +17,6 @@ pytest.importorskip("stable_baselines3")
 
 from containergym_marl.cli import build_parser, main  # noqa: E402
 from containergym_marl.compare import (  # noqa: E402
-    METHODS,
     PAPER_METHODS,
     PAPER_ROWS,
     QUICK_TIMESTEPS,
@@ -29,6 +28,7 @@ from containergym_marl.compare import (  # noqa: E402
     compare,
 )
 from containergym_marl.evaluation import EvalProtocol  # noqa: E402
+from containergym_marl.methods import METHODS  # noqa: E402
 from containergym_marl.evaluation.runs import evaluate_run  # noqa: E402
 from containergym_marl.manifest import write_manifest  # noqa: E402
 from containergym_marl.training import TrainArgs, train  # noqa: E402

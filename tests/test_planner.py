@@ -196,7 +196,7 @@ def test_planner_agents_beat_the_rule_on_a_contended_plant():
 
 def test_planner_runs_through_the_parallel_env_and_the_registries(capsys):
     from containergym_marl.cli import main
-    from containergym_marl.compare import METHODS
+    from containergym_marl.methods import METHODS
 
     env = parallel_env("n5_m2_dt120", episode_length_steps=5)
     observations, _ = env.reset(seed=3)
@@ -205,7 +205,7 @@ def test_planner_runs_through_the_parallel_env_and_the_registries(capsys):
         actions = planner.act(observations, env)
         assert set(actions) == set(env.possible_agents) and set(actions.values()) <= {0, 1}
         observations, *_ = env.step(actions)
-    assert (METHODS["planner"].policy, METHODS["planner_agents"].policy) == ("RolloutPlanner", "PlannerAgents")
+    assert (METHODS["planner"].controller, METHODS["planner_agents"].controller) == (RolloutPlanner, PlannerAgents)
     with pytest.raises(ValueError, match="base"):
         RolloutPlanner(base="nope")
     assert main(["evaluate", "planner", "--config", "n5_m5_dt120", "--episodes", "1"]) == 0

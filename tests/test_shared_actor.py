@@ -19,7 +19,7 @@ from containergym_marl.evaluation import EvalProtocol, evaluate  # noqa: E402
 from containergym_marl.evaluation import table as tables  # noqa: E402
 from containergym_marl.evaluation.runs import policy_from_run  # noqa: E402
 from containergym_marl.policies.shared_actor import SharedActor, SharedActorPolicy  # noqa: E402
-from containergym_marl.training import ALGORITHMS, REGISTRY, TrainArgs, get_algorithm, view_of  # noqa: E402
+from containergym_marl.training import ALGORITHMS, REGISTRY, TrainArgs, get_algorithm  # noqa: E402
 from containergym_marl.rundir import RunWarning  # noqa: E402
 
 F5 = 12 + 2 + 5  # agent observation size of n5_m2
@@ -37,7 +37,7 @@ def _actor(request_bias: float = 0.0, seed: int = 0, inputs: int = F5) -> Shared
 def test_registry_evaluates_mappo_but_sb3_does_not_train_it():
     spec = get_algorithm("mappo")
     assert "mappo" in REGISTRY and "mappo" not in ALGORITHMS and not spec.sb3
-    assert spec.policy_adapter is SharedActorPolicy and spec.view == view_of("mappo") == "decentralised"
+    assert spec.policy_adapter is SharedActorPolicy and spec.view == "decentralised"
     assert (spec.model_file("best"), spec.trainer) == ("best_model.pt", "baselines/train_mappo.py")
     assert all(REGISTRY[a].model_file("final") == ("final_model.zip" if REGISTRY[a].sb3 else "final_model.pt")
                and REGISTRY[a].trained_here for a in ALGORITHMS)
@@ -47,9 +47,9 @@ def test_registry_evaluates_mappo_but_sb3_does_not_train_it():
         TrainArgs(algo="mappo").validate()
     with pytest.raises(SystemExit):  # not a choice of `train --algo`
         build_parser().parse_args(["train", "--algo", "mappo"])
-    from containergym_marl.compare import METHODS
+    from containergym_marl.methods import COMPARABLE, METHODS
 
-    assert "mappo" not in METHODS  # compare trains SB3 algorithms only (MAPPO: its script)
+    assert "mappo" not in COMPARABLE and METHODS["mappo"].view == "decentralised"  # compare: not its trainer
 
 
 def test_saved_actor_round_trip_and_broken_files(tmp_path):

@@ -44,6 +44,7 @@ import numpy as np
 
 from containergym_marl.evaluation import stats as st
 from containergym_marl.files import atomic_write, atomic_write_text
+from containergym_marl.methods import PAIRS
 
 #: The paper's Table 1 (PPO, TRPO, DQN; best and median of 15 seeds; mean ± std over 15 episodes).
 PAPER_TABLE_1 = {
@@ -372,9 +373,8 @@ class Table:
 def build_table(groups: Sequence[MethodEvaluations], pairs: Iterable[tuple[str, str]] | None = None,
                 reps: int = 2000) -> Table:
     """The table of ``groups`` (sorted into table order). ``pairs``: (decentralised, centralised)
-    method names whose probability of improvement is reported (default: compare's pairs)."""
-    if pairs is None:
-        from containergym_marl.compare import PAIRS as pairs
+    method names whose probability of improvement is reported (default: the method registry's)."""
+    pairs = PAIRS if pairs is None else pairs
     groups = sort_groups(groups)
     rows = table_rows(groups, reps)
     imps = improvements(groups, pairs, reps)

@@ -272,6 +272,3 @@ class PlannerAgents(RolloutPlanner):
         requests = self.decide(sim.state, sim.params)
         return {agent: int(requests[i]) for i, agent in enumerate(env.possible_agents) if agent in observations}
 
-
-#: The planners by name, as ``containergym-marl evaluate`` and compare know them.
-PLANNERS: dict[str, type] = {cls.name: cls for cls in (RolloutPlanner, PlannerAgents)}

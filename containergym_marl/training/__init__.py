@@ -3,13 +3,10 @@ SuperSuit, imported only when a run starts)."""
 
 from containergym_marl.algorithms import (
     ALGORITHMS,
-    METHODS,
     REGISTRY,
-    RULE_BASED,
     AlgorithmSpec,
     get_algorithm,
     paper_budget,
-    view_of,
 )
 from containergym_marl.extras import MissingExtraError
 from containergym_marl.rundir import RunError, RunWarning, read_metrics, run_status
@@ -18,9 +15,7 @@ from containergym_marl.training.runs import TrainArgs
 
 __all__ = [
     "ALGORITHMS",
-    "METHODS",
     "REGISTRY",
-    "RULE_BASED",
     "AlgorithmSpec",
     "MissingExtraError",
     "RunError",
@@ -31,5 +26,4 @@ __all__ = [
     "read_metrics",
     "run_status",
     "train",
-    "view_of",
 ]
