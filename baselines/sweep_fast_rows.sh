@@ -7,7 +7,8 @@
 # reused, interrupted runs resume from their last checkpoint).
 #
 #   RUNS=runs/fast OUT=results/compare_fast bash baselines/sweep_fast_rows.sh
-#   python baselines/publish_results.py --runs runs/fast --compare results/compare_fast --to results/paper_rows
+#   python baselines/publish_results.py --runs runs/fast --compare results/compare_fast --to results/paper_rows \
+#       --with-checkpoints --readme README.md --docs docs/results.md
 #
 # On a fresh machine, first bring the published runs back:
 #   python baselines/publish_results.py --runs runs/fast --compare results/compare_fast --to results/paper_rows --restore
@@ -21,7 +22,7 @@ CLI=${CLI:-containergym-marl}
 export RAY_memory_monitor_refresh_ms=${RAY_memory_monitor_refresh_ms:-0}
 for seeds in "1 2 3 4 5" "6 7 8 9 10" "11 12 13 14 15"; do
   # shellcheck disable=SC2086
-  $CLI compare \
+  $CLI compare --train \
     --configs n11_m2_dt120 n16_m2_dt120 n5_m2_dt120 n11_m11_dt120 n11_m2_dt60 n5_m2_dt60 n5_m5_dt120 n5_m5_dt60 n11_m11_dt60 \
     --methods fast_ppo fast_shared_ppo fast_shared_ppo_team \
     --seeds $seeds --timesteps paper --runs "$RUNS" --out "$OUT" --no-figures "$@"

@@ -3,7 +3,7 @@
 # rule-based controllers, centralised PPO, shared PPO (individual and team rewards), 3 seeds each
 # at the paper's budget (2M samples for n = 5, 5M for n >= 11), evaluated with the paper's test
 # protocol. Resumable: rerun it to continue (finished runs and evaluations are reused, interrupted
-# runs resume from their last checkpoint). About 19 core-hours of training (10 hours on 2 cores).
+# runs resume from their last checkpoint); results/paper_rows/compute.md reports the training time it took.
 #
 #   RUNS=runs/paper OUT=results/compare_paper bash baselines/sweep_paper_rows.sh
 #   python baselines/publish_results.py --runs runs/paper --compare results/compare_paper --to results/paper_rows
@@ -22,7 +22,7 @@ CLI=${CLI:-containergym-marl}
 # Ray's memory monitor kills training workers when another process on the machine takes memory; the
 # kernel's OOM killer then picks the process that took it instead.
 export RAY_memory_monitor_refresh_ms=${RAY_memory_monitor_refresh_ms:-0}
-exec $CLI compare \
+exec $CLI compare --train \
   --configs n11_m2_dt120 n11_m2_dt60 n5_m2_dt120 n5_m2_dt60 n16_m2_dt120 n5_m5_dt120 n5_m5_dt60 n11_m11_dt120 n11_m11_dt60 \
   --methods rule_based rule_based_agents ppo shared_ppo shared_ppo_team \
   --seeds 1 2 3 --timesteps paper --runs "$RUNS" --out "$OUT" "$@"

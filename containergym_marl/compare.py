@@ -96,6 +96,12 @@ from containergym_marl.methods import COMPARABLE, METHODS, PAIRS, Method
 from containergym_marl.rundir import run_name
 
 
+#: Which figures compare draws: none; the headline figures (:data:`HEADLINE_ROW`, or the first row
+#: compared: the reward and emptying-volume ECDFs and one episode of each method's best policy); or
+#: all of them for every row (also PU timelines and the reward functions).
+FIGURE_SETS = ("none", "headline", "all")
+#: The row whose figures are the headline ones (the contention row: 11 containers, 2 PUs).
+HEADLINE_ROW = "n11_m2_dt120"
 #: The samples per run of ``compare --train`` (a look in minutes, not a result).
 QUICK_TIMESTEPS = 30_000
 #: The rows of the comparison the repository publishes (baselines/sweep_paper_rows.sh): the paper's
@@ -132,7 +138,7 @@ class CompareArgs:
     n_envs: int | None = None
     checkpoint_every: int = 200_000
     bootstrap_reps: int = 2000
-    figures: bool = True
+    figures: str = "headline"  # one of FIGURE_SETS
     reevaluate: bool = False
     address: str | None = None
     num_cpus: int | None = None
@@ -142,6 +148,8 @@ class CompareArgs:
 
 
 def _validate(args: CompareArgs) -> None:
+    if args.figures not in FIGURE_SETS:
+        raise ValueError(f"figures: expected one of {FIGURE_SETS}, got {args.figures!r}")
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown:
         raise ValueError(f"methods: unknown method(s) {unknown}; choose from {list(COMPARABLE)}")
@@ -228,26 +236,44 @@ def _cached(path: Path, fingerprint: dict, protocol: dict) -> dict | None:
     return data if data.get("compare") == fingerprint and data.get("protocol") == protocol else None
 
 
-def _figures(records: dict[str, dict[str, list]], out: Path) -> list[Path]:
-    """The paper's figures for each config from ``records[config][method]`` (episode records)."""
+def _figure_configs(args: CompareArgs) -> list[str]:
+    """The configs whose figures this comparison draws (``args.figures``)."""
+    if args.figures == "none":
+        return []
+    if args.figures == "all":
+        return list(args.configs)
+    return [next((c for c in args.configs if _stem(c) == HEADLINE_ROW), args.configs[0])]
+
+
+def _figures(records: dict[str, dict[str, list]], out: Path, every: bool = False, stream=None) -> list[Path]:
+    """The paper's figures for each config from ``records[config][method]`` (episode records): the
+    reward and emptying-volume ECDFs and an episode of each method; ``every`` adds each method's PU
+    timeline and each container's reward function. One progress line per config."""
     from containergym_marl.evaluation import plots
 
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for config, by_method in records.items():
+        started = time.perf_counter()
         cfg = load_config(config)
         stem = fig_dir / _stem(config)
         plots.plot_emptying_volume_ecdfs(by_method, f"{stem}_emptying_volume_ecdfs", config=cfg)
         plots.plot_reward_ecdf(by_method, f"{stem}_reward_ecdf", config=cfg)
-        written += [Path(f"{stem}_emptying_volume_ecdfs"), Path(f"{stem}_reward_ecdf")]
+        drawn = [Path(f"{stem}_emptying_volume_ecdfs"), Path(f"{stem}_reward_ecdf")]
         for method, rec_list in by_method.items():
             plots.plot_episode(rec_list[0], f"{stem}_episode_{method}", config=cfg)
-            plots.plot_pu_timeline(rec_list[0], f"{stem}_pu_timeline_{method}", config=cfg)
-            written += [Path(f"{stem}_episode_{method}"), Path(f"{stem}_pu_timeline_{method}")]
-        for name in cfg.container_names:
-            plots.plot_reward_function(cfg, name, f"{stem}_reward_function_{name}")
-            written.append(Path(f"{stem}_reward_function_{name}"))
+            drawn.append(Path(f"{stem}_episode_{method}"))
+            if every:
+                plots.plot_pu_timeline(rec_list[0], f"{stem}_pu_timeline_{method}", config=cfg)
+                drawn.append(Path(f"{stem}_pu_timeline_{method}"))
+        if every:
+            for name in cfg.container_names:
+                plots.plot_reward_function(cfg, name, f"{stem}_reward_function_{name}")
+                drawn.append(Path(f"{stem}_reward_function_{name}"))
+        written += drawn
+        print(f"figures: {_stem(config)}: {len(drawn)} drawn in {time.perf_counter() - started:.0f}s "
+              f"({len(written)} so far)", file=stream or sys.stdout, flush=True)
     return written
 
 
@@ -513,7 +539,8 @@ def compare(args: CompareArgs, stream=None) -> dict:
     records: dict[str, dict[str, list]] = {}
     # Shipped policies: the evaluations keep their episode records for the figures (mostly one per
     # (config, method)); a training sweep evaluates every seed, so its figures evaluate the best again.
-    keep = args.figures and args.shipped is not None
+    figure_configs = _figure_configs(args)
+    keep = bool(figure_configs) and args.shipped is not None
     kept: dict[tuple[str, str], list] = {}
 
     cluster = Cluster(args.address, args.num_cpus, args.max_retries)
@@ -533,7 +560,7 @@ def compare(args: CompareArgs, stream=None) -> dict:
                 evaluations[(spec.config, spec.key)] = _save_evaluation(args, out, spec, result, model_sha,
                                                                         plan.budgets.get(run))
                 report["evaluated"].append(f"{_stem(spec.config)}/{spec.key}")
-                if keep:
+                if keep and spec.config in figure_configs:
                     kept[(spec.config, spec.key)] = result.records
 
             done = execute(cluster, plan.to_train, plan.to_evaluate, stream=stream, keep_records=keep,
@@ -547,8 +574,9 @@ def compare(args: CompareArgs, stream=None) -> dict:
                                  + "; ".join(f"{k}: {v}" for k, v in done.failures.items())
                                  + ". Finished runs and evaluations are kept; rerun the same command to retry.")
         groups = _groups(args, evaluations, plan.seeds)
-        if args.figures:
-            records = _figure_records(args, groups, runs, cluster, stream, kept)
+        if figure_configs:
+            records = _figure_records(args, [g for g in groups if g.config in map(_stem, figure_configs)], runs,
+                                      cluster, stream, kept)
     except KeyboardInterrupt:
         if plan.shipped is not None:
             say(f"\ninterrupted: the evaluations done so far are kept in {out / 'evaluations'}/ and reused when "
@@ -564,7 +592,7 @@ def compare(args: CompareArgs, stream=None) -> dict:
     table = tables.build_table(groups, PAIRS, args.bootstrap_reps)
     meta = {"args": _jsonable(asdict(args))}
     paths = table.write(out, meta)
-    figures = [str(p) for p in _figures(records, out)] if args.figures else []
+    figures = [str(p) for p in _figures(records, out, args.figures == "all", stream)]
     report["wall_s"] = round(time.perf_counter() - start, 1)
     if plan.shipped is not None:
         report["shipped"] = _shipped_report(plan.shipped, evaluations, report["evaluated"])
@@ -734,7 +762,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     d = CompareArgs()
     what = parser.add_argument_group(
-        "what to compare", "without --train or a training option, compare evaluates the shipped policies")
+        "what to compare", "without --train, compare evaluates the shipped policies and trains nothing")
     what.add_argument("--configs", nargs="+", default=None, metavar="CONFIG",
                       help=f"plant configurations: built-in ({', '.join(list_configs())}) or paths (default: the "
                            f"paper rows, {' '.join(PAPER_ROWS)}, for the shipped policies; {' '.join(d.configs)} "
@@ -748,8 +776,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help=f"the folder of published runs whose policies are evaluated, only read (default: "
                            f"{SHIPPED}, the repository's; baselines/publish_results.py writes such folders)")
     train = parser.add_argument_group(
-        "training", "--train, or any of these options, trains (or reuses the finished runs of --runs) instead\n"
-                    "of evaluating the shipped policies; compare says how long it will take before it starts")
+        "training", "--train trains (or reuses the finished runs of --runs) instead of evaluating the shipped\n"
+                    "policies; the other options here need it. compare says how long it will take before it starts")
     train.add_argument("--train", action="store_true",
                        help=f"train the learned methods: {QUICK_TIMESTEPS:,} samples per run unless --timesteps, "
                             f"a quick look in minutes, far from a result (default: evaluate the shipped policies)")
@@ -779,27 +807,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="bootstrap replicates of every confidence interval")
     ray.add_argument("--reevaluate", action="store_true",
                      help="evaluate again even where an evaluation of the same model, plant and protocol exists")
-    ray.add_argument("--no-figures", action="store_true", help="write no figures (they are on by default)")
-
-
-def training_requested(ns: argparse.Namespace) -> bool:
-    """Whether a parsed ``compare`` command line trains: --train or any of :data:`TRAINING_OPTIONS`."""
-    return bool(ns.train) or any(getattr(ns, name) is not None for name in TRAINING_OPTIONS)
+    ray.add_argument("--figures", choices=FIGURE_SETS, default=d.figures,
+                     help=f"figures to draw: none, the headline ones ({HEADLINE_ROW}, or the first row: reward and "
+                          f"emptying-volume ECDFs, an episode of each method) or all, for every row")
+    ray.add_argument("--no-figures", dest="figures", action="store_const", const="none",
+                     help="the same as --figures none")
 
 
 def args_from_namespace(ns: argparse.Namespace, hyperparams: dict) -> CompareArgs:
-    """CompareArgs of a parsed ``compare`` command line: the shipped policies, or training when
-    :func:`training_requested` (each unset option then keeps CompareArgs' default)."""
+    """CompareArgs of a parsed ``compare`` command line: the shipped policies, or training with
+    ``--train`` (each unset option then keeps CompareArgs' default). A training option without
+    ``--train`` is refused rather than taken as a wish to train."""
     d = CompareArgs()
-    common = dict(episodes=ns.episodes, out=ns.out, bootstrap_reps=ns.bootstrap_reps, figures=not ns.no_figures,
+    common = dict(episodes=ns.episodes, out=ns.out, bootstrap_reps=ns.bootstrap_reps, figures=ns.figures,
                   reevaluate=ns.reevaluate, address=ns.address, num_cpus=ns.num_cpus, max_retries=ns.max_retries)
-    if not training_requested(ns):
+    given = [f"--{n.replace('_', '-')}" for n in TRAINING_OPTIONS if getattr(ns, n) is not None]
+    if not ns.train:
+        if given:
+            raise ValueError(f"{', '.join(given)}: training options; add --train to train (without it compare "
+                             f"evaluates the shipped policies and trains nothing)")
         return CompareArgs(configs=ns.configs or list(PAPER_ROWS), methods=ns.methods or list(PAPER_METHODS),
                            timesteps=None, shipped=ns.shipped or SHIPPED, **common)
     if ns.shipped is not None:
-        given = ["--train"] * bool(ns.train) + [f"--{n.replace('_', '-')}" for n in TRAINING_OPTIONS
-                                                if getattr(ns, n) is not None]
-        raise ValueError(f"--shipped evaluates published runs and trains nothing; drop {', '.join(given)} "
+        raise ValueError(f"--shipped evaluates published runs and trains nothing; drop {', '.join(['--train', *given])} "
                          f"or --shipped")
     timesteps = ns.timesteps if ns.timesteps is not None else QUICK_TIMESTEPS
     return CompareArgs(configs=ns.configs or d.configs, methods=ns.methods or d.methods,

@@ -24,7 +24,7 @@ BIN = Path(sys.executable).parent
 
 
 def compare_cmd(out: Path, *extra: str) -> list[str]:
-    return [str(BIN / "containergym-marl"), "compare", "--out", str(out), "--episodes", "2", "--n-envs", "1",
+    return [str(BIN / "containergym-marl"), "compare", "--train", "--out", str(out), "--episodes", "2", "--n-envs", "1",
             "--bootstrap-reps", "200", *extra]
 
 

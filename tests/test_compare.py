@@ -58,7 +58,7 @@ def test_duplicate_seeds_unknown_methods_and_configs_are_rejected_before_any_wor
     with pytest.raises(ConfigError):
         compare(CompareArgs(out=str(out), configs=["n9"]))
     assert not out.exists()
-    assert main(["compare", "--seeds", "1", "1", "--out", str(out)]) == 2
+    assert main(["compare", "--train", "--seeds", "1", "1", "--out", str(out)]) == 2
     assert "seeds: 1 given more than once" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["compare", "--methods", "a2c"])
@@ -76,8 +76,8 @@ def test_compare_help_shows_the_defaults(capsys):
         assert expected in text, expected
     parse = build_parser().parse_args
     assert parse(["compare"]).timesteps is None  # not given: the shipped policies, nothing trained
-    assert args_from_namespace(parse(["compare", "--timesteps", "paper"]), {}).timesteps is None  # paper budget
-    assert args_from_namespace(parse(["compare", "--timesteps", "2e6"]), {}).timesteps == 2_000_000
+    assert args_from_namespace(parse(["compare", "--train", "--timesteps", "paper"]), {}).timesteps is None  # paper budget
+    assert args_from_namespace(parse(["compare", "--train", "--timesteps", "2e6"]), {}).timesteps == 2_000_000
 
 
 def _zip(path, payload=b"x"):
@@ -96,7 +96,7 @@ def test_a_finished_run_with_another_budget_is_refused_without_ray(tmp_path):
     run = tmp_path / "runs" / "ppo_n5_m2_dt120_s1"
     _zip(run / "final_model.zip")
     (run / "args.json").write_text(json.dumps({"algo": "ppo", "timesteps": 256}))
-    args = dict(out=str(tmp_path), methods=["ppo"], seeds=[1], figures=False)
+    args = dict(out=str(tmp_path), methods=["ppo"], seeds=[1], figures="none")
     with pytest.raises(ValueError, match="budget of 256 samples, not 512"):
         compare(CompareArgs(timesteps=512, **args))
     assert prepare_run(_spec(run, 256)) == ("finished", 256)
@@ -420,7 +420,7 @@ def test_the_table_is_regenerated_from_the_evaluation_files(tmp_path, capsys):
         tables.load_evaluations(tmp_path / "again")
 
 
-def test_the_terminal_table_drops_the_view_and_iqm_columns_where_they_do_not_fit(tmp_path):
+def test_the_terminal_table_keeps_the_iqm_and_drops_other_columns_where_they_do_not_fit(tmp_path):
     _results(tmp_path, np.random.default_rng(5))
     table = tables.build_table(tables.load_evaluations(tmp_path), reps=200)
     wide, narrow = io.StringIO(), io.StringIO()
@@ -432,6 +432,9 @@ def test_the_terminal_table_drops_the_view_and_iqm_columns_where_they_do_not_fit
         assert "…" not in text  # nothing cut short
         assert "P(" in text
     assert "IQM [95 % CI]" in wide.getvalue() and "decentralised" in wide.getvalue()
-    assert "IQM [95 % CI]" not in narrow.getvalue() and "(views, IQM, TRPO" in " ".join(narrow.getvalue().split())
+    assert "IQM [95 % CI]" in narrow.getvalue() and "(views, medians, budgets, TRPO" in " ".join(narrow.getvalue().split())
     row = tables.table_rows(tables.load_evaluations(tmp_path), reps=200)[0]
     assert f"{row['best_mean']:.2f} ± {row['best_std']:.2f}" in narrow.getvalue()
+    learned = next(r for r in tables.table_rows(tables.load_evaluations(tmp_path), reps=200) if r["seeds"])
+    assert f"{learned['iqm']:.2f} [{learned['iqm_low']:.2f}, {learned['iqm_high']:.2f}]" in narrow.getvalue()
+    assert f"{learned['median_mean']:.2f} ± {learned['median_std']:.2f}" not in narrow.getvalue()

@@ -163,21 +163,23 @@ def test_the_main_job_evaluates_the_shipped_policies_and_trains_nothing(shipped,
         assert (out / name).is_file()
     assert f"| {CONFIG} | ppo | centralised | 3 |" in (out / "table.md").read_text()
     figures = {p.name for p in (out / "figures").iterdir()}
-    assert {f"{CONFIG}_episode_ppo.png", f"{CONFIG}_pu_timeline_rule_based_agents.svg",
-            "n5_m5_dt120_reward_ecdf.png"} <= figures
-    assert not any("shared_ppo" in name for name in figures)
+    # the headline figures by default: the first row's ECDFs and an episode of each method, nothing else
+    stems = {name.rsplit(".", 1)[0] for name in figures}
+    assert stems == {f"{CONFIG}_{kind}" for kind in ("reward_ecdf", "emptying_volume_ecdfs", "episode_ppo",
+                                                      "episode_rule_based", "episode_rule_based_agents")}
+    assert f"figures: {CONFIG}: 5 drawn in" in printed
 
     # The published folder is only read: nothing trained, written or removed there.
     assert _snapshot(shipped) == before
 
     # Again: every evaluation is reused from --out; without figures no Ray is started.
-    again = compare(CompareArgs(**{**args.__dict__, "figures": False}), stream=io.StringIO())
+    again = compare(CompareArgs(**{**args.__dict__, "figures": "none"}), stream=io.StringIO())
     assert again["sweep"]["evaluated"] == [] and again["sweep"]["ray"] is None
     assert json.dumps(again["rows"]) == json.dumps(report["rows"])
     assert _snapshot(shipped) == before
 
 
-def test_training_is_one_option_away_and_the_sweep_script_still_trains(tmp_path, capsys):
+def test_training_needs_train_and_the_sweep_script_still_trains(tmp_path, capsys):
     parse = build_parser().parse_args
 
     default = args_from_namespace(parse(["compare"]), {})
@@ -189,12 +191,14 @@ def test_training_is_one_option_away_and_the_sweep_script_still_trains(tmp_path,
     assert quick.seeds == [1, 2, 3] and quick.methods == ["rule_based", "rule_based_agents", "ppo", "shared_ppo"]
     for argv, timesteps in ((["--timesteps", "2e6"], 2_000_000), (["--seeds", "4"], QUICK_TIMESTEPS),
                             (["--runs", "r"], QUICK_TIMESTEPS), (["--hp", "n_steps=64"], QUICK_TIMESTEPS)):
-        trained = args_from_namespace(parse(["compare", *argv]), {})
+        trained = args_from_namespace(parse(["compare", "--train", *argv]), {})
         assert trained.shipped is None and trained.timesteps == timesteps, argv
+        with pytest.raises(ValueError, match=f"{argv[0]}: training options; add --train"):
+            args_from_namespace(parse(["compare", *argv]), {})  # never a training run without --train
 
     # baselines/sweep_paper_rows.sh's command line, as it is: training at the paper's budgets.
     script = (ROOT / "baselines" / "sweep_paper_rows.sh").read_text()
-    line = script[script.index("compare \\") + len("compare \\"):].replace("\\\n", " ").split('"$@"')[0]
+    line = script[script.index("compare --train \\") + len("compare "):].replace("\\\n", " ").split('"$@"')[0]
     argv = [w.strip('"') for w in line.split()]
     argv = [{"$RUNS": "runs/paper", "$OUT": "results/compare_paper"}.get(w, w) for w in argv]
     sweep = args_from_namespace(parse(["compare", *argv]), {})

@@ -61,7 +61,7 @@ def test_tiny_sweep_on_local_ray_then_a_rerun_trains_nothing(tmp_path, capsys):
     # The same command again: finished runs and their evaluations are found from the files; no
     # training, no evaluation, no Ray; same numbers.
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*") if p.is_file()}
-    again = compare(CompareArgs(out=str(out), **{**TINY, "figures": False}))
+    again = compare(CompareArgs(out=str(out), **{**TINY, "figures": "none"}))
     assert again["sweep"]["trained"] == [] and again["sweep"]["evaluated"] == [] and again["sweep"]["ray"] is None
     assert sorted(again["sweep"]["reused"]) == list(RUNS)
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
@@ -143,7 +143,7 @@ def test_compare_trains_and_evaluates_the_native_ppo_methods(tmp_path):
     reuses the finished runs (their final_model.pt)."""
     args = dict(configs=["n5_m2_dt120"], methods=["fast_ppo", "fast_shared_ppo", "fast_shared_ppo_team"],
                 seeds=[1], timesteps=2048, episodes=2, n_envs=2, checkpoint_every=1024, bootstrap_reps=200,
-                num_cpus=2, figures=False, hyperparams={"n_steps": 32, "minibatch_size": 256})
+                num_cpus=2, figures="none", hyperparams={"n_steps": 32, "minibatch_size": 256})
     out = tmp_path / "cmp"
     report = compare(CompareArgs(out=str(out), **args))
     names = sorted(r["name"] for r in report["sweep"]["trained"])

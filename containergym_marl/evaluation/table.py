@@ -386,7 +386,7 @@ def print_table(table: Table, stream: TextIO | None = None, shipped: bool = Fals
     """``table`` in the terminal (rich): one section per config with the paper's PPO below it, then
     the probabilities of improvement. ``shipped``: the caption says how the shipped policies'
     rows were made. A terminal too narrow for every column gets the table without the view and
-    IQM columns; without a terminal: no colours, ``width`` (default 140) columns, no trailing blanks."""
+    median and samples columns; without a terminal: no colours, ``width`` (default 140) columns, no trailing blanks."""
     import io
 
     from rich.console import Console
@@ -409,7 +409,8 @@ def print_table(table: Table, stream: TextIO | None = None, shipped: bool = Fals
 
 
 def _rich_table(table: Table, shipped: bool, narrow: bool):
-    """The rich table of :func:`print_table`; ``narrow``: without the view and IQM columns."""
+    """The rich table of :func:`print_table`; ``narrow``: without the view, median and samples columns
+    (the IQM over seeds stays: it is the comparison's headline number)."""
     from rich import box
     from rich.table import Table as RichTable
 
@@ -417,7 +418,7 @@ def _rich_table(table: Table, shipped: bool, narrow: bool):
                     title_justify="left", caption_justify="left", pad_edge=False)
     columns = ["config", "method", "view", "seeds", "best", "median", "IQM [95 % CI]", "overflow", "samples"]
     if narrow:
-        columns = [c for c in columns if c not in ("view", "IQM [95 % CI]")]
+        columns = [c for c in columns if c not in ("view", "median", "samples")]
     for name in columns:
         out.add_column(name, justify="left" if name in ("config", "method", "view") else "right", no_wrap=True)
 
@@ -442,11 +443,12 @@ def _rich_table(table: Table, shipped: bool, narrow: bool):
             out.add_section()
     out.caption = (
         "best / median: the best and the median policy over training seeds (by mean test return), mean ± std over "
-        "the test episodes; " + ("" if narrow else "IQM: interquartile mean of the per-seed means; ")
-        + "overflow: share of the best policy's test episodes that end in an overflow; samples: training budget "
-        "per run (plant steps for centralised methods, agent steps for decentralised ones). Paper PPO: Table 1 "
-        "of the paper ("
-        + ("views, IQM, " if narrow else "") + "TRPO, DQN and more columns in table.md)."
+        "the test episodes; IQM: interquartile mean of the per-seed means; overflow: share of the best policy's "
+        "test episodes that end in an overflow; "
+        + ("" if narrow else "samples: training budget per run (plant steps for centralised methods, agent steps "
+                             "for decentralised ones). ")
+        + "Paper PPO: Table 1 of the paper ("
+        + ("views, medians, budgets, " if narrow else "") + "TRPO, DQN and more columns in table.md)."
         + (" Learned methods: their finished shipped seeds; the best seed's policy (and any seed without a "
            "published evaluation) is evaluated now, the other seeds' numbers are their published evaluations."
            if shipped and any(r["seeds"] for r in table.rows) else ""))
