@@ -23,7 +23,7 @@ RUNS = ("ppo_n5_m2_dt120_s1", "ppo_n5_m2_dt120_s2")
 
 def test_tiny_sweep_on_local_ray_then_a_rerun_trains_nothing(tmp_path, capsys):
     out = tmp_path / "cmp"
-    report = compare(CompareArgs(out=str(out), **TINY))
+    report = compare(CompareArgs(out=str(out), figures="all", **TINY))
     sweep = report["sweep"]
     assert sweep["ray"] == "local Ray instance: 1 node, 2 CPUs"
     assert sorted(r["name"] for r in sweep["trained"]) == list(RUNS)
@@ -52,7 +52,7 @@ def test_tiny_sweep_on_local_ray_then_a_rerun_trains_nothing(tmp_path, capsys):
     assert evaluation["compare"]["run"] == RUNS[0] and len(evaluation["episodes"]) == 2
     figures = {p.name for p in (out / "figures").iterdir()}
     assert {"n5_m2_dt120_reward_ecdf.svg", "n5_m2_dt120_pu_timeline_ppo.png",
-            "n5_m2_dt120_episode_rule_based_agents.png"} <= figures
+            "n5_m2_dt120_episode_rule_based_agents.png", "n5_m2_dt120_reward_function_C1-20.png"} <= figures
     # the one table builder: the committed evaluation files give back the same table
     regenerated = tables.build_table(tables.load_evaluations(out), reps=TINY["bootstrap_reps"])
     assert regenerated.markdown == (out / "table.md").read_text()
