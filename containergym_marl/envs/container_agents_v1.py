@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 
 from containergym_marl.config import PlantConfig
@@ -16,7 +17,7 @@ from containergym_marl.envs._common import is_integer
 from containergym_marl.envs.container_agents_v0 import ContainerAgentsAECEnv, ContainerAgentsParallelEnv
 
 
-class ContainerAgentsV1ParallelEnv(ContainerAgentsParallelEnv):
+class ContainerAgentsV1ParallelEnv(ContainerAgentsParallelEnv, ParallelEnv):
     """ContainerGym, decentralised, version 1: the plant, physics, spaces, rewards, state, masks,
     arbitration, infos and rendering of ``container_agents_v0``
     (:class:`~containergym_marl.envs.container_agents_v0.ContainerAgentsParallelEnv`, whose card
@@ -41,6 +42,11 @@ class ContainerAgentsV1ParallelEnv(ContainerAgentsParallelEnv):
     as the config's ``episode_length_steps`` (T), which it overrides (after ``protocol``). Passing
     both with different values is an error. ``env.max_cycles`` holds the episode length in force
     (the config's T when ``max_cycles`` is not given).
+
+    ## Class
+    ``ParallelEnv`` is named again among the direct bases (the method resolution order is
+    unchanged): skrl's ``wrap_env`` recognises a PettingZoo environment by its class's direct
+    bases only.
 
     ## Arguments
     As v0, with ``agent_names`` defaulting to ``"indexed"``, plus ``max_cycles`` (int ≥ 1 or None).
