@@ -109,7 +109,7 @@ def test_agents_are_indexed_and_plant_names_kept():
     agents = [f"container_{i}" for i in range(5)]
     assert e.possible_agents == agents
     assert list(e.container_names) == PLANT_NAMES == list(e.config.container_names)
-    assert e.agent_container == dict(zip(agents, PLANT_NAMES))
+    assert e.agent_container == dict(zip(agents, PLANT_NAMES, strict=True))
     e.reset(seed=0)
     assert e.agents == agents
     assert parallel_env(CFG, agent_names="containers").possible_agents == PLANT_NAMES
@@ -158,13 +158,13 @@ def test_max_cycles_and_episode_length_must_agree():
 def test_v1_steps_as_v0(kwargs):
     v0 = container_agents_v0.parallel_env(CFG, **kwargs)
     v1 = parallel_env(CFG, **kwargs)
-    rename = dict(zip(v0.possible_agents, v1.possible_agents))
+    rename = dict(zip(v0.possible_agents, v1.possible_agents, strict=True))
     renamed = lambda d: {rename[a]: v for a, v in d.items()}  # noqa: E731
     out0, out1 = v0.reset(seed=3), v1.reset(seed=3)
     rng = np.random.default_rng(0)
     steps = 0
     while True:
-        for d0, d1 in zip(out0, out1):
+        for d0, d1 in zip(out0, out1, strict=True):
             d0 = renamed(d0)
             assert d0.keys() == d1.keys()
             for a in d0:

@@ -81,7 +81,7 @@ class ContainerAgentsV1ParallelEnv(ContainerAgentsParallelEnv, ParallelEnv):
         #: steps before truncation (the config's ``episode_length_steps``)
         self.max_cycles: int = self.config.episode_length_steps
         #: agent → the name of its container in the plant's configuration
-        self.agent_container: dict[str, str] = dict(zip(self.possible_agents, self.container_names))
+        self.agent_container: dict[str, str] = dict(zip(self.possible_agents, self.container_names, strict=True))
 
 
 def parallel_env(config: str | PlantConfig = "n5_m2_dt120", **kwargs: Any) -> ContainerAgentsV1ParallelEnv:
