@@ -11,23 +11,7 @@ The implementation is :mod:`containergym_marl.envs.container_agents_v1`; its cla
 (:class:`ContainerAgentsV1ParallelEnv`) is the card of what differs from ``container_agents_v0``.
 """
 
-from containergym_marl.envs.container_agents_v0 import (
-    AGENT_NAMES,
-    INDEXED_AGENT_PREFIX,
-    OBSERVATION_MODES,
-    REWARD_MODES,
-    STATE_MODES,
-)
 from containergym_marl.envs.container_agents_v1 import ContainerAgentsV1ParallelEnv, env, parallel_env, raw_env
 
-__all__ = [
-    "AGENT_NAMES",
-    "INDEXED_AGENT_PREFIX",
-    "OBSERVATION_MODES",
-    "REWARD_MODES",
-    "STATE_MODES",
-    "ContainerAgentsV1ParallelEnv",
-    "env",
-    "parallel_env",
-    "raw_env",
-]
+# The option values (REWARD_MODES, OBSERVATION_MODES, ...) are v0's: containergym_marl.container_agents_v0.
+__all__ = ["ContainerAgentsV1ParallelEnv", "env", "parallel_env", "raw_env"]
