@@ -1,6 +1,7 @@
 """skrl on ``container_agents_v1``: the integrations page's recipe (docs/integrations.md, block
 ``# skrl: …``) runs as written, trains one policy shared by all container agents, and that policy
-reads the action masks as masks (it never requests emptying while no PU is free). The last test
+reads the action masks as masks (it never requests emptying while no PU is free); the same policy
+trains under skrl's MAPPO with a critic on the global state. The last test
 checks that the three skrl bugs the recipe works around are still there, so that the workarounds
 go when skrl fixes them.
 
@@ -18,7 +19,10 @@ pytest.importorskip("skrl")
 import torch  # noqa: E402
 from skrl.envs.wrappers.torch import wrap_env  # noqa: E402
 from skrl.memories.torch import RandomMemory  # noqa: E402
+from skrl.models.torch import DeterministicMixin, Model  # noqa: E402
 from skrl.multi_agents.torch.ippo import IPPO, IPPO_CFG  # noqa: E402
+from skrl.multi_agents.torch.mappo import MAPPO, MAPPO_CFG  # noqa: E402
+from skrl.trainers.torch import SequentialTrainer  # noqa: E402
 from skrl.utils.spaces.torch import unflatten_tensorized_space  # noqa: E402
 
 from containergym_marl import container_agents_v1  # noqa: E402
@@ -68,6 +72,42 @@ def test_the_policy_obeys_the_masks(recipe):
         if not env.agents:
             observations, _ = env.reset()
     assert masked > 100 and requests_masked == 0 and requests_allowed > 0
+
+
+class StateValue(DeterministicMixin, Model):
+    """MAPPO's centralised critic: the value of the global state (``state_mode="normalised"``)."""
+
+    def __init__(self, state_space, action_space):
+        Model.__init__(self, state_space=state_space, action_space=action_space)
+        DeterministicMixin.__init__(self)
+        self.net = torch.nn.Sequential(torch.nn.Linear(self.num_states, 32), torch.nn.Tanh(), torch.nn.Linear(32, 1))
+
+    def compute(self, inputs, role=""):
+        return self.net(inputs["states"]), {}
+
+
+def test_mappo_with_the_recipes_policy_and_a_state_critic(recipe):
+    """The recipe's shared masked policy under skrl's MAPPO, with one critic on ``env.state()``."""
+    env = wrap_env(container_agents_v1.parallel_env("n5_m2_dt60", observation_mode="dict", reward_mode="team",
+                                                    state_mode="normalised"))
+    agents, policy = env.possible_agents, recipe["shared"]["policy"]
+    critic = StateValue(env.state_spaces["container_0"], env.action_spaces["container_0"])
+    kwargs = {f.name: {a: {} for a in agents} for f in dataclasses.fields(MAPPO_CFG) if f.name.endswith("_kwargs")}
+    mappo = MAPPO(possible_agents=agents, models={a: {"policy": policy, "value": critic} for a in agents},
+                  memories={a: RandomMemory(memory_size=32) for a in agents}, observation_spaces=env.observation_spaces,
+                  action_spaces=env.action_spaces, state_spaces=env.state_spaces,
+                  cfg=MAPPO_CFG(rollouts=32, learning_epochs=1, mini_batches=1, **kwargs))
+    trainer = SequentialTrainer(env=env, agents=mappo, cfg={"timesteps": 64, "headless": True,
+                                                             "disable_progressbar": True,
+                                                             "close_environment_at_exit": False})
+    trainer.train()
+    for a in agents:
+        states = mappo.memories[a].get_tensor_by_name("states").reshape(32, -1)
+        assert states.shape == (32, 7) and float(states.max()) <= 2  # the normalised global state
+        flat = mappo.memories[a].get_tensor_by_name("observations").reshape(32, -1)
+        allowed = unflatten_tensorized_space(recipe["obs_space"], flat)["action_mask"][:, 1] == 1
+        actions = mappo.memories[a].get_tensor_by_name("actions").reshape(-1)
+        assert not bool((actions[~allowed] == 1).any())  # masks obeyed
 
 
 def test_skrl_bugs_worked_around_are_still_there(recipe):
