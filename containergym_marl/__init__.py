@@ -6,7 +6,10 @@ Quick start::
     import containergym_marl  # registers the Gymnasium id
 
     env = gym.make("containergym_marl/ContainerGym-v0", config="n5_m2_dt120")
-    par = containergym_marl.container_agents_v0.parallel_env("n5_m2_dt120")
+    par = containergym_marl.container_agents_v1.parallel_env("n5_m2_dt120")  # agents container_0, ...
+
+``container_agents_v1`` is the decentralised view for new work; ``container_agents_v0`` (agents
+named after their containers) is the one the published runs used.
 """
 
 from gymnasium.envs.registration import register, registry
@@ -19,8 +22,8 @@ from containergym_marl.config import (
     list_configs,
     load_config,
 )
-from containergym_marl import container_agents_v0  # the PettingZoo-style module: env, parallel_env, raw_env
-from containergym_marl.envs import ContainerAgentsParallelEnv, ContainerGymEnv
+from containergym_marl import container_agents_v0, container_agents_v1  # PettingZoo-style modules: env, parallel_env, raw_env
+from containergym_marl.envs import ContainerAgentsParallelEnv, ContainerAgentsV1ParallelEnv, ContainerGymEnv
 
 __version__ = "0.1.0"
 
@@ -38,10 +41,12 @@ __all__ = [
     "PAPER_TEST_PROTOCOL",
     "ConfigError",
     "ContainerAgentsParallelEnv",
+    "ContainerAgentsV1ParallelEnv",
     "ContainerGymEnv",
     "ContainerSpec",
     "PlantConfig",
     "container_agents_v0",
+    "container_agents_v1",
     "list_configs",
     "load_config",
 ]
