@@ -285,7 +285,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "instance, or a cluster with --address). With no arguments it trains nothing: it\n"
                                    "evaluates the shipped policies (the best seed of each learned method on each\n"
                                    "paper row with finished runs in results/paper_rows/runs) and the rule-based\n"
-                                   "controllers on every paper row with the paper's test protocol (a few minutes).\n"
+                                   "controllers on every paper row with the paper's test protocol, checks them\n"
+                                   "against their published evaluations, says how long it took and draws\n"
+                                   "the headline figures (--figures all for every figure of every row).\n"
                                    "--train trains instead: 30k samples per run, a quick look far below the\n"
                                    "paper's budget (--timesteps paper for that, hours). Cluster recipe and\n"
                                    "storage: see containergym_marl/compare.py.")
