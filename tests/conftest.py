@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import importlib.util
+import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +16,21 @@ from containergym_marl import load_config
 from containergym_marl.core import PlantState
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def pytest_configure(config):
+    """Ray's session folders (logs, sockets) of every instance the tests start, local or by
+    ``ray start``, go to one temporary folder that the run removes at its end (Ray leaves them in
+    /tmp/ray otherwise). Short, since Ray's socket paths must stay under 107 characters."""
+    if "RAY_TMPDIR" not in os.environ:
+        os.environ["RAY_TMPDIR"] = config._containergym_ray_tmp = tempfile.mkdtemp(prefix="cgm-ray-")
+
+
+def pytest_unconfigure(config):
+    folder = getattr(config, "_containergym_ray_tmp", None)
+    if folder is not None:
+        shutil.rmtree(folder, ignore_errors=True)
+        del os.environ["RAY_TMPDIR"]
 
 
 def load_script(relative_path: str):
