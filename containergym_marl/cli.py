@@ -110,7 +110,8 @@ class _EpisodeProgress:
             print(text, file=self.stream, flush=True)
 
 
-def _evaluate_target(target: str, config: str | None, episodes: int, which: str, arbitration: str | None = None):
+def _evaluate_target(target: str, config: str | None, episodes: int, which: str, arbitration: str | None = None,
+                     write: bool = True):
     import warnings
     from pathlib import Path
 
@@ -130,7 +131,7 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", RunWarning)
             result = evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration,
-                                  on_episode=_EpisodeProgress(protocol.episodes))
+                                  write=write, on_episode=_EpisodeProgress(protocol.episodes))
         for w in caught:
             if issubclass(w.category, RunWarning):
                 print(f"note: {w.message}", file=sys.stderr)
@@ -178,7 +179,8 @@ def _print_evaluation(result, json_path: str | None) -> int:
 
 
 def _cmd_evaluate(ns: argparse.Namespace) -> int:
-    return _print_evaluation(_evaluate_target(ns.target, ns.config, ns.episodes, ns.model, ns.arbitration), ns.json)
+    return _print_evaluation(_evaluate_target(ns.target, ns.config, ns.episodes, ns.model, ns.arbitration,
+                                              write=not ns.no_write), ns.json)
 
 
 class _Terminated(KeyboardInterrupt):
@@ -271,10 +273,15 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("evaluate", help="evaluate a run directory or a built-in policy (paper protocol)")
     e.add_argument("target", help=f"a run directory or one of {tuple(CONTROLLERS)}")
     e.add_argument("--config", default=None, help="plant (default: the run's own, or n5_m2_dt120)")
-    e.add_argument("--episodes", type=_positive_int, default=15)
-    e.add_argument("--model", choices=("best", "final"), default="best")
-    e.add_argument("--arbitration", default=None, choices=tuple(ARBITRATION_RULES))
+    e.add_argument("--episodes", type=_positive_int, default=15,
+                   help="test episodes (default: the paper's 15, seeds 10000 on)")
+    e.add_argument("--model", choices=("best", "final"), default="best", help="a run's model to evaluate")
+    e.add_argument("--arbitration", default=None, choices=tuple(ARBITRATION_RULES),
+                   help="how free PUs are shared among a decentralised policy's requests (default: the run's, "
+                        "or fullest)")
     e.add_argument("--json", default=None, help="write the evaluation as JSON here")
+    e.add_argument("--no-write", action="store_true",
+                   help="leave the run directory as it is (by default RUN/evaluation_<model>.json is written)")
     e.set_defaults(func=_cmd_evaluate)
 
     from containergym_marl.compare import _HelpFormatter, add_arguments

@@ -141,6 +141,12 @@ def test_run_directory_holds_tensor_only_models_that_evaluate(tmp_path):
     again = evaluate_run(run, protocol=SHORT, write=False)
     np.testing.assert_array_equal(result.returns, again.returns)
     assert policy_from_run(run).name == "fast_shared_ppo[s1,best]"
+    # the CLI: --no-write leaves the run directory as it was; without it, the evaluation is kept there
+    before = sorted(p.name for p in run.iterdir())
+    assert cli_main(["evaluate", str(run), "--episodes", "1", "--no-write"]) == 0
+    assert sorted(p.name for p in run.iterdir()) == before
+    assert cli_main(["evaluate", str(run), "--episodes", "1"]) == 0
+    assert (run / "evaluation_best.json").is_file()
 
 
 def test_team_reward_run_is_named_as_its_method(tmp_path):
