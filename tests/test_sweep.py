@@ -14,6 +14,7 @@ pytest.importorskip("ray")
 
 from containergym_marl.compare import CompareArgs, compare  # noqa: E402
 from containergym_marl.evaluation import table as tables  # noqa: E402
+from containergym_marl.rundir import RunLock  # noqa: E402
 
 TINY = dict(configs=["n5_m2_dt120"], methods=["rule_based", "rule_based_agents", "ppo"], seeds=[1, 2],
             timesteps=1024, episodes=2, n_envs=1, checkpoint_every=512, bootstrap_reps=200, num_cpus=2,
@@ -40,7 +41,7 @@ def test_tiny_sweep_on_local_ray_then_a_rerun_trains_nothing(tmp_path, capsys):
     for run in RUNS:
         files = {p.name for p in (out / "runs" / run).iterdir()}
         assert {"args.json", "config.toml", "best_model.zip", "final_model.zip", "checkpoints"} <= files
-        assert not (out / "runs" / ".sweep" / f"{run}.pid").exists()  # removed when the run ended
+        RunLock(out / "runs" / run).acquire().release()  # the task released the run's lock when it ended
     rows = {r["method"]: r for r in report["rows"]}
     assert list(rows) == ["rule_based", "rule_based_agents", "ppo"]
     assert rows["ppo"]["seeds"] == 2 and rows["ppo"]["samples"] == 1024

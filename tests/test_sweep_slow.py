@@ -28,6 +28,7 @@ import pytest
 pytest.importorskip("ray")
 
 from containergym_marl.compare import CompareArgs, run_specs  # noqa: E402
+from containergym_marl.rundir import LOCK_NAME  # noqa: E402
 from tests import compare_kills as kills  # noqa: E402
 
 pytestmark = pytest.mark.slow
@@ -117,7 +118,7 @@ def test_the_tiny_sweep_on_a_two_node_cluster_through_address(tmp_path):
     assert (team["algo"], team["reward_mode"]) == ("shared_ppo", "team")
     table = (out / "table.md").read_text()
     assert "| n5_m2_dt120 | shared_ppo_team | decentralised | 1 |" in table and "P(shared_ppo_team > ppo)" in table
-    assert (out / "figures" / "n5_m2_dt120_pu_timeline_shared_ppo_team.png").is_file()
+    assert (out / "figures" / "n5_m2_dt120_episode_shared_ppo_team.png").is_file()  # a headline figure
 
 
 KILL_ARGS = ("--methods", "ppo", "--seeds", "1", "2", "--timesteps", "12288", "--checkpoint-every", "2048",
@@ -130,13 +131,14 @@ def _metrics(run: Path) -> list[dict]:
 
 
 def _wait_for_checkpoint(out: Path, run: str, proc: subprocess.Popen) -> int:
-    """The pid of ``run``'s training worker once the run has written a checkpoint."""
-    pid_file = out / "runs" / ".sweep" / f"{run}.pid"
+    """The pid of ``run``'s training worker (the holder its run lock names) once the run has written a
+    checkpoint."""
+    lock = out / "runs" / run / LOCK_NAME
     ckpts = out / "runs" / run / "checkpoints"
-    _wait(lambda: proc.poll() is not None or (pid_file.is_file() and any(ckpts.glob("ckpt_*_steps.zip"))),
+    _wait(lambda: proc.poll() is not None or (lock.is_file() and any(ckpts.glob("ckpt_*_steps.zip"))),
           600, f"a checkpoint of {run}")
     assert proc.poll() is None, "the sweep ended before the run wrote a checkpoint"
-    return int(pid_file.read_text())
+    return int(re.match(r"pid (\d+) ", lock.read_text()).group(1))
 
 
 def test_a_killed_training_worker_is_retried_and_resumes_the_others_are_identical(tmp_path):
