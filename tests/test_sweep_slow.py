@@ -458,7 +458,9 @@ def test_ctrl_c_under_load_ends_compare_quickly_and_leaves_no_process(tmp_path):
     orphans = []
     try:
         _wait_for_checkpoint(out, RUN1, proc)
-        kills.wait(lambda: len(list((out / "runs" / ".sweep").glob("*.pid"))) == 2, 120, "both runs to train")
+        # both trainings under way: each has logged a rollout (RUN1 has a checkpoint already)
+        kills.wait(lambda: all((out / "runs" / run / "metrics.csv").is_file() for run in (RUN1, RUN2)), 120,
+                   "both runs to train")
         started = time.monotonic()
         os.killpg(proc.pid, signal.SIGINT)
         output, _ = proc.communicate(timeout=120)
