@@ -183,18 +183,15 @@ def _cmd_evaluate(ns: argparse.Namespace) -> int:
                                               write=not ns.no_write), ns.json)
 
 
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM, taken as Ctrl-C: the same orderly stop (runs kept resumable, Ray shut down)."""
-
-
 _terminated = threading.Event()
 
 
 def _raise_terminated(signum, frame):
-    # Remembered apart from the exception: libraries on the way up (Ray's waits) may turn it into a
-    # plain KeyboardInterrupt.
+    """SIGTERM, taken as Ctrl-C: the same orderly stop (runs kept resumable, Ray shut down). The
+    signal is remembered in a flag, since libraries on the way up (Ray's waits) re-raise their own
+    KeyboardInterrupt."""
     _terminated.set()
-    raise _Terminated()
+    raise KeyboardInterrupt
 
 
 def _cmd_compare(ns: argparse.Namespace) -> int:
