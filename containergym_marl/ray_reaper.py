@@ -24,6 +24,16 @@ POLL_S = 2.0
 GRACE_S = 3.0
 
 
+def child_pids() -> set[int]:
+    """This process's children now (empty without psutil): taken before and after ``ray.init`` to
+    find the processes it started."""
+    try:
+        import psutil
+    except ImportError:
+        return set()
+    return {child.pid for child in psutil.Process().children()}
+
+
 def watch(root_pids: list[int]) -> subprocess.Popen | None:
     """Start a reaper for the processes ``root_pids`` and their descendants; it acts once this process
     exits. Returns the reaper (None where psutil is missing: Ray installs it, so that is rare)."""

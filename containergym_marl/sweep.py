@@ -305,14 +305,6 @@ def _keeping_sigterm_handler():
             signal.signal(signal.SIGTERM, handler)
 
 
-def _child_pids() -> set[int]:
-    try:
-        import psutil
-    except ImportError:
-        return set()
-    return {child.pid for child in psutil.Process().children()}
-
-
 class Cluster:
     """A Ray session started on first use: a new local instance with ``num_cpus`` CPUs (default:
     this machine's cores), or the cluster at ``address`` (or ``$RAY_ADDRESS``). Quiet logging, no
@@ -360,10 +352,10 @@ class Cluster:
             ray.init(address=self.address, **opts)
             return
         cpus = self.num_cpus or os.cpu_count() or 1
-        before = _child_pids()
+        before = ray_reaper.child_pids()
         ray.init(address="local", num_cpus=cpus, resources={EVALUATION_SLOTS: cpus}, **opts)
         # the processes this ray.init started, stopped by the reaper if this driver is killed
-        self._reaper = ray_reaper.watch(sorted(_child_pids() - before))
+        self._reaper = ray_reaper.watch(sorted(ray_reaper.child_pids() - before))
 
     def cpus(self) -> int:
         return int(self.ray().cluster_resources().get("CPU", 1))
