@@ -7,11 +7,11 @@
 # reused, interrupted runs resume from their last checkpoint).
 #
 #   RUNS=runs/fast OUT=results/compare_fast bash baselines/sweep_fast_rows.sh
-#   python baselines/publish_results.py --runs runs/fast --compare results/compare_fast --to results/paper_rows \
+#   containergym-marl publish --runs runs/fast --compare results/compare_fast --to results/paper_rows \
 #       --with-checkpoints --readme README.md --docs docs/results.md
 #
 # On a fresh machine, first bring the published runs back:
-#   python baselines/publish_results.py --runs runs/fast --compare results/compare_fast --to results/paper_rows --restore
+#   containergym-marl publish --runs runs/fast --compare results/compare_fast --to results/paper_rows --restore
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNS=${RUNS:-runs/fast}

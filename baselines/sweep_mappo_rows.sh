@@ -9,7 +9,7 @@
 #   RUNS=runs/paper EVALUATIONS=results/compare_paper/evaluations bash baselines/sweep_mappo_rows.sh
 #
 # Needs the clients extra (.venv-clients: ./run test-clients sets it up). The evaluations land beside
-# compare's, named mappo_s<seed>.json, so publish_results.py and the table take them as method "mappo".
+# compare's, named mappo_s<seed>.json, so containergym-marl publish and the table take them as method "mappo".
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNS=${RUNS:-runs/paper}

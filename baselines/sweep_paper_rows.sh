@@ -6,14 +6,14 @@
 # runs resume from their last checkpoint); results/paper_rows/compute.md reports the training time it took.
 #
 #   RUNS=runs/paper OUT=results/compare_paper bash baselines/sweep_paper_rows.sh
-#   python baselines/publish_results.py --runs runs/paper --compare results/compare_paper --to results/paper_rows
+#   containergym-marl publish --runs runs/paper --compare results/compare_paper --to results/paper_rows
 #
 # Seeds 4 and 5 on the rows where the PUs are scarce (arguments after the script's own win):
 #   bash baselines/sweep_paper_rows.sh --configs n16_m2_dt120 n11_m2_dt120 n5_m2_dt120 n11_m2_dt60 n5_m2_dt60 --seeds 1 2 3 4 5
 #
 # The published folder carries the sweep between machines: publish with --with-checkpoints (interrupted
 # runs keep their newest checkpoint) and commit; on the next machine, first
-#   python baselines/publish_results.py --runs runs/paper --compare results/compare_paper --to results/paper_rows --restore
+#   containergym-marl publish --runs runs/paper --compare results/compare_paper --to results/paper_rows --restore
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNS=${RUNS:-runs/paper}

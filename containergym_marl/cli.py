@@ -13,54 +13,43 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import threading
-from typing import Any
+from dataclasses import dataclass
 
-from containergym_marl.config import ConfigError, list_configs, load_config
+from containergym_marl.config import ConfigError, load_config
 from containergym_marl.core.dynamics import ARBITRATION_RULES
 from containergym_marl.core.params import PlantParams
+from containergym_marl.methods import CONTROLLERS
+from containergym_marl.options import add_options, from_namespace, option, positive_int
 
 
-def _positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (budgets, simulations, episodes)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+@dataclass
+class EvaluateArgs:
+    """The options of ``containergym-marl evaluate`` (its ``--episodes`` and ``--json`` also serve
+    ``train --evaluate``)."""
 
-
-def _parse_kv(items: list[str], what: str) -> dict[str, Any]:
-    out = {}
-    for item in items or []:
-        if "=" not in item:
-            raise SystemExit(f"{what}: expected KEY=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
+    target: str = option(flag="target", help=f"a run directory or one of {', '.join(CONTROLLERS)}")
+    config: str | None = option(None, help="plant (default: the run's own, or n5_m2_dt120)")
+    episodes: int = option(15, type=positive_int, help="test episodes (default: the paper's 15, seeds 10000 on)")
+    model: str = option("best", choices=("best", "final"), help="a run's model to evaluate")
+    arbitration: str | None = option(None, choices=tuple(ARBITRATION_RULES),
+                                     help="how free PUs are shared among a decentralised policy's requests (default: "
+                                          "the run's, or fullest)")
+    json: str | None = option(None, help="write the evaluation as JSON here")
+    no_write: bool = option(False, action="store_true",
+                            help="leave the run directory as it is (by default RUN/evaluation_<model>.json is written)")
 
 
 def _cmd_train(ns: argparse.Namespace) -> int:
     from containergym_marl.training import TrainArgs, train
 
-    args = TrainArgs(
-        algo=ns.algo, config=ns.config, seed=ns.seed, timesteps=ns.timesteps, out=ns.out, resume=ns.resume,
-        n_envs=ns.n_envs, vec=ns.vec, num_cpus=ns.num_cpus, reward_mode=ns.reward_mode,
-        arbitration=ns.arbitration, checkpoint_every=ns.checkpoint_every, gamma=ns.gamma,
-        hyperparams=_parse_kv(ns.hp, "--hp"), progress_bar=not ns.no_progress,
-        overrides=_parse_kv(ns.override, "--override"),
-    )
+    args = from_namespace(TrainArgs, ns)
+    then = from_namespace(EvaluateArgs, ns, target="")  # checked before training
     run = train(args)
     _print_training_end(run)
     if ns.evaluate:
-        return _print_evaluation(_evaluate_target(str(run), ns.config, ns.episodes, "best"), ns.json)
+        return _print_evaluation(_evaluate_target(str(run), args.config, then.episodes, "best"), then.json)
     return 0
 
 
@@ -99,7 +88,7 @@ class _EpisodeProgress:
             print(f"evaluating: 0/{total} episodes", end="", file=self.stream, flush=True)
 
     def __call__(self, done: int, episode) -> None:
-        from containergym_marl.sweep import format_duration
+        from containergym_marl.orchestration.progress import format_duration
 
         text = (f"evaluating: {done}/{self.total} episodes done ({format_duration(self.clock() - self.t0)}; "
                 f"seed {episode.seed}: return {episode.cumulative_reward:.2f}"
@@ -116,7 +105,6 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
     from pathlib import Path
 
     from containergym_marl.evaluation import PAPER, EvalProtocol, evaluate
-    from containergym_marl.methods import CONTROLLERS
 
     protocol = EvalProtocol(episodes=episodes) if episodes != PAPER.episodes else PAPER
     if target in CONTROLLERS:
@@ -179,8 +167,9 @@ def _print_evaluation(result, json_path: str | None) -> int:
 
 
 def _cmd_evaluate(ns: argparse.Namespace) -> int:
-    return _print_evaluation(_evaluate_target(ns.target, ns.config, ns.episodes, ns.model, ns.arbitration,
-                                              write=not ns.no_write), ns.json)
+    a = from_namespace(EvaluateArgs, ns)
+    return _print_evaluation(_evaluate_target(a.target, a.config, a.episodes, a.model, a.arbitration,
+                                              write=not a.no_write), a.json)
 
 
 _terminated = threading.Event()
@@ -197,12 +186,13 @@ def _raise_terminated(signum, frame):
 def _cmd_compare(ns: argparse.Namespace) -> int:
     import signal
 
-    from containergym_marl.compare import args_from_namespace, compare
-    from containergym_marl.sweep import SweepError
+    from containergym_marl.orchestration.cluster import SweepError
+    from containergym_marl.orchestration.compare import compare
+    from containergym_marl.orchestration.compare_args import args_from_namespace
 
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        compare(args_from_namespace(ns, _parse_kv(ns.hp, "--hp")))
+        compare(args_from_namespace(ns))
     except SweepError as exc:
         print(f"containergym-marl compare: {exc}", file=sys.stderr)
         return 1
@@ -211,6 +201,12 @@ def _cmd_compare(ns: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+def _cmd_publish(ns: argparse.Namespace) -> int:
+    from containergym_marl.orchestration.publish import PublishArgs, run
+
+    return run(from_namespace(PublishArgs, ns))
 
 
 def _version() -> str:
@@ -226,65 +222,27 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from containergym_marl.algorithms import ALGORITHMS, REGISTRY
-    from containergym_marl.methods import CONTROLLERS
+    from containergym_marl.training.runs import TrainArgs
 
-    trained = {name: REGISTRY[name] for name in ALGORITHMS}  # the SB3 ones (mappo: baselines/train_mappo.py)
-    reward_modes = tuple(dict.fromkeys(m for spec in trained.values() for m in spec.reward_modes))
     parser = argparse.ArgumentParser(prog="containergym-marl", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     t = sub.add_parser("train", help="train a baseline; writes a run directory")
-    t.add_argument("--algo", required=True, choices=ALGORITHMS,
-                   help="; ".join(f"{name}: {spec.description}" for name, spec in trained.items())
-                   + " (MAPPO: baselines/train_mappo.py, then evaluate its run directory here)")
-    t.add_argument("--config", default="n5_m2_dt120", help=f"built-in ({', '.join(list_configs())}) or a path")
-    t.add_argument("--seed", type=int, default=1)
-    t.add_argument("--timesteps", type=_positive_int, default=None,
-                   help="budget in samples (agent steps for shared_ppo); default: the paper's, "
-                        "2M for n=5 and 5M for n=11")
-    t.add_argument("--out", default=None, help="run directory (default runs/<algo>_<config>_s<seed>)")
-    t.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
-    t.add_argument("--n-envs", type=_positive_int, default=None,
-                   help="parallel simulations (default: " + ", ".join(
-                       f"{name} {spec.default_n_envs}" for name, spec in trained.items()) + ")")
-    t.add_argument("--vec", choices=("native", "supersuit"), default="native",
-                   help="shared_ppo's vectorisation: our batched env or the SuperSuit stack")
-    t.add_argument("--num-cpus", type=int, default=0, help="SuperSuit worker processes")
-    t.add_argument("--reward-mode", choices=reward_modes, default=reward_modes[0],
-                   help="agent rewards of the decentralised algorithms")
-    t.add_argument("--arbitration", default="fullest", choices=tuple(ARBITRATION_RULES))
-    t.add_argument("--checkpoint-every", type=_positive_int, default=None,
-                   help="samples between checkpoints (default: min(200000, budget/10) in whole vector steps)")
-    t.add_argument("--gamma", type=float, default=0.99)
-    t.add_argument("--hp", nargs="*", default=[], metavar="KEY=VALUE", help="extra SB3 hyperparameters")
-    t.add_argument("--override", nargs="*", default=[], metavar="KEY=VALUE", help="plant config overrides")
-    t.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_options(t, TrainArgs)
     t.add_argument("--evaluate", action="store_true", help="evaluate the best model when training ends")
-    t.add_argument("--episodes", type=_positive_int, default=15)
-    t.add_argument("--json", default=None, help="write the evaluation as JSON here")
+    add_options(t, EvaluateArgs, exclude=("target", "config", "model", "arbitration", "no_write"))
     t.set_defaults(func=_cmd_train)
 
     e = sub.add_parser("evaluate", help="evaluate a run directory or a built-in policy (paper protocol)")
-    e.add_argument("target", help=f"a run directory or one of {tuple(CONTROLLERS)}")
-    e.add_argument("--config", default=None, help="plant (default: the run's own, or n5_m2_dt120)")
-    e.add_argument("--episodes", type=_positive_int, default=15,
-                   help="test episodes (default: the paper's 15, seeds 10000 on)")
-    e.add_argument("--model", choices=("best", "final"), default="best", help="a run's model to evaluate")
-    e.add_argument("--arbitration", default=None, choices=tuple(ARBITRATION_RULES),
-                   help="how free PUs are shared among a decentralised policy's requests (default: the run's, "
-                        "or fullest)")
-    e.add_argument("--json", default=None, help="write the evaluation as JSON here")
-    e.add_argument("--no-write", action="store_true",
-                   help="leave the run directory as it is (by default RUN/evaluation_<model>.json is written)")
+    add_options(e, EvaluateArgs)
     e.set_defaults(func=_cmd_evaluate)
 
-    from containergym_marl.compare import _HelpFormatter, add_arguments
+    from containergym_marl.orchestration.compare_args import add_arguments
 
     c = sub.add_parser("compare", help="evaluate the shipped policies (or train, --train) and compare methods; "
-                                       "tables and figures", formatter_class=_HelpFormatter,
+                                       "tables and figures", formatter_class=argparse.RawDescriptionHelpFormatter,
                        description="The benchmark's main job; evaluation and training run on Ray (a local\n"
                                    "instance, or a cluster with --address). With no arguments it trains nothing: it\n"
                                    "evaluates the shipped policies (the best seed of each learned method on each\n"
@@ -294,9 +252,16 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the headline figures (--figures all for every figure of every row).\n"
                                    "--train trains instead: 30k samples per run, a quick look far below the\n"
                                    "paper's budget (--timesteps paper for that, hours). Cluster recipe and\n"
-                                   "storage: see containergym_marl/compare.py.")
+                                   "storage: see containergym_marl/orchestration/compare.py.")
     add_arguments(c)
     c.set_defaults(func=_cmd_compare)
+
+    from containergym_marl.orchestration.publish import PublishArgs
+
+    p = sub.add_parser("publish", help="copy a comparison's runs, evaluations, models and table into the repository "
+                                       "(or back, --restore)")
+    add_options(p, PublishArgs)
+    p.set_defaults(func=_cmd_publish)
     return parser
 
 

@@ -1,9 +1,9 @@
 """The sha256 manifest of a published results folder: what was published, checked before use.
 
-``baselines/publish_results.py`` writes ``<folder>/MANIFEST.sha256`` (``sha256sum`` format: one
+``containergym-marl publish`` writes ``<folder>/MANIFEST.sha256`` (``sha256sum`` format: one
 ``<hash>  <path>`` line per file, paths relative to the folder) for every model and checkpoint file
 it publishes (``runs/**``, ``models/**``: ``.zip``, ``.pt``, ``.npz``). ``compare`` (the shipped
-policies) and ``publish_results.py --restore`` check every such file they read against it and refuse,
+policies) and ``containergym-marl publish --restore`` check every such file they read against it and refuse,
 naming the file, when it is missing from the manifest or its bytes differ: a model file changed
 after publication is never loaded (``sha256sum -c MANIFEST.sha256`` in the folder checks the same).
 """
@@ -45,7 +45,7 @@ def read_manifest(folder: str | Path) -> dict[str, str]:
     path = Path(folder) / MANIFEST
     if not path.is_file():
         raise ManifestError(f"{str(folder)!r} has no {MANIFEST}: its model files cannot be checked "
-                            f"(baselines/publish_results.py writes it)")
+                            f"(containergym-marl publish writes it)")
     entries = {}
     for number, line in enumerate(path.read_text().splitlines(), start=1):
         digest, sep, name = line.partition("  ")

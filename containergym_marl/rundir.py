@@ -70,6 +70,16 @@ def run_name(method: str, config: str | Path, seed: int) -> str:
     return f"{method}_{Path(str(config)).stem}_s{seed}"
 
 
+def seeded_runs(root: str | Path, method: str, config: str | Path) -> list[tuple[int, Path]]:
+    """The run directories of ``method`` on ``config`` under ``root`` as (seed, path), by seed: the
+    folders named as :func:`run_name` names them."""
+    prefix = run_name(method, config, 0)[:-1]  # "<method>_<config>_s"
+    root = Path(root)
+    found = [(int(p.name[len(prefix):]), p) for p in (root.iterdir() if root.is_dir() else [])
+             if p.is_dir() and p.name.startswith(prefix) and re.fullmatch(r"[0-9]+", p.name[len(prefix):])]
+    return sorted(found)
+
+
 class RunError(RuntimeError):
     """A run directory cannot be used as asked (would overwrite results, nothing to resume, in use…)."""
 

@@ -187,7 +187,7 @@ def test_interrupted_run_resumes_from_its_checkpoint(script, tmp_path, monkeypat
 
 
 def test_a_finished_run_is_published_with_its_torch_models(trained, tmp_path):
-    """baselines/publish_results.py ships a MAPPO run like an SB3 one: finished by its final_model.pt
+    """containergym-marl publish ships a MAPPO run like an SB3 one: finished by its final_model.pt
     (the registry's file name; before, only final_model.zip counted, so MAPPO runs stayed behind),
     its small files and both .pt models, and the best/median model of the (row, method)."""
     import shutil
@@ -199,7 +199,8 @@ def test_a_finished_run_is_published_with_its_torch_models(trained, tmp_path):
     shutil.copytree(run, runs / "mappo_n5_m2_dt120_s3")
     shutil.copytree(evaluations, out / "evaluations")
     assert run_status(runs / "mappo_n5_m2_dt120_s3") == "finished"
-    publish_results = load_script("baselines/publish_results.py")
+    from containergym_marl.orchestration import publish as publish_results
+
 
     done = publish_results.publish(runs, out, to, min_seeds=1)
 

@@ -15,11 +15,14 @@ import numpy as np
 import pytest
 
 from containergym_marl.cli import build_parser, main
-from containergym_marl.compare import CompareArgs, args_from_namespace, compare, run_specs
+from containergym_marl.orchestration import CompareArgs, compare
+from containergym_marl.orchestration.compare_args import args_from_namespace
+from containergym_marl.orchestration.plan import run_specs
 from containergym_marl.evaluation import table as tables
 from containergym_marl.methods import METHODS, PAIRS
 from containergym_marl.rundir import RunError, RunWarning, measured_rate, small_files
-from containergym_marl.sweep import MetricsReporter, Progress, RunSpec, prepare_run
+from containergym_marl.orchestration.progress import Progress
+from containergym_marl.orchestration.tasks import MetricsReporter, RunSpec, prepare_run
 
 
 # ---- methods, runs, budgets ---------------------------------------------------------------------
@@ -75,9 +78,9 @@ def test_compare_help_shows_the_defaults(capsys):
                      "$RAY_ADDRESS", "shared_ppo_team"):
         assert expected in text, expected
     parse = build_parser().parse_args
-    assert parse(["compare"]).timesteps is None  # not given: the shipped policies, nothing trained
-    assert args_from_namespace(parse(["compare", "--train", "--timesteps", "paper"]), {}).timesteps is None  # paper budget
-    assert args_from_namespace(parse(["compare", "--train", "--timesteps", "2e6"]), {}).timesteps == 2_000_000
+    assert not hasattr(parse(["compare"]), "timesteps")  # not given: the shipped policies, nothing trained
+    assert args_from_namespace(parse(["compare", "--train", "--timesteps", "paper"])).timesteps is None  # paper budget
+    assert args_from_namespace(parse(["compare", "--train", "--timesteps", "2e6"])).timesteps == 2_000_000
 
 
 def _zip(path, payload=b"x"):
@@ -166,7 +169,7 @@ def test_a_training_task_returns_what_a_driver_without_shared_storage_needs(tmp_
     run again, it trains nothing."""
     from containergym_marl.manifest import sha256_bytes
     from containergym_marl.rundir import finished_budget, write_files
-    from containergym_marl.sweep import EvalSpec, evaluate_policy, train_run
+    from containergym_marl.orchestration.tasks import EvalSpec, evaluate_policy, train_run
 
     spec = RunSpec("ppo_n5_m2_dt120_s1", "ppo", "ppo", "n5_m2_dt120", 1, 256, str(tmp_path / "node" / "run"),
                    {"n_envs": 1, "checkpoint_every": 128, "hyperparams": {"n_steps": 128, "batch_size": 64}})
@@ -233,7 +236,7 @@ def test_two_sweeps_never_train_one_run_at_once(tmp_path):
     import subprocess
     import sys
 
-    from containergym_marl.sweep import train_run
+    from containergym_marl.orchestration.tasks import train_run
 
     spec = _spec(tmp_path / "runs" / "ppo_n5_m2_dt120_s1")
     holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from containergym_marl.rundir import RunLock; "
@@ -271,7 +274,7 @@ def test_samples_per_second_of_the_last_uninterrupted_stretch(tmp_path):
 def test_the_eta_rate_is_the_median_of_the_sweeps_own_runs(tmp_path):
     """estimate_rate reads the SB3 runs of the runs folder; MAPPO runs trained beside them (plant
     steps, ~250/s) do not drag the sweep's estimate down (they did when every metrics.csv counted)."""
-    from containergym_marl.sweep import DEFAULT_RATE, estimate_rate
+    from containergym_marl.orchestration.progress import DEFAULT_RATE, estimate_rate
 
     def run(name: str, algo: str, rate: float) -> None:
         folder = tmp_path / name

@@ -16,17 +16,17 @@ pytest.importorskip("ray")
 pytest.importorskip("stable_baselines3")
 
 from containergym_marl.cli import build_parser, main  # noqa: E402
-from containergym_marl.compare import (  # noqa: E402
+from containergym_marl.orchestration import (  # noqa: E402
     PAPER_METHODS,
     PAPER_ROWS,
     QUICK_TIMESTEPS,
     SHIPPED,
     CompareArgs,
-    _fingerprint,
-    _shipped_plan,
-    args_from_namespace,
     compare,
 )
+from containergym_marl.orchestration.compare_args import args_from_namespace  # noqa: E402
+from containergym_marl.orchestration.plan import evaluation_fingerprint  # noqa: E402
+from containergym_marl.orchestration.shipped import shipped_plan  # noqa: E402
 from containergym_marl.evaluation import EvalProtocol  # noqa: E402
 from containergym_marl.methods import METHODS  # noqa: E402
 from containergym_marl.evaluation.runs import evaluate_run  # noqa: E402
@@ -45,7 +45,7 @@ def _snapshot(folder: Path) -> dict[str, tuple[str, int]]:
 
 @pytest.fixture(scope="module")
 def shipped(tmp_path_factory) -> Path:
-    """A published folder as baselines/publish_results.py writes it: PPO seeds 1-3 finished (published
+    """A published folder as containergym-marl publish writes it: PPO seeds 1-3 finished (published
     evaluations of seeds 1 and 2 under the test protocol, none of seed 3), seed 4 published with a
     checkpoint only (still training), seed 5 finished without a best model, and a run named
     shared_ppo that was trained as PPO."""
@@ -58,14 +58,14 @@ def shipped(tmp_path_factory) -> Path:
                               out=str(runs / f"ppo_{CONFIG}_s{seed}"), progress_bar=False,
                               hyperparams={"n_steps": 128, "batch_size": 64},
                               overrides={"episode_length_steps": 40}))  # training episodes end: a best model
-        shutil.rmtree(run / "checkpoints")  # publish_results.py ships a finished run without them
+        shutil.rmtree(run / "checkpoints")  # containergym-marl publish ships a finished run without them
         shutil.rmtree(run / "tb", ignore_errors=True)
         if seed == 3:
             continue
         result = evaluate_run(run, protocol=protocol, write=False)
         data = json.loads(result.to_json())
         sha = hashlib.sha256((run / "best_model.zip").read_bytes()).hexdigest()
-        data["compare"] = _fingerprint(args, CONFIG, METHODS["ppo"], run.name, sha, timesteps=1024)
+        data["compare"] = evaluation_fingerprint(args, CONFIG, METHODS["ppo"], run.name, sha, timesteps=1024)
         path = folder / "evaluations" / CONFIG / f"ppo_s{seed}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(data, indent=2) + "\n")
@@ -76,7 +76,7 @@ def shipped(tmp_path_factory) -> Path:
     shutil.copytree(runs / f"ppo_{CONFIG}_s1", runs / f"shared_ppo_{CONFIG}_s1")
     shutil.copytree(runs / f"ppo_{CONFIG}_s1", runs / f"ppo_{CONFIG}_s5")
     (runs / f"ppo_{CONFIG}_s5" / "best_model.zip").unlink()
-    write_manifest(folder)  # as publish_results.py does: the shipped model files' sha256
+    write_manifest(folder)  # as containergym-marl publish does: the shipped model files' sha256
     return folder
 
 
@@ -182,31 +182,31 @@ def test_the_main_job_evaluates_the_shipped_policies_and_trains_nothing(shipped,
 def test_training_needs_train_and_the_sweep_script_still_trains(tmp_path, capsys):
     parse = build_parser().parse_args
 
-    default = args_from_namespace(parse(["compare"]), {})
+    default = args_from_namespace(parse(["compare"]))
     assert default.shipped == SHIPPED and default.timesteps is None and default.runs is None
     assert default.configs == list(PAPER_ROWS) and default.methods == list(PAPER_METHODS)
 
-    quick = args_from_namespace(parse(["compare", "--train"]), {})
+    quick = args_from_namespace(parse(["compare", "--train"]))
     assert quick.shipped is None and quick.timesteps == QUICK_TIMESTEPS and quick.configs == ["n5_m2_dt120"]
     assert quick.seeds == [1, 2, 3] and quick.methods == ["rule_based", "rule_based_agents", "ppo", "shared_ppo"]
     for argv, timesteps in ((["--timesteps", "2e6"], 2_000_000), (["--seeds", "4"], QUICK_TIMESTEPS),
                             (["--runs", "r"], QUICK_TIMESTEPS), (["--hp", "n_steps=64"], QUICK_TIMESTEPS)):
-        trained = args_from_namespace(parse(["compare", "--train", *argv]), {})
+        trained = args_from_namespace(parse(["compare", "--train", *argv]))
         assert trained.shipped is None and trained.timesteps == timesteps, argv
         with pytest.raises(ValueError, match=f"{argv[0]}: training options; add --train"):
-            args_from_namespace(parse(["compare", *argv]), {})  # never a training run without --train
+            args_from_namespace(parse(["compare", *argv]))  # never a training run without --train
 
     # baselines/sweep_paper_rows.sh's command line, as it is: training at the paper's budgets.
     script = (ROOT / "baselines" / "sweep_paper_rows.sh").read_text()
     line = script[script.index("compare --train \\") + len("compare "):].replace("\\\n", " ").split('"$@"')[0]
     argv = [w.strip('"') for w in line.split()]
     argv = [{"$RUNS": "runs/paper", "$OUT": "results/compare_paper"}.get(w, w) for w in argv]
-    sweep = args_from_namespace(parse(["compare", *argv]), {})
+    sweep = args_from_namespace(parse(["compare", *argv]))
     assert sweep.shipped is None and sweep.timesteps is None and sweep.seeds == [1, 2, 3]
     assert len(sweep.configs) == 9 and set(sweep.configs) == set(PAPER_ROWS) and sweep.runs == "runs/paper"
 
     with pytest.raises(ValueError, match="--shipped evaluates published runs and trains nothing; drop --train"):
-        args_from_namespace(parse(["compare", "--shipped", "x", "--train"]), {})
+        args_from_namespace(parse(["compare", "--shipped", "x", "--train"]))
     assert main(["compare", "--shipped", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "no folder" in err and "--train" in err and not (tmp_path / "o").exists()
@@ -224,7 +224,7 @@ def test_the_repository_s_shipped_folder_is_planned_from_its_files(tmp_path):
     rule-based evaluations; a row is named as missing exactly when no finished run is shipped for it."""
     args = CompareArgs(configs=list(PAPER_ROWS), methods=list(PAPER_METHODS), shipped=str(ROOT / SHIPPED),
                        out=str(tmp_path / "cmp"))
-    plan = _shipped_plan(args, tmp_path / "cmp")
+    plan = shipped_plan(args, tmp_path / "cmp")
     keys = {(spec.config, spec.key) for spec, _ in plan.to_evaluate} | set(plan.evaluations)
     assert {(c, m) for c in PAPER_ROWS for m in ("rule_based", "rule_based_agents")} <= keys
     finished = {p.name for p in (ROOT / SHIPPED / "runs").glob("*") if (p / "final_model.zip").is_file()}

@@ -46,7 +46,7 @@ def test_compare_runs_every_method_but_those_trained_by_a_script_of_their_own():
     assert set(COMPARABLE) == set(METHODS) - {"mappo"}
     assert {m for m in COMPARABLE if METHODS[m].learned} == {
         METHODS[m].name for m in COMPARABLE if METHODS[m].algo in ALGORITHMS}
-    from containergym_marl.compare import CompareArgs, compare
+    from containergym_marl.orchestration import CompareArgs, compare
 
     with pytest.raises(ValueError, match=r"mappo \(trained by baselines/train_mappo.py\)"):
         compare(CompareArgs(methods=["mappo"], seeds=[1], timesteps=64))

@@ -373,7 +373,7 @@ def test_compare_figures_of_a_config_given_as_a_path(tmp_path):
     reward ECDF used to look the plant up by name and fail after the evaluations."""
     from pathlib import Path
 
-    from containergym_marl.compare import _figures
+    from containergym_marl.orchestration.figures import draw_figures
     from containergym_marl.core.params import PlantParams
     from containergym_marl.evaluation import EvalProtocol, evaluate
     from containergym_marl.policies import RuleBasedController
@@ -383,5 +383,5 @@ def test_compare_figures_of_a_config_given_as_a_path(tmp_path):
     path.write_text(cfg.to_toml())
     records = evaluate(RuleBasedController(PlantParams.from_config(cfg)), str(path),
                        EvalProtocol(episodes=1, episode_length_steps=30)).records
-    written = _figures({str(path): {"rule_based": records}}, tmp_path / "out")
+    written = draw_figures({str(path): {"rule_based": records}}, tmp_path / "out")
     assert Path(f"{written[1]}.svg").is_file() and "my_plant_reward_ecdf" in str(written[1])

@@ -1,4 +1,4 @@
-"""baselines/publish_results.py: small files, evaluations, best and median models, the table."""
+"""containergym-marl publish: small files, evaluations, best and median models, the table."""
 
 from __future__ import annotations
 
@@ -11,12 +11,10 @@ import pytest
 from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.runs import evaluate_run
 from containergym_marl.training import TrainArgs, train
-from tests.conftest import load_script
+from containergym_marl.orchestration import publish as publish_results
 
 
 
-def _publish_module():
-    return load_script("baselines/publish_results.py")
 
 
 def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(tmp_path):
@@ -34,7 +32,7 @@ def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(t
         means[seed] = float(np.mean(result.returns))
     (runs / f"ppo_{config}_s4").mkdir()  # an unfinished run is not published
 
-    done = _publish_module().publish(runs, out, to)
+    done = publish_results.publish(runs, out, to)
 
     assert sorted(done["runs"]) == [f"ppo_{config}_s{s}" for s in (1, 2, 3)]
     for s in (1, 2, 3):
@@ -57,10 +55,11 @@ def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(t
         returns = [e["cumulative_reward"] for e in fresh["episodes"]]
         assert row[f"{which}_fresh_mean"] == np.mean(returns)
         assert f"{np.mean(returns):.2f} ± {np.std(returns):.2f}" in table
-    assert _publish_module().publish(runs, out, to)["fresh"] == []  # the same models: nothing evaluated again
+    assert publish_results.publish(runs, out, to)["fresh"] == []  # the same models: nothing evaluated again
 
     # every published model is listed with its sha256; a file changed afterwards is refused, named
-    from containergym_marl.compare import CompareArgs, _shipped_plan
+    from containergym_marl.orchestration import CompareArgs
+    from containergym_marl.orchestration.shipped import shipped_plan
     from containergym_marl.manifest import ManifestError, read_manifest
 
     listed = read_manifest(to)
@@ -69,9 +68,9 @@ def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(t
     tampered.write_bytes(tampered.read_bytes() + b"\0")
     args = CompareArgs(configs=[config], methods=["ppo"], shipped=str(to), episodes=2, seeds=[])
     with pytest.raises(ManifestError, match=f"ppo_{config}_s2/best_model.zip"):
-        _shipped_plan(args, tmp_path / "cmp2")
+        shipped_plan(args, tmp_path / "cmp2")
     with pytest.raises(ManifestError, match="differs"):
-        _publish_module().restore(to, tmp_path / "restored", tmp_path / "cmp3")
+        publish_results.restore(to, tmp_path / "restored", tmp_path / "cmp3")
     assert not (tmp_path / "restored").exists()
 
 
@@ -80,7 +79,6 @@ def test_an_interrupted_run_published_with_its_checkpoint_resumes_after_restore(
     runs folder, where training resumes from that checkpoint and finishes."""
     from containergym_marl.rundir import checkpoints, run_status
 
-    publish_results = _publish_module()
     runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
     run = runs / "ppo_n5_m2_dt120_s1"
     args = TrainArgs(algo="ppo", config="n5_m2_dt120", seed=1, timesteps=1536, n_envs=2, out=str(run),
@@ -118,7 +116,8 @@ def test_an_interrupted_run_published_with_its_checkpoint_resumes_after_restore(
 def test_published_native_ppo_runs_are_shipped_policies_of_the_main_job(tmp_path):
     """The main job (compare on the shipped folder) takes native-PPO runs like SB3 ones: their
     tensor-only best model is what it evaluates, checked against the manifest."""
-    from containergym_marl.compare import CompareArgs, _shipped_plan
+    from containergym_marl.orchestration import CompareArgs
+    from containergym_marl.orchestration.shipped import shipped_plan
 
     runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
     config = "n5_m2_dt120"
@@ -130,9 +129,9 @@ def test_published_native_ppo_runs_are_shipped_policies_of_the_main_job(tmp_path
         path = out / "evaluations" / config / f"fast_shared_ppo_s{seed}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(result.to_json())
-    _publish_module().publish(runs, out, to, min_seeds=3)  # two seeds: no models, no fresh evaluations
+    publish_results.publish(runs, out, to, min_seeds=3)  # two seeds: no models, no fresh evaluations
     assert (to / "runs" / f"fast_shared_ppo_{config}_s1" / "best_model.pt").is_file()
-    plan = _shipped_plan(CompareArgs(configs=[config], methods=["fast_shared_ppo"], shipped=str(to), episodes=2,
+    plan = shipped_plan(CompareArgs(configs=[config], methods=["fast_shared_ppo"], shipped=str(to), episodes=2,
                                      seeds=[]), tmp_path / "main")
     assert plan.seeds[(config, "fast_shared_ppo")] == [1, 2]
     to_evaluate = [(spec, source) for spec, source in plan.to_evaluate]

@@ -1,34 +1,31 @@
 """The published comparison (results/paper_rows/) is consistent with itself and with the README: the
 committed table is the table of the committed evaluation files, rebuilt from them alone (what a fresh
 clone does), and the README's compact table and the results page's generated blocks are what
-baselines/publish_results.py writes from it now."""
+containergym-marl publish writes from it now."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from containergym_marl.evaluation import table as tables
-from tests.conftest import load_script
+from containergym_marl.orchestration import publish as publish_results
 
 ROOT = Path(__file__).resolve().parents[1]
 PUBLISHED = ROOT / "results" / "paper_rows"
 
 
-def _publish_module():
-    return load_script("baselines/publish_results.py")
 
 
 def test_committed_table_is_the_table_of_the_committed_evaluations(tmp_path):
     rebuilt = tables.build_table(tables.load_evaluations(PUBLISHED / "evaluations"))
-    rebuilt.write(tmp_path, {"source": "baselines/publish_results.py"})
+    rebuilt.write(tmp_path, {"source": "containergym-marl publish"})
     assert (tmp_path / "table.md").read_text() == (PUBLISHED / "table.md").read_text()
     assert (tmp_path / "table.csv").read_text() == (PUBLISHED / "table.csv").read_text()
 
 
 def test_readme_shows_the_committed_table():
     """The README's compact table is what the publishing step writes from the committed table now
-    (``python baselines/publish_results.py --pages-only --readme README.md --docs docs/results.md``)."""
-    publish_results = _publish_module()
+    (``containergym-marl publish --pages-only --readme README.md --docs docs/results.md``)."""
     readme = (ROOT / "README.md").read_text()
     start = readme.index(publish_results.README_START.format(source="results/paper_rows"))
     end = readme.index(publish_results.README_END)
@@ -39,11 +36,10 @@ def test_readme_shows_the_committed_table():
 def test_results_page_shows_the_committed_tables():
     """Every generated block of docs/results.md is what the publishing step writes now, and every
     published row has its block."""
-    publish_results = _publish_module()
     page = (ROOT / "docs" / "results.md").read_text()
     blocks = publish_results.page_blocks(PUBLISHED)
     assert publish_results.fill_page(page, blocks) == page, (
-        "docs/results.md is stale: python baselines/publish_results.py --pages-only --readme README.md "
+        "docs/results.md is stale: containergym-marl publish --pages-only --readme README.md "
         "--docs docs/results.md")
     for name in blocks:
         assert publish_results.PAGE_START.format(name=name) in page, f"docs/results.md has no block {name!r}"
@@ -54,7 +50,6 @@ def test_compact_table_has_one_row_per_config_and_the_iqm_of_each_method(tmp_pat
     """Hand-made table.json: two configs, a rule-based controller and one learned method on one of them."""
     import json
 
-    publish_results = _publish_module()
     to = tmp_path / "paper_rows"
     to.mkdir()
     rows = [{"config": "n5_m2_dt120", "method": "rule_based", "seeds": 0, "iqm": 58.855},
@@ -69,20 +64,18 @@ def test_compact_table_has_one_row_per_config_and_the_iqm_of_each_method(tmp_pat
 
 
 def test_fill_page_replaces_known_blocks_and_refuses_unknown_ones():
-    publish_results = _publish_module()
     start, end = publish_results.PAGE_START.format(name="a"), publish_results.PAGE_END.format(name="a")
     page = f"intro\n{start}\nold\n{end}\noutro\n"
     assert publish_results.fill_page(page, {"a": "new"}) == f"intro\n{start}\n\nnew\n\n{end}\noutro\n"
     try:
         publish_results.fill_page(page, {"b": "x"})
-    except SystemExit as exc:
+    except ValueError as exc:
         assert "unknown" in str(exc)
     else:
         raise AssertionError("an unknown block was accepted")
 
 
 def test_committed_compute_is_the_sum_of_the_committed_runs_wall_times():
-    publish_results = _publish_module()
     assert (PUBLISHED / "compute.md").read_text() == publish_results.training_compute(PUBLISHED / "runs")
 
 
@@ -91,7 +84,6 @@ def test_training_compute_sums_finished_runs_per_row(tmp_path):
     interrupted run left out."""
     import json
 
-    publish_results = _publish_module()
 
     def run(name, config, wall_s, finished=True):
         d = tmp_path / name
@@ -111,18 +103,17 @@ def test_training_compute_sums_finished_runs_per_row(tmp_path):
 
 
 def test_readme_block_is_replaced_in_place_and_a_missing_marker_is_named(tmp_path):
-    publish_results = _publish_module()
     readme = tmp_path / "README.md"
     readme.write_text("# title\n\nbefore\n<!-- results table: old -->\nold table\n<!-- end of results table -->\nafter\n")
     publish_results.show_table_in_readme(readme, "| a |\n|---|\n| 1 |\n", Path("results/x"))
     assert readme.read_text() == (
         "# title\n\nbefore\n"
-        "<!-- results table: written by baselines/publish_results.py from results/x; do not edit -->\n\n"
+        "<!-- results table: written by containergym-marl publish from results/x; do not edit -->\n\n"
         "| a |\n|---|\n| 1 |\n\n<!-- end of results table -->\nafter\n")
     readme.write_text("no markers\n")
     try:
         publish_results.show_table_in_readme(readme, "| a |\n", Path("results/x"))
-    except SystemExit as exc:
+    except ValueError as exc:
         assert "results-table block" in str(exc) and "found 0 start and 0 end" in str(exc)
     else:
         raise AssertionError("a README without markers was accepted")

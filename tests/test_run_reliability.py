@@ -335,11 +335,11 @@ def test_a_run_without_a_finished_episode_says_so(tmp_path, capsys):
     assert "no training episode finished" in capsys.readouterr().err
 
     # compare evaluates such a run too (its final model, named so), from the files it ships to a worker
-    from containergym_marl.compare import _run_files
+    from containergym_marl.orchestration.plan import run_files
     from containergym_marl.manifest import sha256_bytes
-    from containergym_marl.sweep import EvalSpec, evaluate_policy
+    from containergym_marl.orchestration.tasks import EvalSpec, evaluate_policy
 
-    source = _run_files(out)
+    source = run_files(out)
     assert sorted(source["files"]) == ["args.json", "final_model.zip", "run.json"]
     with pytest.warns(RunWarning, match="no training episode finished"):
         result, model_sha = evaluate_policy(EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", 1, seed=1), source)

@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("ray")
 
-from containergym_marl.compare import CompareArgs, compare  # noqa: E402
+from containergym_marl.orchestration import CompareArgs, compare  # noqa: E402
 from containergym_marl.evaluation import table as tables  # noqa: E402
 from containergym_marl.rundir import RunLock  # noqa: E402
 
@@ -84,7 +84,7 @@ def test_compare_killed_once_then_the_same_command_resumes_and_finishes(tmp_path
 
     import numpy as np
 
-    from containergym_marl.compare import run_specs
+    from containergym_marl.orchestration.plan import run_specs
     from containergym_marl.manifest import sha256_bytes
     from containergym_marl.training import train
     from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary

@@ -27,7 +27,8 @@ import pytest
 
 pytest.importorskip("ray")
 
-from containergym_marl.compare import CompareArgs, run_specs  # noqa: E402
+from containergym_marl.orchestration import CompareArgs  # noqa: E402
+from containergym_marl.orchestration.plan import run_specs  # noqa: E402
 from containergym_marl.rundir import LOCK_NAME  # noqa: E402
 from tests import compare_kills as kills  # noqa: E402
 

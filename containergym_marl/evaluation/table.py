@@ -67,7 +67,7 @@ COLUMNS = ("config", "method", "view", "seeds", "best_mean", "best_std", "median
            "iqm_low", "iqm_high", "overflow_rate", "emptyings", "good_share", "denied", "pu_utilisation",
            "best_seed", "samples")
 #: Where a published folder keeps the evaluations of its best and median policies on fresh episodes
-#: (``<folder>/fresh/<config>/<method>_s<seed>.json``; baselines/publish_results.py writes them).
+#: (``<folder>/fresh/<config>/<method>_s<seed>.json``; containergym-marl publish writes them).
 FRESH_FOLDER = "fresh"
 
 _FILE = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")

@@ -20,9 +20,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from containergym_marl.algorithms import get_algorithm, require_training_extra
+from containergym_marl.algorithms import ALGORITHMS, REGISTRY, get_algorithm, require_training_extra
 from containergym_marl.config import MAX_SIMS
+from containergym_marl.core.dynamics import ARBITRATION_RULES
 from containergym_marl.files import atomic_write, atomic_write_text
+from containergym_marl.options import key_values, option, positive_int
 from containergym_marl.rundir import (
     RunError,
     RunLock,
@@ -36,51 +38,55 @@ from containergym_marl.rundir import (
 )
 
 
+#: The agent reward modes of the algorithms ``train`` trains, the default first.
+REWARD_MODES = tuple(dict.fromkeys(m for name in ALGORITHMS for m in REGISTRY[name].reward_modes))
+
+
 @dataclass
 class TrainArgs:
-    """Arguments of one training run (also the CLI's ``train`` options).
+    """Arguments of one training run, and the options of ``containergym-marl train`` (each field's
+    help is its option's; the parser is generated from them, :mod:`containergym_marl.options`).
 
-    Attributes:
-        algo: one of :data:`~containergym_marl.algorithms.ALGORITHMS` (ppo, trpo, dqn,
-            maskable_ppo: centralised; shared_ppo: one policy shared by all container agents,
-            trained on the decentralised view).
-        config: built-in config name or path; training uses its δ and T (1500 for the paper's).
-        seed: training seed (simulation b of the vectorised env is seeded seed + b).
-        timesteps: budget in SB3 timesteps (samples), > 0; None = the paper's budget for the
-            plant's size (2M for n <= 5 containers, 5M for more).
-        out: run directory (default ``runs/<algo>_<config>_s<seed>``).
-        resume: continue an interrupted run from its newest intact checkpoint.
-        n_envs: parallel simulations, >= 1 (None: the algorithm's default, 8; DQN 1).
-        vec: "native" (our batched vec envs) or "supersuit" (shared_ppo through SuperSuit).
-        num_cpus: SuperSuit worker processes (vec="supersuit" only).
-        reward_mode: shared_ppo's agent rewards, "individual" or "team".
-        arbitration: shared_ppo's arbitration rule.
-        checkpoint_every: samples between checkpoints (taken at the end of a rollout); None =
-            min(200k, budget / 10) in whole vector steps, so every interrupted run can resume.
-        gamma: discount factor (paper: 0.99).
-        hyperparams: further keyword arguments for the SB3 algorithm (e.g. learning_rate).
-        progress_bar: show a progress bar (samples, samples/s, latest training return).
-        torch_threads: torch.set_num_threads; 1 is fastest for these small MLPs on 2 cores.
-        overrides: plant-level config overrides for training (e.g. episode_length_steps).
+    Budgets are samples: one per environment step for the centralised algorithms and one per
+    *agent* step for the decentralised ones. Training uses the config's δ and T (1500 for the
+    paper's); simulation b of the vectorised env is seeded ``seed + b``.
     """
 
-    algo: str
-    config: str = "n5_m2_dt120"
-    seed: int = 1
-    timesteps: int | None = None
-    out: str | None = None
-    resume: bool = False
-    n_envs: int | None = None
-    vec: str = "native"
-    num_cpus: int = 0
-    reward_mode: str = "individual"
-    arbitration: str = "fullest"
-    checkpoint_every: int | None = None
-    gamma: float = 0.99
-    hyperparams: dict[str, Any] = field(default_factory=dict)
-    progress_bar: bool = True
-    torch_threads: int = 1
-    overrides: dict[str, Any] = field(default_factory=dict)
+    algo: str = option(choices=ALGORITHMS, help="; ".join(f"{name}: {REGISTRY[name].description}" for name in ALGORITHMS)
+                       + " (MAPPO: baselines/train_mappo.py, then evaluate its run directory here)")
+    config: str = option("n5_m2_dt120", help="plant: a built-in config name or a path")
+    seed: int = option(1, type=int, help=f"training seed, in [0, {2**32 - 1}] (numpy's seed range)")
+    timesteps: int | None = option(None, type=positive_int,
+                                   help="budget in samples (agent steps for the decentralised algorithms); "
+                                        "default: the paper's, 2M for n=5 and 5M for n>=11")
+    out: str | None = option(None, help="run directory (default: runs/<algo>_<config>_s<seed>)")
+    resume: bool = option(False, action="store_true",
+                          help="continue the run in --out from its newest intact checkpoint")
+    n_envs: int | None = option(None, type=positive_int, help="parallel simulations, >= 1 (default: " + ", ".join(
+                                 f"{name} {REGISTRY[name].default_n_envs}" for name in ALGORITHMS) + ")")
+    vec: str = option("native", choices=("native", "supersuit"),
+                      help="shared_ppo's vectorisation: the package's batched env or the SuperSuit stack")
+    num_cpus: int = option(0, type=int, help="SuperSuit worker processes (--vec supersuit only)")
+    reward_mode: str = option("individual", choices=REWARD_MODES,
+                              help="agent rewards of the decentralised algorithms: each container's own, or "
+                                   "the plant's for every agent")
+    arbitration: str = option("fullest", choices=tuple(ARBITRATION_RULES),
+                              help="how free PUs are shared among the container agents' requests")
+    checkpoint_every: int | None = option(None, type=positive_int,
+                                          help="samples between checkpoints, taken at the end of a rollout "
+                                               "(default: min(200000, budget/10) in whole vector steps)")
+    gamma: float = option(0.99, type=float, help="discount factor, in (0, 1]")
+    hyperparams: dict[str, Any] = option(default_factory=dict, flag="--hp", nargs="*", metavar="KEY=VALUE",
+                                         convert=key_values,
+                                         help="further settings of the algorithm (SB3's keyword arguments, or "
+                                              "the native PPO's fields), e.g. learning_rate=1e-4")
+    progress_bar: bool = option(True, flag="--no-progress", action="store_false",
+                                help="no progress bar (samples, samples/s, latest training return)")
+    torch_threads: int = option(1, type=positive_int,
+                                help="torch threads; 1 is fastest for these small networks")
+    overrides: dict[str, Any] = option(default_factory=dict, flag="--override", nargs="*", metavar="KEY=VALUE",
+                                       convert=key_values,
+                                       help="plant config overrides for training, e.g. episode_length_steps=600")
 
     def run_dir(self) -> Path:
         if self.out:
@@ -143,10 +149,6 @@ def _check_sb3_settings(spec, hyperparams: dict[str, Any]) -> None:
         raise ValueError(f"hp: unknown {cls.__name__} setting(s) {unknown}; choose from {sorted(accepted)}")
 
 
-
-
-
-
 # ---- crash-safe writes (containergym_marl.files) ----------------------------------------------
 def atomic_save_model(model: Any, path: str | Path) -> Path:
     """``model.save`` to a temporary file, then renamed over ``path``."""
@@ -160,28 +162,6 @@ def _save_via_file(save: Callable[[Any], None], tmp: Path) -> None:
 
 def _jsonable(x):
     return json.loads(json.dumps(x, default=str))
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 
 
 def prepare_run_dir(args: TrainArgs, plant, held_lock: RunLock | None = None) -> tuple[Path, RunLock]:
@@ -214,16 +194,6 @@ def prepare_run_dir(args: TrainArgs, plant, held_lock: RunLock | None = None) ->
         if held_lock is None:
             lock.release()
         raise
-
-
-
-
-
-
-
-
-
-
 
 
 # ---- training progress: what a checkpoint must carry besides the model ----------------------------
@@ -262,8 +232,6 @@ class TrainingProgress:
                    best_timesteps=data.get("best_timesteps"), wall_time_s=float(data.get("wall_time_s", 0.0)))
 
 
-
-
 def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -> int:
     """Samples between checkpoints: ``every`` if given, else min(200k, budget / 10), in whole
     vector steps (``num_slots`` samples each) and at least one, so a run of any budget leaves
@@ -271,12 +239,6 @@ def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -
     a tenth of it."""
     samples = every if every is not None else min(200_000, budget // 10)
     return max(samples // num_slots, 1) * num_slots
-
-
-
-
-
-
 
 
 def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_buffer: bool = False,
@@ -354,10 +316,6 @@ def read_progress(run: str | Path, steps: int) -> TrainingProgress | None:
         return None
 
 
-
-
-
-
 def load_model(path: str | Path, algo: str, env=None, hyperparams: dict[str, Any] | None = None):
     """Load a model file of ``algo`` with a clear error when it is missing, broken or not a model of
     ``algo``: an SB3 model, or for an algorithm trained outside SB3 (mappo) what its policy
@@ -377,8 +335,6 @@ def load_model(path: str | Path, algo: str, env=None, hyperparams: dict[str, Any
         return cls.load(path, env=env, device="cpu", custom_objects=objects)
     except (zipfile.BadZipFile, KeyError, ValueError, RuntimeError, EOFError, OSError, AssertionError) as exc:
         raise ValueError(f"cannot read model file {str(path)!r} as a {algo} model: {exc}") from exc
-
-
 
 
 __all__ = [

@@ -1,0 +1,139 @@
+"""The Ray session of a sweep: a local instance started on first use (with a reaper that stops its
+processes if the driver is killed), or an existing cluster at ``--address``.
+
+On a local instance evaluations use a slot resource of their own (one per core) instead of a CPU,
+so a finished run is evaluated at once rather than after every queued training; on a cluster they
+ask for a CPU. Every task carries ``max_retries``: when its worker process or node dies, Ray runs it
+again (a retried training resumes, :mod:`~containergym_marl.orchestration.tasks`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import signal
+import subprocess
+import threading
+from typing import Any
+
+from containergym_marl.orchestration import ray_reaper
+from containergym_marl.orchestration.tasks import evaluate_policy, train_run
+
+
+class SweepError(RuntimeError):
+    """The sweep cannot run (no Ray) or some of its tasks failed after Ray's retries; finished runs are kept."""
+
+
+def ray_missing_message() -> str:
+    from containergym_marl.extras import INSTALL
+
+    return ("containergym-marl compare runs its training and evaluation on Ray, which is not installed: "
+            f"{INSTALL['sweep']} (./run setup installs it)")
+
+
+
+#: Custom Ray resource of a local instance: evaluations running beside the trainings (one per core).
+EVALUATION_SLOTS = "containergym_evaluation_slots"
+
+
+@contextlib.contextmanager
+def _keeping_sigterm_handler():
+    """ray.init replaces the SIGTERM handler (in Python with ``sys.exit``, natively with a stack dump);
+    put the caller's back, so that the CLI's SIGTERM stays the same orderly stop as Ctrl-C."""
+    main = threading.current_thread() is threading.main_thread()
+    handler = signal.getsignal(signal.SIGTERM) if main else None
+    try:
+        yield
+    finally:
+        if handler is not None:
+            signal.signal(signal.SIGTERM, handler)
+
+
+class Cluster:
+    """A Ray session started on first use: a new local instance with ``num_cpus`` CPUs (default:
+    this machine's cores), or the cluster at ``address`` (or ``$RAY_ADDRESS``). Quiet logging, no
+    dashboard. ``close()`` disconnects, and stops the local instance if this object started it."""
+
+    def __init__(self, address: str | None = None, num_cpus: int | None = None, max_retries: int = 3):
+        self.address = address or os.environ.get("RAY_ADDRESS") or None
+        self.num_cpus = num_cpus
+        self.max_retries = max_retries
+        self._ray = None
+        self._owned = False
+        self._reaper: subprocess.Popen | None = None
+        self._tasks: dict[str, Any] = {}
+
+    @property
+    def started(self) -> bool:
+        return self._ray is not None
+
+    def ray(self):
+        if self._ray is not None:
+            return self._ray
+        try:
+            import ray
+        except ImportError as exc:
+            raise SweepError(ray_missing_message()) from exc
+        if not ray.is_initialized():
+            opts = dict(include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False)
+            with _keeping_sigterm_handler():
+                self._init(ray, opts)
+            self._owned = True
+        self._ray = ray
+        # On a local instance evaluations take slots of their own rather than CPUs: a finished run
+        # is evaluated as soon as it lands (a short, briefly oversubscribed task) instead of waiting
+        # behind hours of queued trainings. A cluster started elsewhere has no such slots.
+        slots = ray.cluster_resources().get(EVALUATION_SLOTS, 0)
+        evaluate_resources = {"num_cpus": 0, "resources": {EVALUATION_SLOTS: 1}} if slots else {"num_cpus": 1}
+        self._tasks = {"train": ray.remote(num_cpus=1, max_retries=self.max_retries)(train_run),
+                       "evaluate": ray.remote(max_retries=self.max_retries, **evaluate_resources)(evaluate_policy)}
+        return ray
+
+    def _init(self, ray, opts: dict) -> None:
+        if self.address:
+            if self.num_cpus:
+                raise ValueError("--num-cpus sizes a local Ray instance; a cluster at --address has its own CPUs")
+            ray.init(address=self.address, **opts)
+            return
+        cpus = self.num_cpus or os.cpu_count() or 1
+        before = ray_reaper.child_pids()
+        ray.init(address="local", num_cpus=cpus, resources={EVALUATION_SLOTS: cpus}, **opts)
+        # the processes this ray.init started, stopped by the reaper if this driver is killed
+        self._reaper = ray_reaper.watch(sorted(ray_reaper.child_pids() - before))
+
+    def cpus(self) -> int:
+        return int(self.ray().cluster_resources().get("CPU", 1))
+
+    def describe(self) -> str:
+        ray = self.ray()
+        nodes = [n for n in ray.nodes() if n.get("Alive")]
+        where = f"cluster at {self.address}" if self.address else "local Ray instance"
+        return f"{where}: {len(nodes)} node{'s' * (len(nodes) != 1)}, {self.cpus()} CPUs"
+
+    def submit(self, kind: str, *args, **kwargs):
+        self.ray()
+        return self._tasks[kind].remote(*args, **kwargs)
+
+    def events(self):
+        from ray.util.queue import Queue
+
+        self.ray()
+        return Queue(actor_options={"num_cpus": 0})
+
+    def close(self) -> None:
+        if self._ray is not None and self._owned:
+            self._ray.shutdown()
+        if self._reaper is not None:
+            self._reaper.stdin.close()  # the reaper stops whatever ray.shutdown() left behind
+            try:
+                self._reaper.wait(timeout=ray_reaper.GRACE_S + ray_reaper.POLL_S + 5)
+            except subprocess.TimeoutExpired:
+                self._reaper.kill()
+        self._ray, self._owned, self._reaper = None, False, None
+
+    def __enter__(self) -> "Cluster":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

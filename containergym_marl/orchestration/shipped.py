@@ -1,0 +1,184 @@
+"""The shipped policies: what a folder of published runs (containergym-marl publish) offers a
+comparison, planned from its files alone, and whether the policies evaluated now return what their
+published evaluations say."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from containergym_marl.evaluation import EvalProtocol
+from containergym_marl.evaluation import table as tables
+from containergym_marl.files import atomic_write_text
+from containergym_marl.manifest import check as manifest_check
+from containergym_marl.manifest import read_manifest, sha256_bytes
+from containergym_marl.methods import METHODS
+from containergym_marl.orchestration.compare_args import CompareArgs
+from containergym_marl.orchestration.plan import (
+    Plan,
+    cached_evaluation,
+    config_stem,
+    eval_spec,
+    evaluation_path,
+    evaluation_fingerprint,
+    run_files,
+)
+from containergym_marl.rundir import checkpoints, finished_budget, model_file, run_name, seeded_runs
+
+
+@dataclass
+class Shipped:
+    """What a shipped folder offers a comparison, from its files alone."""
+
+    folder: Path
+    learned: dict[str, dict[str, list[int]]] = field(default_factory=dict)  # config -> method -> finished seeds
+    best: dict[tuple[str, str], int] = field(default_factory=dict)  # (config, method) -> best published seed
+    published: dict[tuple[str, str], dict] = field(default_factory=dict)  # (config, key) -> published evaluation
+    training: list[str] = field(default_factory=list)  # runs published unfinished (skipped), with how far
+    unusable: list[str] = field(default_factory=list)  # finished runs that cannot be evaluated, with why
+    missing: list[str] = field(default_factory=list)  # configs without any shipped learned policy
+    copied: list[str] = field(default_factory=list)  # published evaluations copied into --out by this call
+
+    def lines(self, methods: list[str]) -> list[str]:
+        """What is shipped, skipped and missing, in words."""
+        out = []
+        for config, by_method in self.learned.items():
+            what = []
+            for method, seeds in by_method.items():
+                best = self.best.get((config, method))
+                what.append(f"{method} (seed{'s' * (len(seeds) > 1)} {', '.join(map(str, seeds))}"
+                            + (f"; best s{best}" if best is not None and len(seeds) > 1 else "") + ")")
+            out.append(f"shipped policies on {config}: {', '.join(what)}")
+        if self.training:
+            out.append("skipped, still training (published with a checkpoint, no final model yet): "
+                       + ", ".join(self.training))
+        if self.unusable:
+            out.append("skipped: " + "; ".join(self.unusable))
+        learned = [m for m in methods if METHODS[m].learned]
+        if learned and self.missing:
+            rule_based = [m for m in methods if not METHODS[m].learned]
+            out.append(f"no shipped policies yet on {', '.join(self.missing)}"
+                       + (f" ({' and '.join(rule_based)} only)" if rule_based else "")
+                       + ": the paper-rows sweep is still training them")
+        return out
+
+
+def shipped_plan(args: CompareArgs, out: Path) -> Plan:
+    """The evaluations of the shipped policies: every rule-based controller; for each learned
+    method, the best published seed and every finished seed without a published evaluation of the
+    same model, plant and protocol are evaluated, the other seeds' published evaluations reused.
+    Reads the shipped folder only."""
+
+    folder = Path(args.shipped)
+    manifest = read_manifest(folder)
+    protocol = asdict(EvalProtocol(episodes=args.episodes))
+    shipped = Shipped(folder)
+    plan = Plan([], set(), [], {}, [], shipped=shipped)
+
+    def use(config: str, spec, fingerprint: dict, source, published: dict | None = None) -> None:
+        path = evaluation_path(out, config, spec.key)
+        cached = None if args.reevaluate else cached_evaluation(path, fingerprint, protocol)
+        if cached is not None:
+            plan.evaluations[(config, spec.key)] = cached
+        elif published is not None:  # a published evaluation of this very model: copied into --out
+            data = {**published, "copied_from": str(evaluation_path(folder, config, spec.key))}
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+            plan.evaluations[(config, spec.key)] = data
+            shipped.copied.append(f"{config_stem(config)}/{spec.key}")
+        else:
+            plan.to_evaluate.append((spec, source))
+
+    for config in args.configs:
+        stem = config_stem(config)
+        for name in args.methods:
+            method = METHODS[name]
+            if not method.learned:
+                use(config, eval_spec(args, config, name, None), evaluation_fingerprint(args, config, method, None, None), None)
+                continue
+            found = []  # (seed, files, fingerprint, published evaluation or None)
+            for seed, run in seeded_runs(folder / "runs", name, config):
+                trained = finished_budget(run)
+                if trained is None:
+                    ckpt = checkpoints(run)
+                    try:
+                        of = f" of {int(json.loads((run / 'args.json').read_text())['timesteps']):,}"
+                    except (OSError, ValueError, KeyError, TypeError):
+                        of = ""
+                    shipped.training.append(f"{run.name}" + (f" ({ckpt[0][0]:,}{of} samples)" if ckpt else ""))
+                    continue
+                saved = json.loads((run / "args.json").read_text())
+                if saved.get("algo") != method.algo:
+                    shipped.unusable.append(f"{run.name} was trained as {saved.get('algo')}, not as {name}")
+                    continue
+                if (differ := [f"{k}={saved.get(k)}" for k, v in method.train_settings().items() if saved.get(k) != v]):
+                    shipped.unusable.append(f"{run.name} was trained with {', '.join(differ)}, not as {name}")
+                    continue
+                best_name = model_file(run, "best")
+                if not (run / best_name).is_file():
+                    shipped.unusable.append(f"{run.name} has no best model (no training episode finished)")
+                    continue
+                files = run_files(run)
+                for file_name, data in files["files"].items():  # never a model changed after publication
+                    manifest_check(folder, f"runs/{run.name}/{file_name}", data, manifest)
+                fingerprint = evaluation_fingerprint(args, config, method, run.name, sha256_bytes(files["files"][best_name]),
+                                           timesteps=trained)
+                published = cached_evaluation(evaluation_path(folder, config, tables.evaluation_key(name, seed)),
+                                    fingerprint, protocol)
+                found.append((seed, files, fingerprint, published))
+                plan.budgets[run.name] = trained
+            if not found:
+                continue
+            shipped.learned.setdefault(stem, {})[name] = [seed for seed, *_ in found]
+            plan.seeds[(config, name)] = [seed for seed, *_ in found]
+            plan.finished |= {run_name(name, stem, seed) for seed, *_ in found}
+            means = {seed: float(np.mean([e["cumulative_reward"] for e in p["episodes"]]))
+                     for seed, _, _, p in found if p is not None}
+            best = max(means, key=lambda s: (means[s], -s)) if means else None  # the table's rule: ties -> first seed
+            if best is not None:
+                shipped.best[(stem, name)] = best
+            for seed, files, fingerprint, published in found:
+                spec = eval_spec(args, config, name, seed)
+                if published is not None:
+                    shipped.published[(config, spec.key)] = published
+                use(config, spec, fingerprint, files, None if seed == best or args.reevaluate else published)
+        if not shipped.learned.get(stem):
+            shipped.missing.append(stem)
+    return plan
+
+
+
+def shipped_report(shipped: Shipped, evaluations: dict[tuple[str, str], dict], evaluated: list[str]) -> dict:
+    """What the shipped folder offered, and whether the policies evaluated now return what their
+    published evaluations say (the same returns, episode by episode)."""
+    fresh = {f"{config_stem(c)}/{k}": (c, k) for c, k in evaluations}
+    reproduced, differ = [], []
+    for name in evaluated:
+        key = fresh.get(name)
+        if key is None or key not in shipped.published:
+            continue
+        now = [e["cumulative_reward"] for e in evaluations[key]["episodes"]]
+        then = [e["cumulative_reward"] for e in shipped.published[key]["episodes"]]
+        (reproduced if np.allclose(now, then, rtol=0, atol=1e-6) else differ).append(name)
+    return {"folder": str(shipped.folder), "policies": shipped.learned,
+            "best_seeds": {f"{c}/{m}": s for (c, m), s in shipped.best.items()},
+            "still_training": shipped.training, "unusable": shipped.unusable,
+            "without_shipped_policies": shipped.missing, "reproduced": reproduced, "differ": differ}
+
+
+def shipped_summary(shipped: Shipped, report: dict, methods: list[str]) -> list[str]:
+    lines = []
+    if (n := len(report["reproduced"])) == 1:
+        lines.append("The 1 shipped policy evaluated now returns what its published evaluation says, "
+                     "episode by episode.")
+    elif n:
+        lines.append(f"The {n} shipped policies evaluated now return what their published evaluations say, "
+                     f"episode by episode.")
+    if report["differ"]:
+        lines.append(f"Evaluated now, {', '.join(report['differ'])} return(s) other than the published evaluation "
+                     f"(in {shipped.folder}/evaluations/): the simulator or the libraries changed since.")
+    lines += [line[0].upper() + line[1:] + "." for line in shipped.lines(methods) if not line.startswith("shipped")]
+    return lines
