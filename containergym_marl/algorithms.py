@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from containergym_marl.envs.edge import REWARD_MODES
 from containergym_marl.extras import missing_extra
 from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
 from containergym_marl.policies.actor_critic import CentralisedActorCriticPolicy, SharedActorCriticPolicy
@@ -78,8 +79,9 @@ class AlgorithmSpec:
         minibatch: the minibatch size of a rollout algorithm (passed as ``batch_size``), or None.
         adam_eps: Adam's eps restated in ``optimizer_kwargs`` (SB3's actor-critic policies use 1e-5
             only when given no optimizer arguments); None keeps torch's default.
-        reward_modes: the agent reward modes a decentralised algorithm can train with (the first
-            is the default); () for centralised ones, which train on the plant reward.
+        reward_modes: the agent reward modes (of :data:`~containergym_marl.envs.edge.REWARD_MODES`) a
+            decentralised algorithm can train with (the first is the default); () for centralised
+            ones, which train on the plant reward.
         extra_modules: modules it needs beyond torch and stable_baselines3 (for error messages).
         trainer: what trains it: ``containergym-marl train`` for the SB3 algorithms, a script otherwise.
         model_suffix: the suffix of its model files in a run directory (``best_model<suffix>``,
@@ -186,7 +188,7 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       extra_modules=("sb3_contrib",)),
         AlgorithmSpec("shared_ppo", "stable_baselines3:PPO", SharedModelPolicy,
                       "decentralised PPO: one policy shared by every container agent",
-                      reward_modes=("individual", "team")),
+                      reward_modes=REWARD_MODES),
         AlgorithmSpec("fast_ppo", None, CentralisedActorCriticPolicy,
                       "centralised PPO, native trainer: SB3's network and loss on 64 simulations with "
                       "minibatches of 1024", native=True, default_n_envs=64, minibatch=None, adam_eps=None,
@@ -194,7 +196,7 @@ REGISTRY: dict[str, AlgorithmSpec] = {
         AlgorithmSpec("fast_shared_ppo", None, SharedActorCriticPolicy,
                       "decentralised PPO, native trainer: one policy shared by every container agent, "
                       "64 simulations, minibatches of 1024", native=True, default_n_envs=64, minibatch=None,
-                      adam_eps=None, reward_modes=("individual", "team"), model_suffix=".pt"),
+                      adam_eps=None, reward_modes=REWARD_MODES, model_suffix=".pt"),
         AlgorithmSpec("mappo", None, SharedActorPolicy,
                       "MAPPO (BenchMARL, CTDE): one actor shared by the container agents, a critic on the "
                       "global state; team reward (its settings are BenchMARL's, in the script)",

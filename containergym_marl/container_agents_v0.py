@@ -15,13 +15,13 @@ from containergym_marl.envs.container_agents_v0 import (
     AGENT_NAMES,
     INDEXED_AGENT_PREFIX,
     OBSERVATION_MODES,
-    REWARD_MODES,
     STATE_MODES,
     ContainerAgentsParallelEnv,
     env,
     parallel_env,
     raw_env,
 )
+from containergym_marl.envs.edge import REWARD_MODES
 
 __all__ = [
     "AGENT_NAMES",

@@ -70,11 +70,11 @@ def test_checks_catch_a_core_that_breaks_the_physics(stress, monkeypatch, field,
 
 def test_refused_invalid_action_is_checked(stress, monkeypatch):
     """An env that accepted an invalid action would be reported."""
-    from containergym_marl.envs import _common, centralised
+    from containergym_marl.envs import centralised, edge
 
     def lenient(action, n, who):  # valid actions as before; anything else silently waits
         if isinstance(action, (int, np.integer)) and not isinstance(action, bool) and 0 <= action < n:
-            return _common.discrete_action(action, n, who)
+            return edge.discrete_action(action, n, who)
         return 0
 
     monkeypatch.setattr(centralised, "discrete_action", lenient)

@@ -11,7 +11,7 @@ from gymnasium import spaces
 from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.observations import global_state_bounds
 from containergym_marl.core.simulator import PlantSimulator
-from containergym_marl.envs._common import check_seed, discrete_action
+from containergym_marl.envs.edge import CentralisedInfo, check_seed, discrete_action
 from containergym_marl.render import RENDER_FPS, RENDER_MODES, EnvRenderer
 
 
@@ -110,7 +110,7 @@ class ContainerGymEnv(gym.Env):
         self._renderer = EnvRenderer(self._sim, render_mode, view="centralised")
         params = self._sim.params
         self.n_containers, self.n_pus = params.n_containers, params.n_pus
-        self._names = self.config.container_names
+        self._info = CentralisedInfo(self.config.container_names)
         self.action_space = spaces.Discrete(self.n_containers + 1)
         # action a -> its (1, n) request row: none for 0, container a - 1 otherwise (the step copies it)
         self._requests_of_action = np.eye(self.n_containers + 1, self.n_containers, k=-1, dtype=bool)[:, None, :]
@@ -127,32 +127,15 @@ class ContainerGymEnv(gym.Env):
         self._sim.reset(generators=[self.np_random])
         if self.render_mode == "human":
             self.render()
-        return self._observation(), self._neutral_info(self.n_pus)
+        return self._observation(), self._info.reset(self.n_pus)
 
     def step(self, action):
         a = discrete_action(action, self.n_containers + 1, "action")
         out = self._sim.step(self._requests_of_action[a])
-        # At most one request (container a - 1): read its entries directly, cheaper than searching.
-        # ``.item(k)`` reads entry k of the (one-simulation) arrays straight into a Python number.
-        i = a - 1
-        emptied = a > 0 and out.granted.item(i)
-        terminated = out.terminated.item(0)
-        info = self._neutral_info(out.free_pus_before.item(0))
-        info["step"] = self._sim.state.step_count.item(0)
-        if a > 0:
-            info["emptying_reward"] = float(out.container_reward.item(i))
-            if emptied:
-                info["emptied_container"] = self._names[i]
-                info["emptied_index"] = i
-                info["emptied_volume"] = float(out.emptied_volume.item(i))
-                info["pu_index"] = int(out.pu_index.item(i))
-            else:
-                info["no_free_pu"] = True
-        if terminated:
-            info["overflowed_containers"] = tuple(self._names[j] for j in np.flatnonzero(out.overflowed[0]))
+        info = self._info.step(a, out, self._sim.state.step_count.item(0))
         if self.render_mode == "human":
             self.render()
-        return self._observation(), out.plant_reward.item(0), terminated, out.truncated.item(0), info
+        return self._observation(), out.plant_reward.item(0), out.terminated.item(0), out.truncated.item(0), info
 
     def action_masks(self) -> np.ndarray:
         """Valid actions for MaskablePPO: 'do nothing' always; emptying only while a PU is free."""
@@ -166,21 +149,6 @@ class ContainerGymEnv(gym.Env):
     def close(self):
         """Close the rendering figure (and its window, if any)."""
         self._renderer.close()
-
-    @staticmethod
-    def _neutral_info(free_pus: int) -> dict[str, Any]:
-        """The info of a step that emptied nothing (and of a reset): every key, no None."""
-        return {
-            "step": 0,
-            "emptied_container": "",
-            "emptied_index": -1,
-            "emptied_volume": 0.0,
-            "emptying_reward": 0.0,
-            "pu_index": -1,
-            "no_free_pu": False,
-            "overflowed_containers": (),
-            "free_pus": int(free_pus),
-        }
 
     def _observation(self) -> np.ndarray:
         return self._sim.global_state()[0]

@@ -23,16 +23,17 @@ from containergym_marl.core.observations import (
     global_state_bounds,
 )
 from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
-from containergym_marl.envs._common import (
+from containergym_marl.envs.edge import (
+    NormalisedState,
+    agent_reset_info,
+    agent_rewards,
+    agent_step_infos,
+    check_reward_mode,
     check_seed,
     discrete_action,
-    normalised_state,
-    normalised_state_bounds,
-    normalised_state_scale,
 )
 from containergym_marl.render import RENDER_FPS, RENDER_MODES, EnvRenderer
 
-REWARD_MODES = ("individual", "team")
 OBSERVATION_MODES = ("box", "dict")
 STATE_MODES = ("physical", "normalised")
 AGENT_NAMES = ("containers", "indexed")
@@ -160,8 +161,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         **overrides: Any,
     ):
         get_rule(arbitration)  # a clear error for an unknown rule, before anything is built
-        if reward_mode not in REWARD_MODES:
-            raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose one of {REWARD_MODES}")
+        check_reward_mode(reward_mode)
         for name, value, allowed in (("observation_mode", observation_mode, OBSERVATION_MODES),
                                      ("state_mode", state_mode, STATE_MODES),
                                      ("agent_names", agent_names, AGENT_NAMES)):
@@ -198,8 +198,8 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self.action_spaces = {a: spaces.Discrete(2) for a in self.possible_agents}
         s_low, s_high = global_state_bounds(params)
         if state_mode == "normalised":
-            self._state_scale = normalised_state_scale(params)
-            s_low, s_high = normalised_state_bounds(params)
+            self._normalise = NormalisedState(params)
+            s_low, s_high = self._normalise.low, self._normalise.high
         self.state_space = spaces.Box(s_low, s_high, dtype=np.float32)
         self._np_random: np.random.Generator | None = None
 
@@ -244,22 +244,10 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self.agents = self.possible_agents[:]
         observations = self._observations()
         free = int(self._sim.free_pu_count()[0])
-        infos = {}
-        for a in self.agents:
-            infos[a] = {
-                "requested": False,
-                "granted": False,
-                "denied": False,
-                "pu_index": -1,
-                "emptied_volume": 0.0,
-                "emptying_reward": 0.0,
-                "overflowed": False,
-                "plant_reward": 0.0,
-                "free_pus": free,
-                "step": 0,
-            }
-            if self.action_masking:
-                infos[a]["action_mask"] = self._mask(free)
+        infos = {a: agent_reset_info(free) for a in self.agents}
+        if self.action_masking:
+            for info in infos.values():
+                info["action_mask"] = self._mask(free)
         if self.render_mode == "human":
             self.render()
         return observations, infos
@@ -283,34 +271,11 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
         out = self._sim.step(requests)
         observations = self._observations()
-        plant_reward = float(out.plant_reward[0])
-        if self.reward_mode == "team":
-            rewards = {a: plant_reward for a in self.agents}
-        else:
-            rewards = dict(zip(self.agents, out.individual_reward[0].tolist()))
+        rewards = dict(zip(self.agents, agent_rewards(out, self.reward_mode)[0].tolist()))
         terminated, truncated = bool(out.terminated[0]), bool(out.truncated[0])
         terminations = {a: terminated for a in self.agents}
         truncations = {a: truncated for a in self.agents}
-        step_count = int(self._sim.state.step_count[0])
-        free_before = int(out.free_pus_before[0])
-        # each per-container array as Python numbers once (reading n entries one by one costs n times more)
-        requested, granted, denied, pu_index, emptied_volume, emptying_reward, overflowed = (
-            array[0].tolist() for array in (out.requested, out.granted, out.denied, out.pu_index, out.emptied_volume,
-                                            out.container_reward, out.overflowed))
-        infos = {}
-        for i, a in enumerate(self.agents):
-            infos[a] = {
-                "requested": requested[i],
-                "granted": granted[i],
-                "denied": denied[i],
-                "pu_index": pu_index[i],
-                "emptied_volume": emptied_volume[i],
-                "emptying_reward": emptying_reward[i],
-                "overflowed": overflowed[i],
-                "plant_reward": plant_reward,
-                "free_pus": free_before,
-                "step": step_count,
-            }
+        infos = dict(zip(self.agents, agent_step_infos(out, 0, self._sim.state.step_count[0])))
         if self.action_masking:
             free_now = int(self._sim.free_pu_count()[0])
             for a in self.agents:
@@ -325,7 +290,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         """The global state in ``state_mode`` (see the class docstring), float32, in ``state_space``."""
         state = self._sim.global_state()[0]
         if self.state_mode == "normalised":
-            state = normalised_state(state, self._state_scale, self.state_space)
+            state = self._normalise(state)
         return state
 
     def render(self):

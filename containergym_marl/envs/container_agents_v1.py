@@ -13,7 +13,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 
 from containergym_marl.config import PlantConfig
-from containergym_marl.envs._common import is_integer
+from containergym_marl.envs.edge import is_integer
 from containergym_marl.envs.container_agents_v0 import ContainerAgentsAECEnv, ContainerAgentsParallelEnv
 
 

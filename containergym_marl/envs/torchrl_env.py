@@ -61,14 +61,21 @@ from gymnasium.utils import seeding
 from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.observations import agent_observation_bounds, agent_observations
 from containergym_marl.core.simulator import PlantSimulator
-from containergym_marl.envs._common import normalised_state_bounds, normalised_state_scale
+from containergym_marl.envs.edge import (
+    NormalisedState,
+    agent_info_arrays,
+    agent_rewards,
+    check_batch_size,
+    check_reward_mode,
+    check_seed,
+)
 from containergym_marl.extras import missing_extra
 
 #: How to get this module's optional dependencies; named by the error raised without them.
 #: The group of the container agents (also the group TorchRL's ``PettingZooWrapper`` forms from
 #: ``agent_names="indexed"``).
 GROUP = "container"
-REWARD_MODES = ("individual", "team")
+#: The container agents' info keys in ``(GROUP, "info")``, numbers only (TorchRL stacks them).
 INFO_KEYS = ("granted", "denied", "overflowed", "emptying_reward", "plant_reward")
 
 try:  # torchrl is an optional dependency (the clients extra)
@@ -97,13 +104,15 @@ class ContainerAgentsTorchRLEnv(EnvBase):
 
     Args:
         config: the plant (a built-in config name, a path or a :class:`PlantConfig`).
-        num_envs: number of simulations B, the environment's ``batch_size``.
+        num_envs: number of simulations B (an integer in [1, 2**24], as for every batched view), the
+            environment's ``batch_size``.
         arbitration: how competing requests are ranked (as in the PettingZoo view).
         reward_mode: ``"individual"`` (each agent's own emptying reward) or ``"team"`` (every agent
             gets the plant reward; a sum over agents is then n × the plant return).
         categorical_actions: actions as indices [B, n] (default, as BenchMARL uses) or one-hot
             [B, n, 2].
-        seed: if given, ``set_seed(seed)`` at construction.
+        seed: if given, ``set_seed(seed)`` at construction (None or a non-negative integer, as for
+            every view).
         device: where the returned tensors live (the simulation itself runs on the CPU).
         protocol, overrides: as for :func:`~containergym_marl.config.load_config`.
     """
@@ -121,13 +130,13 @@ class ContainerAgentsTorchRLEnv(EnvBase):
         protocol: str | None = None,
         **overrides: Any,
     ):
+        # the arguments first, as the other views check them (that needs no torchrl)
+        check_reward_mode(reward_mode)
+        num_envs = check_batch_size(num_envs, "num_envs")
+        check_seed(seed)
         _require_torchrl(type(self).__name__)
-        if reward_mode not in REWARD_MODES:
-            raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose one of {REWARD_MODES}")
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs: expected an integer >= 1, got {num_envs!r}")
         self.config = load_config(config, protocol=protocol, **overrides)
-        self.num_envs = int(num_envs)
+        self.num_envs = num_envs
         self.arbitration = arbitration
         self.reward_mode = reward_mode
         self.categorical_actions = bool(categorical_actions)
@@ -138,8 +147,7 @@ class ContainerAgentsTorchRLEnv(EnvBase):
         #: agent names of the group, as TorchRL's multi-agent envs expose them
         self.agent_names = [f"{GROUP}_{i}" for i in range(self.n_agents)]
         self.group_map = {GROUP: list(self.agent_names)}
-        self._state_scale = normalised_state_scale(params)
-        self._state_low, self._state_high = normalised_state_bounds(params)
+        self._normalise = NormalisedState(params)
         self._pending_seeds: dict[int, int | None] = {}
         self._started = False
         self._cpu = torch.device(self.device) == torch.device("cpu") if self.device is not None else True
@@ -151,16 +159,12 @@ class ContainerAgentsTorchRLEnv(EnvBase):
     def _make_specs(self) -> None:
         params, n, B = self._sim.params, self.n_agents, self.num_envs
         low, high = agent_observation_bounds(params)
-        s_low, s_high = self._state_low, self._state_high
+        s_low, s_high = self._normalise.low, self._normalise.high
         flag = lambda shape: Categorical(n=2, shape=shape, dtype=torch.bool)  # noqa: E731
+        # one agent's entries, typed as the info arrays are (bool flags, float32 rewards)
         info = Composite(
-            {
-                "granted": flag((n,)),
-                "denied": flag((n,)),
-                "overflowed": flag((n,)),
-                "emptying_reward": Unbounded(shape=(n,), dtype=torch.float32),
-                "plant_reward": Unbounded(shape=(n,), dtype=torch.float32),
-            },
+            {key: flag((n,)) if value.dtype == bool else Unbounded(shape=(n,), dtype=torch.float32)
+             for key, value in agent_info_arrays(None, INFO_KEYS, (1, n)).items()},
             shape=(n,),
         )
         observation = Composite(
@@ -202,7 +206,8 @@ class ContainerAgentsTorchRLEnv(EnvBase):
 
     def _set_seed(self, seed: int | None) -> None:
         # used from each simulation's next reset on (a reset consumes one row of its stream)
-        self._pending_seeds = {b: (None if seed is None else int(seed) + b) for b in range(self.num_envs)}
+        seed = check_seed(seed)
+        self._pending_seeds = {b: (None if seed is None else seed + b) for b in range(self.num_envs)}
 
     def _reset_sims(self, tensordict: TensorDictBase | None) -> np.ndarray | None:
         """The simulations a reset asks for: None (all) or an index array."""
@@ -235,7 +240,7 @@ class ContainerAgentsTorchRLEnv(EnvBase):
                               else self._sim.generator(b) for b in everyone.tolist()]
             self._sim.reset(sims=sims, generators=generators)
         finished = self._tensor(self._sim.finished[:, None].copy())
-        out = self._observe(rewards=None, info=self._reset_info())
+        out = self._observe(rewards=None, info=agent_info_arrays(None, INFO_KEYS, (self.num_envs, self.n_agents)))
         self._set_ends(out, finished, finished.clone(), torch.zeros_like(finished))
         return out
 
@@ -244,18 +249,8 @@ class ContainerAgentsTorchRLEnv(EnvBase):
         if not self.categorical_actions:
             action = action.to(torch.uint8).argmax(-1)  # as TorchRL's OneHot.to_categorical
         out = self._sim.step(action.cpu().numpy())
-        n = self.n_agents
-        if self.reward_mode == "team":
-            rewards = np.repeat(out.plant_reward.astype(np.float32)[:, None], n, axis=1)
-        else:
-            rewards = out.individual_reward.astype(np.float32)
-        info = {
-            "granted": out.granted.copy(),
-            "denied": out.denied.copy(),
-            "overflowed": out.overflowed.copy(),
-            "emptying_reward": out.container_reward.astype(np.float32),
-            "plant_reward": np.repeat(out.plant_reward.astype(np.float32)[:, None], n, axis=1),
-        }
+        rewards = agent_rewards(out, self.reward_mode, np.float32)
+        info = agent_info_arrays(out, INFO_KEYS, (self.num_envs, self.n_agents))
         result = self._observe(rewards=rewards[..., None], info=info)
         self._set_ends(result, self._tensor(self._sim.finished[:, None].copy()),
                        self._tensor(out.terminated[:, None].copy()), self._tensor(out.truncated[:, None].copy()))
@@ -266,23 +261,12 @@ class ContainerAgentsTorchRLEnv(EnvBase):
         t = torch.from_numpy(array)
         return t if self._cpu else t.to(self.device)
 
-    def _reset_info(self) -> dict[str, np.ndarray]:
-        shape = (self.num_envs, self.n_agents)
-        return {
-            "granted": np.zeros(shape, dtype=bool),
-            "denied": np.zeros(shape, dtype=bool),
-            "overflowed": np.zeros(shape, dtype=bool),
-            "emptying_reward": np.zeros(shape, dtype=np.float32),
-            "plant_reward": np.zeros(shape, dtype=np.float32),
-        }
-
     def _observe(self, rewards: np.ndarray | None, info: dict[str, np.ndarray]) -> TensorDictBase:
         sim, n = self._sim, self.n_agents
         obs = agent_observations(sim.state, sim.params, sim.previous_requests)
         mask = np.ones((self.num_envs, n, 2), dtype=bool)
         mask[:, :, 1] = (sim.free_pu_count() > 0)[:, None]
-        state = np.divide(sim.global_state(), self._state_scale, dtype=np.float32)
-        np.clip(state, self._state_low, self._state_high, out=state)
+        state = self._normalise(sim.global_state())
         group = {
             "observation": self._tensor(obs),
             "action_mask": self._tensor(mask),

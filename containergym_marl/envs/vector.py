@@ -18,7 +18,7 @@ env's ``reset(seed=...)`` also takes B seeds, one per simulation, as a list, tup
 array (``reset(seed=np.arange(B))`` seeds simulation b with b).
 
 Sizes: ``num_envs`` / ``num_sims`` must be integers in [1, ``MAX_SIMS``] (2**24); floats are
-refused.
+refused (:func:`~containergym_marl.envs.edge.check_batch_size`, shared with the TorchRL env).
 
 Autoreset: when simulation b ends, the returned observation is the first of its next episode; the
 last observation of the finished episode is in ``infos[k]["terminal_observation"]`` (SB3) or
@@ -45,7 +45,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from containergym_marl.config import MAX_SIMS, PlantConfig, load_config
+from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.dynamics import StepOutcome
 from containergym_marl.core.observations import (
     agent_observation_bounds,
@@ -54,7 +54,14 @@ from containergym_marl.core.observations import (
 )
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.simulator import PlantSimulator
-from containergym_marl.envs._common import check_seed, is_integer
+from containergym_marl.envs.edge import (
+    CentralisedInfo,
+    agent_rewards,
+    check_batch_size,
+    check_reward_mode,
+    check_seed,
+    is_integer,
+)
 from containergym_marl.extras import missing_extra
 
 #: How to get the SB3 VecEnvs' optional dependency; named by the error raised without it.
@@ -123,13 +130,6 @@ class _AutoresetBatch:
 
 
 _NO_SIMS = np.zeros(0, dtype=np.int64)
-
-
-def _num_sims(value, name: str) -> int:
-    """A number of simulations: an integer in [1, MAX_SIMS] (floats are refused, not cast)."""
-    if not is_integer(value) or not 1 <= value <= MAX_SIMS:
-        raise ValueError(f"{name}: expected an integer in [1, {MAX_SIMS}], got {value!r}")
-    return int(value)
 
 
 def _seed_list(seed, count: int) -> list[int | None]:
@@ -250,10 +250,10 @@ class ContainerGymVecEnv(_SB3Base):
 
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_envs: int = 8, *,
                  protocol: str | None = None, **overrides: Any):
+        num_envs = check_batch_size(num_envs, "num_envs")
         _require_sb3(type(self).__name__)
         cfg = load_config(config, protocol=protocol, **overrides)
         low, high = global_state_bounds(PlantParams.from_config(cfg))
-        num_envs = _num_sims(num_envs, "num_envs")
         self._init_sb3(cfg, num_envs, "fullest", num_envs,
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(cfg.n_containers + 1))
 
@@ -292,14 +292,13 @@ class ContainerAgentsVecEnv(_SB3Base):
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_sims: int = 8, *,
                  arbitration: str = "fullest", reward_mode: str = "individual",
                  protocol: str | None = None, **overrides: Any):
+        check_reward_mode(reward_mode)
+        num_sims = check_batch_size(num_sims, "num_sims")
         _require_sb3(type(self).__name__)
-        if reward_mode not in ("individual", "team"):
-            raise ValueError(f"reward_mode: unknown mode {reward_mode!r}; choose 'individual' or 'team'")
         cfg = load_config(config, protocol=protocol, **overrides)
         self.reward_mode = reward_mode
         self.n_agents = cfg.n_containers
         low, high = agent_observation_bounds(PlantParams.from_config(cfg))
-        num_sims = _num_sims(num_sims, "num_sims")
         self._init_sb3(cfg, num_sims, arbitration, num_sims * cfg.n_containers,
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(2))
 
@@ -312,10 +311,7 @@ class ContainerAgentsVecEnv(_SB3Base):
         requests = _agent_requests(self._actions, self.num_sims, n)
         out, done_mask, done, (final_state, final_prev) = self._batch.step(requests)
         obs = self._observe(self._batch.sim.state, self._batch.sim.previous_requests)
-        if self.reward_mode == "team":
-            rewards = np.repeat(out.plant_reward.astype(np.float32), n)
-        else:
-            rewards = out.individual_reward.astype(np.float32).reshape(-1)
+        rewards = agent_rewards(out, self.reward_mode, np.float32).reshape(-1)
         dones = np.repeat(done_mask, n)
         infos: list[dict] = [NO_INFO] * self.num_envs
         if done.size:
@@ -362,7 +358,7 @@ class ContainerGymVectorEnv(VectorEnv):
         if render_mode is not None:
             raise ValueError("render_mode: the vector env does not render; render a single env instead")
         self.config = load_config(config, protocol=protocol, **overrides)
-        self.num_envs = _num_sims(num_envs, "num_envs")
+        self.num_envs = check_batch_size(num_envs, "num_envs")
         self._batch = _AutoresetBatch(self.config, self.num_envs)
         params = self._batch.params
         low, high = global_state_bounds(params)
@@ -372,9 +368,7 @@ class ContainerGymVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.render_mode = None
         self._started = False
-        # container names by index, with "" at index -1 (nothing emptied)
-        self._names = np.array(list(self.config.container_names) + [""], dtype=object)
-        self._rows = np.arange(self.num_envs)
+        self._info = CentralisedInfo(self.config.container_names)
         self._all_true = np.ones(self.num_envs, dtype=bool)
         self._all_true.setflags(write=False)
 
@@ -389,7 +383,7 @@ class ContainerGymVectorEnv(VectorEnv):
         else:
             self._batch.reset_all(seeds)
         self._started = True
-        return self._batch.sim.global_state(), self._with_masks(self._reset_info(self._rows))
+        return self._batch.sim.global_state(), self._with_masks(self._reset_info(slice(None)))
 
     def step(self, actions):
         if not self._started:
@@ -398,7 +392,11 @@ class ContainerGymVectorEnv(VectorEnv):
         requests = _centralised_requests(actions, self.num_envs, n)
         out, done_mask, done, (final_state, _) = self._batch.step(requests)
         obs = self._batch.sim.global_state()
-        info = self._step_info(np.asarray(actions).reshape(-1), out, done, final_state)
+        step_count = self._batch.sim.state.step_count
+        if done.size:  # the finished episodes' step counts, before their reset
+            step_count = step_count.copy()
+            step_count[done] = final_state.step_count
+        info = self._info.step_arrays(np.asarray(actions).reshape(-1), out, step_count)
         if not done.size:
             return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), self._with_masks(info)
         final = np.zeros_like(obs)
@@ -419,51 +417,9 @@ class ContainerGymVectorEnv(VectorEnv):
                       "final_info": final_info, "_final_info": done_mask.copy()})
         return obs, out.plant_reward.copy(), out.terminated.copy(), out.truncated.copy(), infos
 
-    def _reset_info(self, sims: np.ndarray) -> dict[str, np.ndarray]:
-        """The single environment's reset info for ``sims``, one array per key."""
-        k = len(sims)
-        overflowed = np.empty(k, dtype=object)
-        overflowed.fill(())
-        return {
-            "step": np.zeros(k, dtype=np.int64),
-            "emptied_container": np.full(k, "", dtype=object),
-            "emptied_index": np.full(k, -1, dtype=np.int64),
-            "emptied_volume": np.zeros(k),
-            "emptying_reward": np.zeros(k),
-            "pu_index": np.full(k, -1, dtype=np.int64),
-            "no_free_pu": np.zeros(k, dtype=bool),
-            "overflowed_containers": overflowed,
-            "free_pus": self._batch.sim.free_pu_count()[sims].astype(np.int64),
-        }
-
-    def _step_info(self, actions: np.ndarray, out: StepOutcome, done: np.ndarray,
-                   final_state) -> dict[str, np.ndarray]:
-        """The single environment's step info of every simulation, one fresh (B,) array per key.
-
-        Simulation b requested container ``actions[b] - 1`` only, so its entries are read at that
-        column; a waiting simulation (action 0) reads column -1, whose entries are the "nothing
-        happened" values (-1, 0.0, False) since nothing was requested in its row."""
-        rows, col = self._rows, actions - 1
-        pu_index = out.pu_index[rows, col].astype(np.int64)
-        step = self._batch.sim.state.step_count.astype(np.int64)  # a copy
-        overflowed = np.empty(self.num_envs, dtype=object)
-        overflowed.fill(())
-        if done.size:
-            step[done] = final_state.step_count
-            for b in done[out.terminated[done]].tolist():
-                overflowed[b] = tuple(self._names[np.flatnonzero(out.overflowed[b])].tolist())
-        emptied_index = np.where(pu_index >= 0, col, -1)
-        return {
-            "step": step,
-            "emptied_container": self._names[emptied_index],
-            "emptied_index": emptied_index,
-            "emptied_volume": out.emptied_volume[rows, col],
-            "emptying_reward": out.container_reward[rows, col],
-            "pu_index": pu_index,
-            "no_free_pu": out.denied[rows, col],
-            "overflowed_containers": overflowed,
-            "free_pus": out.free_pus_before.astype(np.int64),
-        }
+    def _reset_info(self, sims) -> dict[str, np.ndarray]:
+        """The single environment's reset info for ``sims`` (indices or a slice), one array per key."""
+        return self._info.reset_arrays(self._batch.sim.free_pu_count()[sims])
 
     def _with_masks(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Gymnasium's batched info layout: every key with its ``_key`` mask (all True: every

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from containergym_marl.envs._common import normalised_state_bounds, normalised_state_scale
+from containergym_marl.envs.edge import NormalisedState
 from containergym_marl.envs.torchrl_env import GROUP
 from containergym_marl.extras import missing_extra
 
@@ -55,12 +55,12 @@ class TorchRLAgentsPolicy:
         self._torch, self._TensorDict = torch, TensorDict
         mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
         self._exploration = lambda: set_exploration_type(mode)
-        self._scale_for: tuple[Any, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._normalise_for: tuple[Any, NormalisedState] | None = None
 
-    def _state_scale(self, params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if self._scale_for is None or self._scale_for[0] is not params:
-            self._scale_for = (params, normalised_state_scale(params), *normalised_state_bounds(params))
-        return self._scale_for[1:]
+    def _normalise(self, params) -> NormalisedState:
+        if self._normalise_for is None or self._normalise_for[0] is not params:
+            self._normalise_for = (params, NormalisedState(params))
+        return self._normalise_for[1]
 
     def inputs(self, observations: dict[str, Any], env: Any):
         """The TensorDict the policy gets for the decentralised view's ``observations``."""
@@ -69,9 +69,7 @@ class TorchRLAgentsPolicy:
         n = obs.shape[0]
         mask = np.ones((1, n, 2), dtype=bool)
         mask[0, :, 1] = bool(sim.free_pu_count()[0] > 0)
-        scale, low, high = self._state_scale(sim.params)
-        state = np.divide(sim.global_state(), scale, dtype=np.float32)
-        np.clip(state, low, high, out=state)
+        state = self._normalise(sim.params)(sim.global_state())
         group = self._TensorDict({"observation": torch.from_numpy(np.ascontiguousarray(obs, np.float32))[None],
                                   "action_mask": torch.from_numpy(mask)}, batch_size=(1, n))
         return self._TensorDict({self.group: group, "state": torch.from_numpy(state)}, batch_size=(1,))
