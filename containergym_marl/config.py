@@ -420,7 +420,11 @@ def _validate_container(c: ContainerSpec) -> None:
     _check_range(c.product_size, MIN_VOLUME, MAX_VOLUME, f"{where}: product_size", " volume units")
     for key in ("pu_offset_s", "pu_time_per_product_s"):
         _check_range(getattr(c, key), 0.0, MAX_PU_DURATION_S, f"{where}: {key}", " seconds", lo_open=True)
-    longest = c.pu_offset_s + c.pu_time_per_product_s * math.floor(c.max_volume / c.product_size)
+    # imported here: the core imports this module (a cycle at import time)
+    from containergym_marl.core.params import pu_time_s
+
+    longest = pu_time_s(float(c.max_volume), float(c.pu_offset_s), float(c.pu_time_per_product_s),
+                        float(c.product_size))
     if not longest <= MAX_PU_TIME_S:
         raise ConfigError(
             f"{where}: pu_time_per_product_s: the longest PU time pu_offset_s + pu_time_per_product_s "

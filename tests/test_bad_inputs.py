@@ -274,6 +274,20 @@ def test_longest_pu_time_is_bounded():
         config_from_dict(d)
 
 
+def test_longest_pu_time_bound_is_g_at_v_max():
+    """β + λ·⌊v_max / b⌋ with β = λ = 1e9 s and b = 1: v_max = 999.5 gives 999 products, exactly
+    the bound 1e12 s (allowed); v_max = 1000 one product more."""
+    from containergym_marl.config import MAX_PU_TIME_S, config_from_dict
+
+    d = _base_dict()
+    d["containers"][1].update(product_size=1.0, pu_offset_s=1e9, pu_time_per_product_s=1e9, max_volume=999.5)
+    assert MAX_PU_TIME_S == 1e9 + 1e9 * 999
+    config_from_dict(d)
+    d["containers"][1]["max_volume"] = 1000.0
+    with pytest.raises(ConfigError, match=r"'C1-30'.*longest PU time.* = 1001000000000.0 s exceeds"):
+        config_from_dict(d)
+
+
 def test_too_many_containers_named():
     from containergym_marl.config import config_from_dict
 

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import pytest
 
 from containergym_marl import load_config
 from containergym_marl.core import dynamics, emptying_reward, emptying_rewards, pu_busy_time_s
 from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
-from containergym_marl.core.params import PlantParams
+from containergym_marl.core.params import PlantParams, pack_params, pu_time_s, unpack_params
 from tests.conftest import make_state
 
 R_PEN = -0.1
@@ -68,6 +69,22 @@ def test_pu_busy_time_is_beta_plus_lambda_floor(cfg5):
                 56.398501 + 172.32 * 3, 53.999001]
     got = [pu_busy_time_s(i, v[0, i], params) for i in range(cfg5.n_containers)]
     np.testing.assert_allclose(got, expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize("volume, expected", [
+    (0.0, 10.0), (2.4999, 10.0), (2.5, 13.0), (7.6, 19.0), (25.0, 40.0)])
+def test_pu_time_is_beta_plus_lambda_floor_of_products(volume, expected):
+    """g(v) = β + λ·⌊v / b⌋ with β = 10 s, λ = 3 s per product, b = 2.5: a PU time grows by λ only
+    at whole products."""
+    assert pu_time_s(volume, 10.0, 3.0, 2.5) == expected
+
+
+def test_max_pu_time_is_the_largest_g_at_v_max(cfg5):
+    """The timer bound: no container is emptied at v ≥ v_max, so max_i g_i(v_max,i) bounds every
+    timer (computed here from the config by hand)."""
+    by_hand = [c.pu_offset_s + c.pu_time_per_product_s * math.floor(c.max_volume / c.product_size)
+               for c in cfg5.containers]
+    assert PlantParams.from_config(cfg5).max_pu_time_s == max(by_hand)
 
 
 def test_timer_set_to_g_at_t_plus_1_then_counts_down_by_delta(cfg5):
@@ -252,3 +269,62 @@ def test_reset_draws_uniform_initial_volumes_and_free_pus():
     # U[0, 30]: mean 15, sd 30/sqrt(12) → standard error over 55 000 draws ≈ 0.037
     assert abs(v.mean() - 15.0) < 5 * (30 / math.sqrt(12)) / math.sqrt(v.size)
     assert np.all(sim.state.pu_timers_s == 0.0) and np.all(sim.state.step_count == 0)
+
+
+# ---- the kernel's parameters and outputs by name -------------------------------------------------
+@numba.njit
+def _unpacked_in_compiled_code(per_container, reward_table, scalars):
+    return unpack_params(per_container, reward_table, scalars)
+
+
+def test_every_parameter_round_trips_through_the_kernel_arrays_by_name():
+    """Each field, given a value of its own, reads back the same by name in Python and in compiled
+    code, with its type; the arrays are read-only views of the three arrays the kernel takes."""
+    ints = ("n_containers", "n_pus", "episode_length_steps")
+    floats = ("timestep_s", "initial_volume_min", "initial_volume_max", "overflow_reward", "penalty_reward",
+              "max_pu_time_s")
+    columns = ("fill_mean_per_step", "fill_std_per_step", "max_volume", "product_size", "pu_offset_s",
+               "pu_time_per_product_s", "target_volume")
+    reward_rows = ("reward_peaks", "reward_coef", "reward_two_width_sq")
+    storage = ("per_container", "reward_table", "scalars")
+    assert sorted(ints + floats + columns + reward_rows + storage) == sorted(PlantParams._fields)
+    n, k = 3, 2
+    fields = {name: 10 + j for j, name in enumerate(ints)}
+    fields |= {name: 0.5 + j for j, name in enumerate(floats)}
+    fields |= {name: np.arange(n) + 100.0 * (j + 1) for j, name in enumerate(columns)}
+    fields |= {name: np.arange(n * k).reshape(n, k) - 100.0 * (j + 1) for j, name in enumerate(reward_rows)}
+    params = pack_params(fields)
+    compiled = _unpacked_in_compiled_code(*params.kernel_arrays())
+    assert params.kernel_arrays() == (params.per_container, params.reward_table, params.scalars)
+    for unpacked in (params, compiled):
+        for name in ints + floats:
+            assert getattr(unpacked, name) == fields[name], name
+            assert type(getattr(unpacked, name)) is (int if name in ints else float), name
+        for name in columns + reward_rows:
+            got = getattr(unpacked, name)
+            np.testing.assert_array_equal(got, fields[name], err_msg=name)
+            assert not got.flags.writeable, name
+            assert any(np.shares_memory(got, getattr(params, s)) for s in storage), name
+
+
+def test_step_outputs_name_every_element_of_the_output_arrays_once():
+    """The next state and the outcome are views of the stacked output arrays, of the documented
+    shapes and types, and together cover every element of them exactly once."""
+    bsz, n, m = 3, 5, 2
+    arrays = dynamics._allocate_outputs(bsz, n, m)
+    state, outcome = dynamics._named_outputs.py_func(*arrays)
+    expected = {"volumes": ((bsz, n), np.float64), "pu_timers_s": ((bsz, m), np.float64),
+                "step_count": ((bsz,), np.int64), "pu_index": ((bsz, n), np.int64),
+                "plant_reward": ((bsz,), np.float64), "free_pus_before": ((bsz,), np.int64)}
+    expected |= {name: ((bsz, n), np.bool_) for name in ("requested", "granted", "denied", "overflowed")}
+    expected |= {name: ((bsz, n), np.float64)
+                 for name in ("emptied_volume", "container_reward", "individual_reward")}
+    expected |= {name: ((bsz,), np.bool_) for name in ("terminated", "truncated")}
+    views = {**state._asdict(), **outcome._asdict()}
+    assert {name: (v.shape, v.dtype) for name, v in views.items()} == expected
+    assert all(any(np.shares_memory(v, a) for a in arrays) for v in views.values())
+    assert sum(v.size for v in views.values()) == sum(a.size for a in arrays)
+    names = list(views)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            assert not np.shares_memory(views[a], views[b]), (a, b)

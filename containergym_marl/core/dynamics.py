@@ -22,7 +22,8 @@ One step of one simulation (the body of :func:`step_simulations`' loop, numbered
 5. **End.** If any v_j(t+1) ≥ v_max,j the plant reward is r_min (replacing the step's reward) and the
    episode terminates; otherwise it is truncated when the step count reaches T.
 
-This module is the only definition of the physics. The loop over simulations is compiled with numba
+This module is the only definition of the physics, with g in :func:`.params.pu_time_s` (which the
+timer bound and the config's validation share). The loop over simulations is compiled with numba
 (and threaded for large batches); tests compare it with an independent scalar oracle written from
 the paper (``tests/reference_model.py``).
 """
@@ -39,15 +40,8 @@ from typing import Callable, NamedTuple
 import numba
 import numpy as np
 
-from containergym_marl.core.params import PlantParams
+from containergym_marl.core.params import JIT_OPTIONS, PlantParams, generated_function, jit, pu_time_s, unpack_params
 
-#: The compiled functions are cached on disk: a new process loads them instead of recompiling.
-#: ``error_model="numpy"``: a division by zero gives inf instead of raising. No divisor here can be
-#: zero (v_max, product sizes and reward widths are validated ≥ 1e-3 by the config), and without the
-#: exception paths numba can drop its reference counting from the step (14 % of a one-simulation
-#: kernel call, ``benchmarks/kernel.py``).
-JIT_OPTIONS = {"cache": True, "error_model": "numpy"}
-jit = numba.njit(**JIT_OPTIONS)
 #: From this batch size on, blocks of simulations are stepped in parallel threads.
 PARALLEL_MIN_BATCH = 2048
 _THREADS = min(os.cpu_count() or 1, 8)
@@ -109,7 +103,7 @@ def emptying_reward(i: int, volume: float, params: PlantParams) -> float:
 @jit
 def pu_busy_time_s(i: int, volume: float, params: PlantParams) -> float:
     """g_i(v) = β_i + λ_i·⌊v / b_i⌋: seconds a PU is busy after emptying container i (paper eq. 2)."""
-    return params.pu_offset_s[i] + params.pu_time_per_product_s[i] * math.floor(volume / params.product_size[i])
+    return pu_time_s(volume, params.pu_offset_s[i], params.pu_time_per_product_s[i], params.product_size[i])
 
 
 @jit
@@ -203,25 +197,40 @@ def step_simulations(state, requests, normals, priorities, params, next_state, o
         out.truncated[b] = not overflow and next_state.step_count[b] >= params.episode_length_steps
 
 
-@jit
-def unpack_params(per_container, reward_table, scalars) -> PlantParams:
-    """PlantParams rebuilt inside compiled code from its three storage arrays (see params.py)."""
-    return PlantParams(int(scalars[0]), int(scalars[1]), scalars[2], int(scalars[3]), scalars[4], scalars[5],
-                       scalars[6], scalars[7], per_container[:, 0], per_container[:, 1], per_container[:, 2],
-                       per_container[:, 3], per_container[:, 4], per_container[:, 5], reward_table[0],
-                       reward_table[1], reward_table[2], per_container[:, 6], scalars[8], per_container,
-                       reward_table, scalars)
+#: The step's outputs, stacked by type into few arrays (fewer allocations and kernel arguments):
+#: (dtype, shape after the batch axis, the fields of the next PlantState (``next_``) and of the
+#: StepOutcome that its rows hold; one name: the array itself, unstacked).
+OUTPUTS = (
+    (np.float64, "n", ("next_volumes", "emptied_volume", "container_reward", "individual_reward")),
+    (np.bool_, "n", ("requested", "granted", "denied", "overflowed")),
+    (np.int64, "n", "pu_index"),
+    (np.float64, "m", "next_pu_timers_s"),
+    (np.float64, "", "plant_reward"),
+    (np.int64, "", ("next_step_count", "free_pus_before")),
+    (np.bool_, "", ("terminated", "truncated")),
+)
+#: Whether each output array is stacked (its batch axis is then axis 1).
+_STACKED = tuple(isinstance(names, tuple) for _, _, names in OUTPUTS)
 
 
-@jit
-def _named_outputs(per_sim_floats, per_sim_flags, pu_index, next_pu_timers_s, plant_reward, counts, ends):
-    """The next PlantState and the StepOutcome as views of the stacked output arrays that
-    :func:`_allocate_outputs` makes (the same views in Python and in compiled code)."""
-    next_state = PlantState(per_sim_floats[0], next_pu_timers_s, counts[0])
-    out = StepOutcome(per_sim_flags[0], per_sim_flags[1], per_sim_flags[2], pu_index, per_sim_floats[1],
-                      per_sim_floats[2], per_sim_flags[3], per_sim_floats[3], plant_reward, counts[1], ends[0],
-                      ends[1])
-    return next_state, out
+def _naming_expression() -> str:
+    views = {}
+    for a, (_, _, names) in enumerate(OUTPUTS):
+        views.update({names: f"a{a}"} if isinstance(names, str) else
+                     {name: f"a{a}[{k}]" for k, name in enumerate(names)})
+    expected = {f"next_{name}" for name in PlantState._fields} | set(StepOutcome._fields)
+    if set(views) != expected or len(views) != len(expected):
+        raise TypeError(f"OUTPUTS must name every field of the next PlantState and the StepOutcome once, "
+                        f"not {sorted(set(views) ^ expected)}")
+    state = ", ".join(f"{name}={views['next_' + name]}" for name in PlantState._fields)
+    outcome = ", ".join(f"{name}={views[name]}" for name in StepOutcome._fields)
+    return f"PlantState({state}), StepOutcome({outcome})"
+
+
+#: (next PlantState, StepOutcome) as views of the output arrays that :func:`_allocate_outputs`
+#: makes: the same views in Python (``.py_func``) and in compiled code.
+_named_outputs = generated_function("_named_outputs", tuple(f"a{a}" for a in range(len(OUTPUTS))),
+                                    _naming_expression(), {"PlantState": PlantState, "StepOutcome": StepOutcome})
 
 
 def _compile_batch_step(priority: Callable) -> Callable:
@@ -248,17 +257,11 @@ def _compile_batch_step(priority: Callable) -> Callable:
     return numba.njit(nogil=True, **JIT_OPTIONS)(step_batch)
 
 
-#: Which of the outputs are stacked (batch on axis 1).
-_STACKED = (True, True, False, False, False, True, True)
-
-
 def _allocate_outputs(bsz: int, n: int, m: int) -> tuple[np.ndarray, ...]:
-    """Fresh outputs of one step, stacked by type (fewer allocations and kernel arguments):
-    (next volumes, emptied volume, container reward, individual reward), (requested, granted,
-    denied, overflowed), PU index, next timers, plant reward, (next step count, free PUs before),
-    (terminated, truncated). :func:`_named_outputs` names them."""
-    return (np.empty((4, bsz, n)), np.empty((4, bsz, n), bool), np.empty((bsz, n), np.int64), np.empty((bsz, m)),
-            np.empty(bsz), np.empty((2, bsz), np.int64), np.empty((2, bsz), bool))
+    """Fresh output arrays of one step, as :data:`OUTPUTS` lays them out."""
+    sizes = {"n": (n,), "m": (m,), "": ()}
+    return tuple(np.empty(((len(names),) if stacked else ()) + (bsz,) + sizes[size], dtype)
+                 for (dtype, size, names), stacked in zip(OUTPUTS, _STACKED))
 
 
 class StepOutputs:
@@ -463,8 +466,8 @@ def emptying_rewards(volumes: np.ndarray, params: PlantParams) -> np.ndarray:
 
 
 @jit
-def _overflow_probabilities_into(volumes, emptied, out, *params_fields):
-    params = PlantParams(*params_fields)
+def _overflow_probabilities_into(volumes, emptied, out, per_container, reward_table, scalars):
+    params = unpack_params(per_container, reward_table, scalars)
     for b in range(volumes.shape[0]):
         survive = 1.0
         for i in range(volumes.shape[1]):
@@ -489,5 +492,5 @@ def overflow_probabilities(volumes: np.ndarray, emptied: np.ndarray, params: Pla
         raise ValueError(f"volumes, emptied: expected shape (B, {params.n_containers}), got "
                          f"{volumes.shape} and {emptied.shape}")
     out = np.empty(volumes.shape[0])
-    _overflow_probabilities_into(volumes, emptied, out, *params)
+    _overflow_probabilities_into(volumes, emptied, out, *params.kernel_arrays())
     return out

@@ -1,30 +1,44 @@
 """Immutable array form of a plant config: what the compiled physics step reads.
 
-``PlantParams`` is a named tuple of read-only arrays and plain numbers, so numba takes it as one
-argument with named fields (gymnax's ``EnvParams``, kept apart from the state). It is derived from a
+``PlantParams`` is a named tuple of read-only arrays and plain numbers, so compiled code reads its
+fields by name (gymnax's ``EnvParams``, kept apart from the state). It is derived from a
 :class:`~containergym_marl.config.PlantConfig` by :meth:`PlantParams.from_config`; the config knows
 nothing about it.
+
+Every field lives in one of three storage arrays, and compiled functions take those three arrays
+(``PlantParams.kernel_arrays()``) and rebuild the named tuple inside with :func:`unpack_params`:
+numba unboxes each argument of a call, and three arrays cost far less than nineteen fields. The
+table :data:`STORAGE` says where each field is stored; packing (:meth:`PlantParams.from_config`)
+and unpacking (:func:`unpack_params`, generated from the table) both follow it, so no index is
+written anywhere else.
+
+This module also holds g(v), the PU time (paper eq. 2), the one definition that the step, the
+bound ``max_pu_time_s`` and the config's validation all call.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import math
+import operator
+from typing import Callable, NamedTuple, get_type_hints
 
+import numba
 import numpy as np
 
+#: The compiled functions are cached on disk: a new process loads them instead of recompiling.
+#: ``error_model="numpy"``: a division by zero gives inf instead of raising. No divisor here can be
+#: zero (v_max, product sizes and reward widths are validated ≥ 1e-3 by the config), and without the
+#: exception paths numba can drop its reference counting from the step (14 % of a one-simulation
+#: kernel call, ``benchmarks/kernel.py``).
+JIT_OPTIONS = {"cache": True, "error_model": "numpy"}
+jit = numba.njit(**JIT_OPTIONS)
 
-#: Columns of PlantParams.per_container, in order.
-PER_CONTAINER_COLUMNS = ("fill_mean_per_step", "fill_std_per_step", "max_volume", "product_size", "pu_offset_s",
-                         "pu_time_per_product_s", "target_volume")
-#: Entries of PlantParams.scalars, in order.
-SCALARS = ("n_containers", "n_pus", "timestep_s", "episode_length_steps", "initial_volume_min",
-           "initial_volume_max", "overflow_reward", "penalty_reward", "max_pu_time_s")
 
-
-def _frozen(a) -> np.ndarray:
-    out = np.array(a, dtype=np.float64)
-    out.setflags(write=False)
-    return out
+@jit
+def pu_time_s(volume: float, offset_s: float, time_per_product_s: float, product_size: float) -> float:
+    """g(v) = β + λ·⌊v / b⌋: seconds a PU is busy after emptying a container at ``volume`` (paper
+    eq. 2), for its offset β, time per product λ and product size b."""
+    return offset_s + time_per_product_s * math.floor(volume / product_size)
 
 
 class PlantParams(NamedTuple):
@@ -53,69 +67,120 @@ class PlantParams(NamedTuple):
     reward_two_width_sq: np.ndarray  # (n, K): 2 w_k², 1 for padding
     target_volume: np.ndarray  # the global optimum v* of each container
     max_pu_time_s: float  # largest g_i(v) for v < v_max: an upper bound of every PU timer
-    # The storage of everything above, in three arrays: the per-container arrays are views of
-    # ``per_container`` and ``reward_table``. The compiled step takes these three (numba unpacks
-    # each argument of a call, so three arrays cost far less than nineteen fields) and rebuilds the
-    # named tuple inside (:func:`containergym_marl.core.dynamics.unpack_params`).
-    per_container: np.ndarray  # (n, 7): the columns PER_CONTAINER_COLUMNS
-    reward_table: np.ndarray  # (3, n, K): reward_peaks, reward_coef, reward_two_width_sq
-    scalars: np.ndarray  # (9,): SCALARS
+    # The storage of every field above (see STORAGE); the arrays above are views of these.
+    per_container: np.ndarray  # (n, columns)
+    reward_table: np.ndarray  # (rows, n, K)
+    scalars: np.ndarray  # (entries,)
 
     def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return self.per_container, self.reward_table, self.scalars
+        """The storage arrays, the form in which compiled functions take a plant (see STORAGE)."""
+        return _storage_arrays(self)
 
     @classmethod
     def from_config(cls, cfg) -> "PlantParams":
         n = cfg.n_containers
         k = max(len(c.reward_peaks) for c in cfg.containers)
-        peaks = np.zeros((n, k))
-        coef = np.zeros((n, k))
-        two_w_sq = np.ones((n, k))
-        for i, c in enumerate(cfg.containers):
-            p = len(c.reward_peaks)
-            peaks[i, :p] = c.reward_peaks
-            coef[i, :p] = np.asarray(c.reward_heights) - cfg.penalty_reward
-            two_w_sq[i, :p] = 2.0 * np.asarray(c.reward_widths) ** 2
-
-        def column(attr: str) -> np.ndarray:
-            return np.array([getattr(c, attr) for c in cfg.containers], dtype=np.float64)
-
-        vmax, size = column("max_volume"), column("product_size")
-        beta, lam = column("pu_offset_s"), column("pu_time_per_product_s")
-        # A container is only emptied while v < v_max (reaching v_max ends the episode), so
-        # g(v) <= β + λ·⌊v_max / b⌋ bounds every timer.
-        max_pu_time = float(np.max(beta + lam * np.floor(vmax / size)))
-        dt = float(cfg.timestep_s)
-        columns = {
-            "fill_mean_per_step": column("fill_rate_per_s") * dt,
-            "fill_std_per_step": column("fill_noise_per_sqrt_s") * np.sqrt(dt),
-            "max_volume": vmax,
-            "product_size": size,
-            "pu_offset_s": beta,
-            "pu_time_per_product_s": lam,
-            "target_volume": np.array([c.target_volume for c in cfg.containers], dtype=np.float64),
-        }
-        per_container = _frozen(np.stack([columns[name] for name in PER_CONTAINER_COLUMNS], axis=1))
-        reward_table = _frozen(np.stack([peaks, coef, two_w_sq]))
-        scalar = {
+        fields = {
             "n_containers": n,
             "n_pus": int(cfg.num_processing_units),
-            "timestep_s": dt,
+            "timestep_s": float(cfg.timestep_s),
             "episode_length_steps": int(cfg.episode_length_steps),
             "initial_volume_min": float(cfg.initial_volume_min),
             "initial_volume_max": float(cfg.initial_volume_max),
             "overflow_reward": float(cfg.overflow_reward),
             "penalty_reward": float(cfg.penalty_reward),
-            "max_pu_time_s": max_pu_time,
+            "reward_peaks": np.zeros((n, k)),
+            "reward_coef": np.zeros((n, k)),
+            "reward_two_width_sq": np.ones((n, k)),
         }
-        views = {name: per_container[:, k] for k, name in enumerate(PER_CONTAINER_COLUMNS)}
-        return cls(
-            **scalar,
-            **views,
-            reward_peaks=reward_table[0],
-            reward_coef=reward_table[1],
-            reward_two_width_sq=reward_table[2],
-            per_container=per_container,
-            reward_table=reward_table,
-            scalars=_frozen([scalar[name] for name in SCALARS]),
+        for i, c in enumerate(cfg.containers):
+            p = len(c.reward_peaks)
+            fields["reward_peaks"][i, :p] = c.reward_peaks
+            fields["reward_coef"][i, :p] = np.asarray(c.reward_heights) - cfg.penalty_reward
+            fields["reward_two_width_sq"][i, :p] = 2.0 * np.asarray(c.reward_widths) ** 2
+
+        def column(attr: str) -> np.ndarray:
+            return np.array([getattr(c, attr) for c in cfg.containers], dtype=np.float64)
+
+        dt = fields["timestep_s"]
+        fields.update(
+            fill_mean_per_step=column("fill_rate_per_s") * dt,
+            fill_std_per_step=column("fill_noise_per_sqrt_s") * np.sqrt(dt),
+            max_volume=column("max_volume"),
+            product_size=column("product_size"),
+            pu_offset_s=column("pu_offset_s"),
+            pu_time_per_product_s=column("pu_time_per_product_s"),
+            target_volume=column("target_volume"),
         )
+        # A container is only emptied while v < v_max (reaching v_max ends the episode), so
+        # g(v_max) bounds every timer.
+        columns = zip(fields["max_volume"], fields["pu_offset_s"], fields["pu_time_per_product_s"],
+                      fields["product_size"])
+        fields["max_pu_time_s"] = max(pu_time_s(vmax, beta, lam, b) for vmax, beta, lam, b in columns)
+        return pack_params(fields)
+
+
+#: Where each field of PlantParams is stored: storage array -> the fields it holds, in order
+#: (``per_container[:, k]``, ``reward_table[k]``, ``scalars[k]``); the storage arrays in the order
+#: that compiled functions take them (:meth:`PlantParams.kernel_arrays`). The named tuple's own
+#: annotation says whether a scalar is an int or a float. Compiled callers of unpack_params are
+#: cached by their own file (numba does not follow dependencies): after changing this table, delete
+#: the package's ``__pycache__`` folders.
+STORAGE: dict[str, tuple[str, ...]] = {
+    "per_container": ("fill_mean_per_step", "fill_std_per_step", "max_volume", "product_size", "pu_offset_s",
+                      "pu_time_per_product_s", "target_volume"),
+    "reward_table": ("reward_peaks", "reward_coef", "reward_two_width_sq"),
+    "scalars": ("n_containers", "n_pus", "timestep_s", "episode_length_steps", "initial_volume_min",
+                "initial_volume_max", "overflow_reward", "penalty_reward", "max_pu_time_s"),
+}
+_storage_arrays = operator.attrgetter(*STORAGE)
+_INDEXING = {"scalars": "scalars[{}]", "per_container": "per_container[:, {}]", "reward_table": "reward_table[{}]"}
+
+
+def generated_function(name: str, arguments: tuple[str, ...], returned: str, namespace: dict) -> Callable:
+    """``def name(*arguments): return returned``, compiled with ``namespace`` as its globals.
+
+    Numba cannot build a named tuple from a table at compile time, so the few functions that name
+    the kernel's arrays are written out from their tables as source. Generated functions have no
+    file, so numba does not cache them; their compiled callers are cached with them inlined.
+    """
+    source = f"def {name}({', '.join(arguments)}):\n    return {returned}\n"
+    exec(compile(source, f"<generated {name}>", "exec"), namespace)
+    return numba.njit(error_model=JIT_OPTIONS["error_model"])(namespace[name])
+
+
+def _unpacking_expression() -> str:
+    stored = {name: (storage, k) for storage, names in STORAGE.items() for k, name in enumerate(names)}
+    missing = set(PlantParams._fields) - set(stored) - set(STORAGE)
+    if missing or len(stored) + len(STORAGE) != len(PlantParams._fields):
+        raise TypeError(f"STORAGE must place every field of PlantParams exactly once; missing {sorted(missing)}")
+    kinds = get_type_hints(PlantParams)
+    values = []
+    for name in PlantParams._fields:
+        if name in STORAGE:
+            values.append(f"{name}={name}")
+            continue
+        storage, k = stored[name]
+        value = _INDEXING[storage].format(k)
+        values.append(f"{name}={kinds[name].__name__}({value})" if storage == "scalars" else f"{name}={value}")
+    return f"PlantParams({', '.join(values)})"
+
+
+#: PlantParams from its storage arrays, in compiled code (and in Python as ``unpack_params.py_func``).
+unpack_params = generated_function("unpack_params", tuple(STORAGE), _unpacking_expression(),
+                                   {"PlantParams": PlantParams})
+
+
+def _frozen(a) -> np.ndarray:
+    out = np.array(a, dtype=np.float64)
+    out.setflags(write=False)
+    return out
+
+
+def pack_params(fields: dict) -> PlantParams:
+    """PlantParams of ``fields`` (name -> value, every field but the storage arrays): the values
+    are copied into read-only storage arrays and the named tuple's fields are views of them."""
+    storage = {"per_container": _frozen(np.stack([fields[name] for name in STORAGE["per_container"]], axis=1)),
+               "reward_table": _frozen(np.stack([fields[name] for name in STORAGE["reward_table"]])),
+               "scalars": _frozen([fields[name] for name in STORAGE["scalars"]])}
+    return unpack_params.py_func(**storage)
