@@ -115,7 +115,7 @@ from containergym_marl.rundir import (
     RunLock,
     truncate_metrics,
 )
-from containergym_marl.training.runs import TrainingProgress
+from containergym_marl.training.checkpoints import TrainingProgress
 from containergym_marl.evaluation.table import evaluation_key
 from containergym_marl.training.script_args import parse_args
 

@@ -21,7 +21,7 @@ from containergym_marl.policies.actor_critic import ActorCritic
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, load_checkpoint, update
 from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
-from containergym_marl.training.runs import read_progress
+from containergym_marl.training.checkpoints import read_progress
 
 REPO = Path(__file__).resolve().parents[1]
 # 2 simulations, rollouts of 16 steps, training episodes of T = 20 steps (they finish)

@@ -20,9 +20,9 @@ from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.runs import evaluate_run
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.rundir import checkpoint_files, checkpoints
-from containergym_marl.training.runs import load_model
+from containergym_marl.models import load_model
 
-pytestmark = pytest.mark.filterwarnings("ignore::containergym_marl.training.runs.RunWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::containergym_marl.rundir.RunWarning")
 TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 64, "batch_size": 64},
             overrides={"episode_length_steps": 50})
 

@@ -25,10 +25,10 @@ from containergym_marl.evaluation.runs import evaluate_run, policy_from_run
 from containergym_marl.training import RunError, RunWarning, TrainArgs, train
 from containergym_marl.files import atomic_write_text
 from containergym_marl.rundir import checkpoint_files, checkpoints, read_metrics, read_run_summary, RunLock
-from containergym_marl.training.runs import checkpoint_interval, read_progress
+from containergym_marl.training.checkpoints import checkpoint_interval, read_progress
 
 # RunWarnings are what these tests provoke; each test asserts the ones it is about.
-pytestmark = pytest.mark.filterwarnings("ignore::containergym_marl.training.runs.RunWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::containergym_marl.rundir.RunWarning")
 REPO = Path(__file__).resolve().parents[1]
 # 2 simulations, rollouts of 64 x 2 = 128 samples, training episodes of T = 50 steps (they finish)
 TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 64, "batch_size": 64},
@@ -177,7 +177,7 @@ def test_resume_without_an_intact_checkpoint_starts_again(run_copy):
         _cut(path)
     with pytest.warns(RunWarning, match="starts again from the beginning"):
         train(TrainArgs(algo="ppo", out=str(run), timesteps=512, resume=True, checkpoint_every=128, **TINY))
-    from containergym_marl.training.runs import load_model
+    from containergym_marl.models import load_model
 
     a = load_model(run / "final_model.zip", "ppo").policy.state_dict()
     (run / "x.zip").write_bytes(final)
@@ -290,7 +290,7 @@ def test_a_kill_while_the_first_checkpoint_is_saved_never_loses_the_episode_wind
     train(TrainArgs(**args, resume=True))
     assert read_run_summary(run)["resumed_from"] is None  # no complete checkpoint: started over
     assert _metrics_without_wall_time(run) == _metrics_without_wall_time(base_run)
-    from containergym_marl.training.runs import load_model
+    from containergym_marl.models import load_model
 
     a, b = (load_model(r / "final_model.zip", "ppo").policy.state_dict() for r in (run, base_run))
     assert all(np.array_equal(a[k].numpy(), b[k].numpy()) for k in a)

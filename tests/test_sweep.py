@@ -88,7 +88,7 @@ def test_compare_killed_once_then_the_same_command_resumes_and_finishes(tmp_path
     from containergym_marl.manifest import sha256_bytes
     from containergym_marl.training import train
     from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
-    from containergym_marl.training.runs import load_model
+    from containergym_marl.models import load_model
     from tests import compare_kills as kills
 
     budget, name = 2048, "ppo_n5_m2_dt120_s1"

@@ -146,7 +146,7 @@ def test_a_killed_training_worker_is_retried_and_resumes_the_others_are_identica
     from containergym_marl.evaluation import EvalProtocol, evaluate
     from containergym_marl.evaluation.runs import policy_from_run
     from containergym_marl.training import train
-    from containergym_marl.training.runs import load_model
+    from containergym_marl.models import load_model
 
     out = tmp_path / "cmp"
     proc = subprocess.Popen(_compare_cmd(out, *KILL_ARGS), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -316,7 +316,7 @@ def _kill_at_a_random_moment(out: Path, env: dict, marker: str, rng: np.random.G
 
 
 def _same_policy(a: Path, b: Path) -> bool:
-    from containergym_marl.training.runs import load_model
+    from containergym_marl.models import load_model
 
     pa, pb = (load_model(p, "ppo").policy.state_dict() for p in (a, b))
     return pa.keys() == pb.keys() and all(np.array_equal(pa[k].numpy(), pb[k].numpy()) for k in pa)
@@ -356,7 +356,7 @@ def test_compare_killed_at_random_moments_then_rerun_ends_as_an_uninterrupted_co
     from containergym_marl.evaluation import table as tables
     from containergym_marl.manifest import sha256_bytes
     from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
-    from containergym_marl.training.runs import load_model
+    from containergym_marl.models import load_model
 
     marker, env = kills.marked_env("CONTAINERGYM_SOAK")
     reference = tmp_path / "reference"

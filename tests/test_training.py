@@ -15,10 +15,10 @@ from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
 from containergym_marl.evaluation.runs import evaluate_run
 from containergym_marl.training import RunError, TrainArgs, train
 from containergym_marl.rundir import latest_checkpoint, read_metrics
-from containergym_marl.training.runs import load_model
+from containergym_marl.models import load_model
 
 NO_EPISODE = pytest.mark.filterwarnings(  # TINY runs end no training episode: "best" is the final model
-    "ignore:.*no training episode finished:containergym_marl.training.runs.RunWarning")
+    "ignore:.*no training episode finished:containergym_marl.rundir.RunWarning")
 TINY = dict(timesteps=512, n_envs=2, checkpoint_every=128, progress_bar=False,
             hyperparams={"n_steps": 64, "batch_size": 64})
 SHORT = EvalProtocol(episodes=3)

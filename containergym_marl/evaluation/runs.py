@@ -9,7 +9,7 @@ from pathlib import Path
 from containergym_marl.algorithms import get_algorithm
 from containergym_marl.files import atomic_write_text
 from containergym_marl.rundir import read_run_summary, run_args, RunWarning
-from containergym_marl.training.runs import load_model
+from containergym_marl.models import load_model
 
 
 def evaluated_files(run: str | Path) -> tuple[str, ...]:

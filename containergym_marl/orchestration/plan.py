@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation import table as tables
@@ -20,9 +19,6 @@ from containergym_marl.methods import METHODS, Method
 from containergym_marl.orchestration.compare_args import CompareArgs
 from containergym_marl.orchestration.tasks import EvalSpec, RunSpec, check_budget
 from containergym_marl.rundir import latest_checkpoint, run_name
-
-if TYPE_CHECKING:
-    from containergym_marl.orchestration.shipped import Shipped
 
 
 def config_stem(config: str) -> str:
@@ -76,6 +72,43 @@ def cached_evaluation(path: Path, fingerprint: dict, protocol: dict) -> dict | N
         return None
     return data if data.get("compare") == fingerprint and data.get("protocol") == protocol else None
 
+
+
+@dataclass
+class Shipped:
+    """What a shipped folder offers a comparison, from its files alone."""
+
+    folder: Path
+    learned: dict[str, dict[str, list[int]]] = field(default_factory=dict)  # config -> method -> finished seeds
+    best: dict[tuple[str, str], int] = field(default_factory=dict)  # (config, method) -> best published seed
+    published: dict[tuple[str, str], dict] = field(default_factory=dict)  # (config, key) -> published evaluation
+    training: list[str] = field(default_factory=list)  # runs published unfinished (skipped), with how far
+    unusable: list[str] = field(default_factory=list)  # finished runs that cannot be evaluated, with why
+    missing: list[str] = field(default_factory=list)  # configs without any shipped learned policy
+    copied: list[str] = field(default_factory=list)  # published evaluations copied into --out by this call
+
+    def lines(self, methods: list[str]) -> list[str]:
+        """What is shipped, skipped and missing, in words."""
+        out = []
+        for config, by_method in self.learned.items():
+            what = []
+            for method, seeds in by_method.items():
+                best = self.best.get((config, method))
+                what.append(f"{method} (seed{'s' * (len(seeds) > 1)} {', '.join(map(str, seeds))}"
+                            + (f"; best s{best}" if best is not None and len(seeds) > 1 else "") + ")")
+            out.append(f"shipped policies on {config}: {', '.join(what)}")
+        if self.training:
+            out.append("skipped, still training (published with a checkpoint, no final model yet): "
+                       + ", ".join(self.training))
+        if self.unusable:
+            out.append("skipped: " + "; ".join(self.unusable))
+        learned = [m for m in methods if METHODS[m].learned]
+        if learned and self.missing:
+            rule_based = [m for m in methods if not METHODS[m].learned]
+            out.append(f"no shipped policies yet on {', '.join(self.missing)}"
+                       + (f" ({' and '.join(rule_based)} only)" if rule_based else "")
+                       + ": the paper-rows sweep is still training them")
+        return out
 
 
 @dataclass

@@ -25,7 +25,7 @@ centralised shape exactly (``benchmarks/fast_ppo_validation.py paper-shape`` run
 Optional: ``--hp action_mask=true`` masks the emptying actions while no PU is free (in training and
 in evaluation, the model file records it).
 
-The run directory is the SB3 runs' (:mod:`containergym_marl.training.runs`), with tensor-only model
+The run directory is the SB3 runs' (:mod:`containergym_marl.rundir`), with tensor-only model
 files: ``best_model.pt`` / ``final_model.pt`` (:class:`~containergym_marl.policies.actor_critic.ActorCritic`,
 loaded with ``weights_only=True``) and checkpoints ``checkpoints/ckpt_<S>_steps.pt`` that add the
 optimiser's state and the sampler's random state. A checkpoint is taken after the update of the
@@ -50,7 +50,7 @@ import torch
 
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors
 from containergym_marl.rundir import append_metrics
-from containergym_marl.training.runs import save_checkpoint, TrainArgs, TrainingProgress
+from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
 
 CHECKPOINT_FORMAT = "containergym-marl ppo checkpoint"
 CHECKPOINT_VERSION = 1
@@ -195,13 +195,12 @@ def load_checkpoint(path: str | Path, hp: PPOArgs) -> TrainingState:
 
 
 # ---- the trainer --------------------------------------------------------------------------------
-def learn(run: Path, state: TrainingState, env, args: TrainArgs, hp: PPOArgs, progress: TrainingProgress,
-          interval: int, on_samples=None) -> None:
-    """Train ``state`` on ``env`` (a native SB3-style VecEnv of the package) until ``args.timesteps``
-    samples: rollouts, GAE, clipped-loss updates; a metrics row (and the best model when the
+def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: PPOArgs,
+          progress: TrainingProgress, interval: int, on_samples=None) -> None:
+    """Train ``state`` on ``env`` (a native SB3-style VecEnv of the package) until ``budget``
+    samples, discounting by ``gamma``: rollouts, GAE, clipped-loss updates; a metrics row (and the best model when the
     100-episode training return improved) after every rollout, a checkpoint after the update of
     every rollout that crosses ``interval`` samples since the last one."""
-    budget, gamma = int(args.timesteps), float(args.gamma)
     model, optimizer, generator = state.model, state.optimizer, state.generator
     slots, n_steps = env.num_envs, hp.n_steps
     obs_size, n_actions = model.observation_size, model.n_actions

@@ -1,5 +1,5 @@
 """The training loop: :func:`train` turns :class:`~containergym_marl.training.runs.TrainArgs` into a
-run directory (see :mod:`containergym_marl.training.runs` for its layout).
+run directory (see :mod:`containergym_marl.rundir` for its layout).
 
 One callback follows the plant's return of every training episode, keeps the model with the best
 mean return over the last 100 training episodes (``best_model.zip``), appends a metrics row at the
@@ -47,17 +47,16 @@ from containergym_marl.rundir import (
     run_args,
     truncate_metrics,
 )
-from containergym_marl.training.runs import (
-    TrainArgs,
+from containergym_marl.models import load_model
+from containergym_marl.training.checkpoints import (
     TrainingProgress,
     atomic_save_model,
     checkpoint_interval,
-    load_model,
     load_replay_buffer,
-    prepare_run_dir,
     read_progress,
     save_checkpoint,
 )
+from containergym_marl.training.runs import TrainArgs, prepare_run_dir
 
 
 def no_episode_note(best_name: str = "best_model.zip") -> str:
@@ -374,7 +373,7 @@ def _train_native(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval
         state, start, progress = resumed
     bar = _ProgressBar(args, start) if args.progress_bar else None
     try:
-        fast_ppo.learn(run, state, env, args, hp, progress, interval,
+        fast_ppo.learn(run, state, env, int(args.timesteps), float(args.gamma), hp, progress, interval,
                        on_samples=bar.update if bar is not None else None)
     finally:
         if bar is not None:

@@ -1,4 +1,4 @@
-"""Loading SB3 model files without running code from them.
+"""Model files: a run's model loaded without running code from it (:func:`load_model`).
 
 An SB3 zip keeps the algorithm's attributes in its ``data`` member as JSON; the ones that are not
 plain values (the policy class, the spaces, the schedules, buffers) are cloudpickle blobs under a
@@ -31,6 +31,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from containergym_marl.algorithms import get_algorithm
+from containergym_marl.rundir import check_model_file
 
 SERIALIZED = ":serialized:"
 _SCHEDULE = re.compile(r"^(ConstantSchedule|LinearSchedule)\((.*)\)$")
@@ -142,3 +145,22 @@ def safe_custom_objects(path: str | Path, algorithm_class, hyperparams: dict[str
     if missing:
         raise ValueError(f"model file {str(path)!r}: no {', '.join(missing)}")
     return objects
+
+
+def load_model(path: str | Path, algo: str, env=None, hyperparams: dict[str, Any] | None = None):
+    """Load a model file of ``algo`` with a clear error when it is missing, broken or not a model of
+    ``algo``: an SB3 model, or for an algorithm trained outside SB3 (mappo) what its policy
+    adapter's ``load_model`` reads (``env`` is then unused)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"model file {str(path)!r} does not exist")
+    spec = get_algorithm(algo)
+    if not spec.sb3:
+        return spec.policy_adapter.load_model(path)
+    cls = spec.load_class()
+    check_model_file(path)
+    objects = safe_custom_objects(path, cls, hyperparams)  # every pickled entry replaced: nothing from the file runs
+    try:
+        return cls.load(path, env=env, device="cpu", custom_objects=objects)
+    except (zipfile.BadZipFile, KeyError, ValueError, RuntimeError, EOFError, OSError, AssertionError) as exc:
+        raise ValueError(f"cannot read model file {str(path)!r} as a {algo} model: {exc}") from exc
