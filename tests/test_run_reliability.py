@@ -261,7 +261,7 @@ def test_a_kill_while_the_first_checkpoint_is_saved_never_loses_the_episode_wind
     took for one from before progress files: the 100-episode window and the best return were lost.)
     With no complete checkpoint the rerun starts over, so it is the uninterrupted run exactly."""
     from containergym_marl.training import loop
-    from containergym_marl.training import runs as runs_module
+    from containergym_marl.training import checkpoints as runs_module
 
     saved = loop.save_checkpoint
     count = {"writes": 0}
