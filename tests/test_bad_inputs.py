@@ -299,7 +299,7 @@ def test_too_many_containers_named():
 
 
 def test_reference_format_container_count_is_bounded_before_anything_is_built():
-    from containergym_marl.reference_format import config_from_reference_json
+    from containergym_marl.config.reference_format import config_from_reference_json
 
     data = {"MAX_EPISODE_LENGTH": 10, "TIMESTEP": 60, "ENABLED_CONTAINERS": 10**9, "N_PRESSES": 1,
             "MIN_STARTING_VOLUME": 0, "MAX_STARTING_VOLUME": 10, "FAILURE_PENALTY": -1,
@@ -366,9 +366,9 @@ def test_non_utf8_config_file_names_the_file(tmp_path):
 
 
 def test_bounds_table_is_in_the_config_docstring():
-    import containergym_marl.config as config_module
+    import containergym_marl.config.bounds as bounds_module
 
-    doc = config_module.__doc__
+    doc = bounds_module.__doc__
     for field in ("num_processing_units", "timestep_s", "episode_length_steps", "max_volume",
                   "product_size", "fill_rate_per_s", "fill_noise_per_sqrt_s", "pu_offset_s",
                   "pu_time_per_product_s", "reward_peaks", "reward_heights", "reward_widths",

@@ -744,7 +744,7 @@ def test_direct_construction_rejects_non_finite_and_non_numeric_values():
 
 
 def test_reference_reward_params_must_be_triples():
-    from containergym_marl.reference_format import config_from_reference_json
+    from containergym_marl.config.reference_format import config_from_reference_json
 
     data = {
         "MAX_EPISODE_LENGTH": 10, "TIMESTEP": 60, "ENABLED_CONTAINERS": 1, "N_PRESSES": 1,

@@ -2,14 +2,16 @@
 
 ``load_config`` reads a ``.json`` file with this reader when it holds ``ENABLED_CONTAINERS``. The
 reference names map onto ours as ``_REFERENCE_PER_CONTAINER`` and the plant-level keys below say;
-everything read is validated as any config is (:func:`~containergym_marl.config.config_from_dict`).
+everything read is validated as any config is
+(:func:`~containergym_marl.config.schema.config_from_dict`).
 """
 
 from __future__ import annotations
 
 from typing import Any, Mapping
 
-from containergym_marl.config import MAX_CONTAINERS, ConfigError, PlantConfig, config_from_dict
+from containergym_marl.config.bounds import MAX_CONTAINERS, ConfigError
+from containergym_marl.config.schema import PlantConfig, config_from_dict
 
 __all__ = ["config_from_reference_json"]
 

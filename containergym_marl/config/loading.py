@@ -1,0 +1,160 @@
+"""Loading configs: the built-in ones (package data, ``containergym_marl.configs``) and files in our
+TOML or JSON format or the reference JSON format, read within size and nesting limits, refusing
+duplicate keys and huge integers; then the test protocol and overrides.
+"""
+
+from __future__ import annotations
+
+import json
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the same parser as the tomli package
+    import tomli as tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+from containergym_marl.config.bounds import ConfigError
+from containergym_marl.config.reference_format import config_from_reference_json
+from containergym_marl.config.schema import PlantConfig, config_from_dict
+
+#: The paper's test protocol (section 6.1): every policy is evaluated with δ = 120 s and T = 600.
+PAPER_TEST_PROTOCOL: Mapping[str, Any] = {"timestep_s": 120.0, "episode_length_steps": 600}
+_PROTOCOLS = {"paper_test": PAPER_TEST_PROTOCOL}
+
+
+# ---- files and built-ins -------------------------------------------------------------------
+def _builtin_dir():
+    return resources.files("containergym_marl.configs")
+
+
+def list_configs() -> list[str]:
+    """Names of the built-in configurations (the paper's eight rows and the 16-container plant)."""
+    return sorted(p.name[: -len(".toml")] for p in _builtin_dir().iterdir() if p.name.endswith(".toml"))
+
+
+#: Largest config file read (the built-in ones are ~3 kB; a 16-container plant ~6 kB).
+MAX_CONFIG_BYTES = 1_000_000
+#: Deepest nesting of lists and tables in a config file (ours: 3).
+MAX_CONFIG_DEPTH = 16
+
+
+class _HugeInteger:
+    """A JSON integer too long to be any config value, kept as a marker so that the field that holds
+    it is named when it is refused (int() itself refuses past 4300 digits, naming nothing)."""
+
+    def __init__(self, digits: int):
+        self.digits = digits
+
+    def __repr__(self) -> str:
+        return f"<an integer of {self.digits} digits>"
+
+
+def _json_int(text: str) -> "int | _HugeInteger":
+    return int(text) if len(text.lstrip("-")) <= 30 else _HugeInteger(len(text.lstrip("-")))
+
+
+def _reject_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    keys = [k for k, _ in pairs]
+    dup = sorted({k for k in keys if keys.count(k) > 1})
+    if dup:
+        raise ConfigError(f"duplicate key(s) {dup} (the last value would silently win)")
+    return dict(pairs)
+
+
+def _nesting_depth(text: str) -> int:
+    """The deepest bracket nesting of a JSON or TOML text, outside strings (a cheap upper bound, read
+    before the parser recurses)."""
+    depth = deepest = 0
+    quote = None
+    escaped = False
+    for ch in text:
+        if quote:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == quote:
+                quote = None
+        elif ch in "\"'":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth -= 1
+    return deepest
+
+
+def _read_file(path: Path) -> PlantConfig:
+    if path.suffix not in (".toml", ".json"):  # before reading: a device or a huge file is never read
+        raise ConfigError(f"config file {str(path)!r}: expected a .toml or .json file")
+    try:
+        if path.exists() and not path.is_file():
+            raise ConfigError(f"cannot read config file {str(path)!r}: not a regular file")
+        size = path.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"config file {str(path)!r}: {size} bytes, more than the {MAX_CONFIG_BYTES} a "
+                              f"config may have")
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {str(path)!r}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"config file {str(path)!r} is not UTF-8 text (byte {exc.start}: {exc.reason})"
+        ) from exc
+    if _nesting_depth(text) > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"config file {str(path)!r}: lists or tables nested deeper than {MAX_CONFIG_DEPTH} levels")
+    try:
+        if path.suffix == ".toml":
+            data = tomllib.loads(text)  # TOML itself refuses a key defined twice
+        else:
+            data = json.loads(text, object_pairs_hook=_reject_duplicate_keys, parse_int=_json_int)
+    except ConfigError as exc:
+        raise ConfigError(f"config file {str(path)!r}: {exc}") from None
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"config file {str(path)!r} is not valid {path.suffix[1:].upper()}: {exc}") from exc
+    except (RecursionError, ValueError) as exc:  # a 5000-digit integer: Python's digit limit
+        raise ConfigError(f"config file {str(path)!r}: unreadable ({exc})") from None
+    if isinstance(data, Mapping) and "ENABLED_CONTAINERS" in data:
+        return config_from_reference_json(data, name=path.stem)
+    return config_from_dict(data, default_name=path.stem)
+
+
+def load_config(
+    name_or_path: "str | Path | PlantConfig",
+    *,
+    protocol: str | None = None,
+    **overrides: Any,
+) -> PlantConfig:
+    """Load a validated, immutable config.
+
+    Args:
+        name_or_path: a built-in name (see :func:`list_configs`), a path to a ``.toml`` file in our
+            format or a ``.json`` file in ours or the reference format, or a :class:`PlantConfig`.
+        protocol: ``"paper_test"`` applies the paper's test protocol (δ = 120 s, T = 600).
+        **overrides: plant-level fields to replace, e.g. ``timestep_s=60``; applied after
+            ``protocol``.
+    """
+    if isinstance(name_or_path, PlantConfig):
+        cfg = name_or_path
+    else:
+        text = str(name_or_path)
+        builtin = _builtin_dir() / f"{text}.toml"
+        if isinstance(name_or_path, str) and "/" not in text and builtin.is_file():
+            cfg = config_from_dict(tomllib.loads(builtin.read_text(encoding="utf-8")), default_name=text)
+        else:
+            path = Path(text)
+            if not path.exists():
+                raise ConfigError(
+                    f"unknown config {text!r}: not a built-in name ({', '.join(list_configs())}) "
+                    f"and no such file"
+                )
+            cfg = _read_file(path)
+    if protocol is not None:
+        if protocol not in _PROTOCOLS:
+            raise ConfigError(f"protocol: unknown protocol {protocol!r}; known: {sorted(_PROTOCOLS)}")
+        cfg = cfg.replace(**_PROTOCOLS[protocol])
+    if overrides:
+        cfg = cfg.replace(**overrides)
+    return cfg
