@@ -127,11 +127,7 @@ class ActorCritic:
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "model") -> "ActorCritic":
-        if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise ValueError(f"{source} is not a saved actor-critic (format {FORMAT!r})")
-        if data.get("version") != VERSION:
-            raise ValueError(f"{source}: actor-critic version {data.get('version')!r}; this package reads "
-                             f"version {VERSION}")
+        check_header(data, FORMAT, VERSION, source, "actor-critic")
         try:
             return cls(data["view"], data["observation_size"], data["n_actions"], data["hidden"],
                        data["action_mask"], data["state_dict"], data.get("meta"))
@@ -229,3 +225,12 @@ def policy_for(model: ActorCritic, name: str = "ppo", deterministic: bool = True
     """The evaluation policy of ``model`` in its own view."""
     cls = CentralisedActorCriticPolicy if model.view == "centralised" else SharedActorCriticPolicy
     return cls(model, name=name, deterministic=deterministic)
+
+
+def check_header(data: Any, fmt: str, version: int, source: str, what: str) -> None:
+    """A saved tensor file's header as this package writes it: ``format`` ``fmt`` at ``version``
+    (a ValueError naming ``source`` otherwise)."""
+    if not isinstance(data, dict) or data.get("format") != fmt:
+        raise ValueError(f"{source} is not a saved {what} (format {fmt!r})")
+    if data.get("version") != version:
+        raise ValueError(f"{source}: {what} version {data.get('version')!r}; this package reads version {version}")

@@ -103,18 +103,14 @@ class SharedActor:
     @classmethod
     def load(cls, path: str | Path) -> "SharedActor":
         """Read a saved actor, with an error that says what is wrong with a missing or broken file."""
-        from containergym_marl.policies.actor_critic import load_tensors
+        from containergym_marl.policies.actor_critic import check_header, load_tensors
 
         _torch()  # the missing extra is named before anything else
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"model file {str(path)!r} does not exist")
         data = load_tensors(path, otherwise="not a saved shared actor")
-        if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise ValueError(f"model file {str(path)!r} is not a saved shared actor (format {FORMAT!r})")
-        if data.get("version") != VERSION:
-            raise ValueError(f"model file {str(path)!r}: shared actor version {data.get('version')!r}; "
-                             f"this package reads version {VERSION}")
+        check_header(data, FORMAT, VERSION, f"model file {str(path)!r}", "shared actor")
         try:
             return cls(data["layers"], data["state_dict"], data.get("meta"))
         except (KeyError, RuntimeError, ValueError) as exc:
