@@ -113,6 +113,18 @@ def test_kernel_benchmark_compares_two_checkouts():
         assert abs(_number(r[2]) - 1000 * _number(r[1]) / bsz) <= 1000 * 0.05 / bsz + 1  # µs shown to 0.1
 
 
+def test_startup_benchmark_shows_a_warm_process_compiling_nothing():
+    """benchmarks/startup.py runs a cold and a warm process per rule on a private numba cache; the
+    warm one loads the kernel (one hit, no miss) and writes no cache file."""
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "startup.py"), "--rules", "index"],
+                          capture_output=True, text=True, timeout=300, check=True)
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("|") and not line.startswith("|---")]
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines[1:]]
+    assert [r[:3] for r in rows] == [["ours", "index", "cold"], ["ours", "index", "warm"]]
+    assert rows[0][7] == "0 / 1" and int(rows[0][8]) > 0
+    assert rows[1][7] == "1 / 0" and rows[1][8] == "0"
+
+
 def test_trainer_throughput_smoke_prints_both_ratios(tmp_path):
     """benchmarks/trainer_throughput.py end to end at one rollout a burst: the four algorithms and
     the two native/SB3 ratios, also as JSON (structure, not speed)."""

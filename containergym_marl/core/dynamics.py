@@ -33,6 +33,7 @@ from __future__ import annotations
 import functools
 import math
 import os
+import types
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, NamedTuple
@@ -233,28 +234,53 @@ _named_outputs = generated_function("_named_outputs", tuple(f"a{a}" for a in ran
                                     _naming_expression(), {"PlantState": PlantState, "StepOutcome": StepOutcome})
 
 
-def _compile_batch_step(priority: Callable) -> Callable:
-    """The batched step with one arbitration rule's priority compiled in.
+def _rule_priority(i, volume, uniform, params):
+    """Stands for the arbitration rule's priority in :func:`_step_batch`; each rule's kernel has its
+    own function under this name (:func:`_compile_batch_step`)."""
+    raise NotImplementedError("the priority of a rule is bound by _compile_batch_step")
+
+
+def _step_batch(volumes, pu_timers_s, step_count, requests, normals, uniforms, per_container, reward_table,
+                scalars, *outputs):
+    """The batched step, with the rule's priority ``_rule_priority`` compiled in.
 
     Numba unpacks every argument of a call, and a named tuple or a function object several times
     more slowly than an array; with one simulation stepping in a few microseconds that matters. So
     the kernel takes the state, the inputs, the plant's three storage arrays and the outputs stacked
     by type (:func:`_allocate_outputs`), names them again inside, and has the rule compiled in.
     """
+    state = PlantState(volumes, pu_timers_s, step_count)
+    params = unpack_params(per_container, reward_table, scalars)
+    next_state, out = _named_outputs(*outputs)
+    priorities = np.empty(requests.shape)  # written and read for requested containers only
+    for b in range(requests.shape[0]):
+        for i in range(params.n_containers):
+            if requests[b, i]:
+                priorities[b, i] = _rule_priority(i, volumes[b, i], uniforms[b, i], params)
+    step_simulations(state, requests, normals, priorities, params, next_state, out)
 
-    def step_batch(volumes, pu_timers_s, step_count, requests, normals, uniforms, per_container, reward_table,
-                   scalars, *outputs):
-        state = PlantState(volumes, pu_timers_s, step_count)
-        params = unpack_params(per_container, reward_table, scalars)
-        next_state, out = _named_outputs(*outputs)
-        priorities = np.empty(requests.shape)  # written and read for requested containers only
-        for b in range(requests.shape[0]):
-            for i in range(params.n_containers):
-                if requests[b, i]:
-                    priorities[b, i] = priority(i, volumes[b, i], uniforms[b, i], params)
-        step_simulations(state, requests, normals, priorities, params, next_state, out)
 
-    return numba.njit(nogil=True, **JIT_OPTIONS)(step_batch)
+def _compile_batch_step(priority: Callable, cache: bool) -> Callable:
+    """:func:`_step_batch` with ``priority`` (a compiled priority function) as its ``_rule_priority``.
+
+    Each rule gets its own copy of the function, with the same code and its own globals, named after
+    the priority function. It is not a closure over ``priority``, because numba's disk cache would
+    never find a closure's kernel again: its cache key includes the pickled free variables, and a
+    dispatcher pickles with an identity (uuid) new in every process, so each process compiled every
+    rule it used anew (about a second) and added a cache file. A global is compiled in like a free
+    variable but is not part of the key; the copy's name gives each rule a cache file of its own
+    (``benchmarks/startup.py``; ``tests/test_kernel_cache.py``).
+
+    ``cache``: cache the kernel on disk. Numba keys the cache by this file (dynamics.py) and does
+    not look at the priority's own source, so only rules defined in this module are cached; a
+    kernel cached for a rule defined elsewhere would outlive changes to it.
+    """
+    name = f"_step_batch_{priority.py_func.__name__}"
+    function = types.FunctionType(_step_batch.__code__, {**globals(), "_rule_priority": priority}, name,
+                                  _step_batch.__defaults__)
+    function.__qualname__ = name
+    function.__doc__ = _step_batch.__doc__
+    return numba.njit(nogil=True, **{**JIT_OPTIONS, "cache": cache})(function)
 
 
 def _allocate_outputs(bsz: int, n: int, m: int) -> tuple[np.ndarray, ...]:
@@ -310,12 +336,15 @@ ARBITRATION_RULES: dict[str, ArbitrationRule] = {}
 
 def arbitration_rule(name: str):
     """Register a priority function under ``name`` (compiled with numba); its docstring's first line
-    is the rule's description."""
+    is the rule's description. The step kernels of the rules defined in this module are cached on
+    disk; a rule defined elsewhere has its kernel compiled in each process that uses it (see
+    :func:`_compile_batch_step`)."""
 
     def register(function: Callable) -> Callable:
         priority = jit(function)
         description = (function.__doc__ or "").strip().splitlines()[0]
-        ARBITRATION_RULES[name] = ArbitrationRule(name, priority, description, _compile_batch_step(priority))
+        step_batch = _compile_batch_step(priority, cache=function.__module__ == __name__)
+        ARBITRATION_RULES[name] = ArbitrationRule(name, priority, description, step_batch)
         return priority
 
     return register
