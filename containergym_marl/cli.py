@@ -74,29 +74,18 @@ def _print_training_end(run) -> None:
         print(f"next: containergym-marl evaluate {shlex.quote(str(run))} --model final  (or train longer)")
 
 
-class _EpisodeProgress:
-    """``on_episode`` of an evaluation: episodes done, on stderr; redrawn in place on a terminal, one
-    line per episode otherwise."""
+def _episode_bar(total: int):
+    """The evaluation's bar on stderr (episodes, episodes/s, ETA, the last episode's return), on a
+    terminal only, and the ``on_episode`` that moves it."""
+    from containergym_marl.progress import Bar
 
-    def __init__(self, total: int, stream=None):
-        import time
+    bar = Bar("evaluating", total, "episodes")
 
-        self.total, self.stream = total, stream or sys.stderr
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.t0, self.clock = time.perf_counter(), time.perf_counter
-        if self.tty:
-            print(f"evaluating: 0/{total} episodes", end="", file=self.stream, flush=True)
+    def on_episode(done: int, episode) -> None:
+        bar.advance_to(done, f"seed {episode.seed}: return {episode.cumulative_reward:.2f}"
+                       + (", overflow" if episode.overflow else ""))
 
-    def __call__(self, done: int, episode) -> None:
-        from containergym_marl.orchestration.progress import format_duration
-
-        text = (f"evaluating: {done}/{self.total} episodes done ({format_duration(self.clock() - self.t0)}; "
-                f"seed {episode.seed}: return {episode.cumulative_reward:.2f}"
-                + (", overflow" if episode.overflow else "") + ")")
-        if self.tty:
-            print("\r\033[K" + text, end="\n" if done == self.total else "", file=self.stream, flush=True)
-        else:
-            print(text, file=self.stream, flush=True)
+    return bar, on_episode
 
 
 def _evaluate_target(target: str, config: str | None, episodes: int, which: str, arbitration: str | None = None,
@@ -110,16 +99,18 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
     if target in CONTROLLERS:
         plant = load_config(config or "n5_m2_dt120")
         policy = CONTROLLERS[target](PlantParams.from_config(plant))
-        return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest",
-                        on_episode=_EpisodeProgress(protocol.episodes))
+        bar, on_episode = _episode_bar(protocol.episodes)
+        with bar:
+            return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest", on_episode=on_episode)
     if Path(target).is_dir():
         from containergym_marl.evaluation.runs import evaluate_run
         from containergym_marl.rundir import RunWarning
 
-        with warnings.catch_warnings(record=True) as caught:
+        bar, on_episode = _episode_bar(protocol.episodes)
+        with warnings.catch_warnings(record=True) as caught, bar:
             warnings.simplefilter("always", RunWarning)
             result = evaluate_run(target, config=config, which=which, protocol=protocol, arbitration=arbitration,
-                                  write=write, on_episode=_EpisodeProgress(protocol.episodes))
+                                  write=write, on_episode=on_episode)
         for w in caught:
             if issubclass(w.category, RunWarning):
                 print(f"note: {w.message}", file=sys.stderr)

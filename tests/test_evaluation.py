@@ -148,20 +148,12 @@ def test_cli_prints_a_dash_where_no_emptying_makes_a_share_undefined(capsys):
     assert "nan" not in out and "–" in out
 
 
-def test_evaluation_reports_every_episode_as_it_ends(capsys):
-    """evaluate(on_episode=...) is called after each episode with the count and its metrics; the
-    evaluate command shows the episodes done on stderr while it runs."""
-    from containergym_marl.cli import main
-
+def test_evaluation_reports_every_episode_as_it_ends():
+    """evaluate(on_episode=...) is called after each episode with the count and its metrics (the
+    evaluate command's bar: tests/test_progress.py)."""
     cfg = load_config("n5_m2_dt120")
     seen = []
     result = evaluate(RuleBasedController(PlantParams.from_config(cfg)), cfg, EvalProtocol(episodes=3),
                       on_episode=lambda done, metrics: seen.append((done, metrics.seed, metrics.cumulative_reward)))
     assert seen == [(i + 1, e.seed, e.cumulative_reward) for i, e in enumerate(result.episodes)]
 
-    assert main(["evaluate", "rule_based_agents", "--config", "n5_m2_dt120", "--episodes", "2"]) == 0
-    captured = capsys.readouterr()
-    lines = [line for line in captured.err.splitlines() if line.startswith("evaluating:")]
-    assert [line.split(" episodes done")[0] for line in lines] == ["evaluating: 1/2", "evaluating: 2/2"]
-    assert "seed 10001: return " in lines[-1]
-    assert "rule_based_agents on n5_m2_dt120" in captured.out  # the results on stdout, as before

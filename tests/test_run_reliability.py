@@ -4,6 +4,7 @@ writer per directory, clear errors for bad CLI values and missing extras (issues
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -108,8 +109,15 @@ def test_resume_from_an_older_checkpoint_restores_its_state(run_copy):
     assert summary["resumed_from"] == 256
 
 
-def test_resume_continues_metrics_without_duplicates_and_the_bar_stops_at_the_budget(run_copy, capsys):
+def test_resume_continues_metrics_without_duplicates_and_the_bar_stops_at_the_budget(run_copy, monkeypatch):
     run = run_copy
+
+    class Terminal(io.StringIO):  # the bar is drawn on a terminal only
+        def isatty(self) -> bool:
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Terminal())
+    monkeypatch.setenv("COLUMNS", "200")
     (run / "final_model.zip").unlink()
     before = {int(r["timesteps"]): r["episodes"] for r in read_metrics(run)}
     with pytest.warns(RunWarning, match="dropped 1 row"):  # the row at 512, after the checkpoint at 384
@@ -120,8 +128,9 @@ def test_resume_continues_metrics_without_duplicates_and_the_bar_stops_at_the_bu
     episodes = [r["episodes"] for r in rows]
     assert episodes[:3] == [before[128], before[256], before[384]]
     assert all(b > a for a, b in zip(episodes, episodes[1:]))  # the counter continues, never restarts
-    bars = re.findall(r"(\d+)/(\d+) \[", capsys.readouterr().err)
+    bars = re.findall(r"([\d,]+)/([\d,]+) samples", sys.stderr.getvalue())
     assert bars and all(int(n) <= int(total) == 700 for n, total in bars)
+    assert bars[0][0] == "384" and bars[-1][0] == "700"  # from the checkpoint to the budget, not beyond
 
 
 def test_resume_of_a_run_from_before_progress_files(run_copy):
@@ -357,14 +366,20 @@ def test_train_ends_with_the_training_return_and_the_next_command(tmp_path, caps
     assert printed.rstrip().endswith(f"next: containergym-marl evaluate {out}")
 
 
-def test_train_shows_samples_per_second_and_the_latest_training_return_while_it_runs(tmp_path, capsys):
+def test_train_shows_samples_per_second_and_the_latest_training_return_while_it_runs(tmp_path, monkeypatch):
+    class Terminal(io.StringIO):  # the bar is drawn on a terminal only
+        def isatty(self) -> bool:
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Terminal())
+    monkeypatch.setenv("COLUMNS", "200")
     out = tmp_path / "r"
     assert cli_main(["train", "--algo", "ppo", "--timesteps", "256", "--n-envs", "2", "--hp", "n_steps=64",
                      "--out", str(out), "--override", "episode_length_steps=20"]) == 0
-    bar = capsys.readouterr().err.replace("\r", "\n").splitlines()
-    last = [line for line in bar if line.startswith("ppo s1:")][-1]
+    drawn = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", sys.stderr.getvalue())  # without colours and cursor moves
+    last = [line for line in re.split(r"[\r\n]", drawn) if line.startswith("ppo s1 ")][-1]
     summary = read_run_summary(out)
-    assert "256/256" in last and "samples/s" in last
+    assert "256/256 samples" in last and "samples/s" in last
     assert f"training return {summary['train_return_mean100']:.2f}" in last
 
 

@@ -1,36 +1,28 @@
-"""The sweep's progress in the driver: the live line (runs done / running / queued, evaluations,
-ETA, samples/s of every running run) and the time estimates behind it."""
+"""The sweep's progress in the driver: rows for the sweep and each running run on a terminal, plain
+status and event lines otherwise, and the time estimates behind them."""
 
 from __future__ import annotations
 
-import shutil
 import sys
 import time
 from pathlib import Path
 from typing import TextIO
 
+from containergym_marl.progress import Display, format_duration
 from containergym_marl.rundir import RunError, measured_rate, run_args
 
 #: Samples per second per CPU assumed for an ETA before any run has reported (PPO, n = 5 or 11, here).
 DEFAULT_RATE = 2_000.0
 
 
-def format_duration(seconds: float | None) -> str:
-    if seconds is None or seconds != seconds or seconds == float("inf"):
-        return "?"
-    seconds = int(round(seconds))
-    if seconds < 60:
-        return f"{seconds}s"
-    if seconds < 3600:
-        return f"{seconds // 60}m{seconds % 60:02d}s"
-    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
-
-
 class Progress:
-    """The sweep's live line: runs done / running / left, evaluations, ETA, samples/s per running run.
+    """The sweep's progress: runs done / running / left, evaluations, ETA, samples/s per running run.
 
-    On a terminal the line is redrawn in place every second; otherwise it is printed every
-    ``interval_s`` seconds. Events (a run finished, resumed, retried, failed) are printed as lines."""
+    On a terminal (:class:`containergym_marl.progress.Display`): a row for the sweep (runs done of
+    the total, evaluations, the ETA of :meth:`eta_s`) and one per running run (its share of the
+    budget, samples/s), redrawn in place, with events (a run finished, resumed, retried, failed)
+    printed above them. Otherwise plain lines only: the events, and the status line
+    (:meth:`line`) every ``interval_s`` seconds."""
 
     def __init__(self, budgets: dict[str, int], evaluations: int, cpus: int, stream: TextIO | None = None,
                  interval_s: float = 60.0):
@@ -38,7 +30,6 @@ class Progress:
         self.eval_total, self.evals_done = evaluations, 0
         self.cpus = max(cpus, 1)
         self.stream = stream or sys.stdout
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.interval_s = interval_s
         self.running: dict[str, dict] = {}  # run -> {"samples", "rate", "host"}
         self.done: dict[str, dict] = {}
@@ -46,7 +37,12 @@ class Progress:
         self.attempts: dict[str, int] = {}
         self.t0 = time.perf_counter()
         self._last_print = -float("inf")
-        self._width = 0
+        self.display = Display(self.stream)
+        if self.budgets:  # runs a second are meaningless: the sweep's ETA comes from the runs' rates
+            self._row = self.display.add("sweep", len(self.budgets), "runs", rate=None, eta_s=None)
+        else:
+            self._row = self.display.add("sweep", self.eval_total, "evaluations")
+        self._run_rows: dict[str, int] = {}  # running run -> its row
 
     # events
     def started(self, name: str, host: str, pid: int, state: str, start: int) -> None:
@@ -110,32 +106,41 @@ class Progress:
         return parts[0] + " " + " · ".join(parts[1:])
 
     def say(self, text: str) -> None:
-        self._clear()
-        print(f"  {text}", file=self.stream, flush=True)
-
-    def _clear(self) -> None:
-        if self.tty and self._width:
-            print("\r" + " " * self._width + "\r", end="", file=self.stream, flush=True)
-            self._width = 0
+        if self.display.live:
+            self.display.say(f"  {text}")
+        else:
+            print(f"  {text}", file=self.stream, flush=True)
 
     def tick(self, force: bool = False) -> None:
         now = time.perf_counter()
-        if self.tty:
-            cols = shutil.get_terminal_size((120, 20)).columns
-            text = self.line()[: cols - 1]
-            self._clear()
-            print(text, end="", file=self.stream, flush=True)
-            self._width = len(text)
+        if self.display.live:
+            self._draw()
         elif force or now - self._last_print >= self.interval_s:
             print(self.line(), file=self.stream, flush=True)
             self._last_print = now
 
-    def finish(self) -> None:
-        self._clear()
-        if not self.tty:
-            return
-        print(self.line(), file=self.stream, flush=True)
+    def _draw(self) -> None:
+        d = self.display
+        done, running = len(self.done) + len(self.failed), len(self.running)
+        if self.budgets:
+            d.update(self._row, done, status=f"evaluations {self.evals_done}/{self.eval_total} · {running} running, "
+                                             f"{len(self.budgets) - done - running} queued", eta_s=self.eta_s())
+        else:
+            d.update(self._row, self.evals_done)
+        for name in [n for n in self._run_rows if n not in self.running]:
+            d.remove(self._run_rows.pop(name))
+        for name, r in sorted(self.running.items()):
+            budget = self.budgets.get(name, 0) or 1
+            if name in self._run_rows:
+                d.update(self._run_rows[name], min(r["samples"], budget), rate=r["rate"])
+            else:
+                self._run_rows[name] = d.add(name, budget, "samples", r["samples"], status=f"on {r['host']}",
+                                             rate=r["rate"])
 
+    def finish(self) -> None:
+        if self.display.live:
+            self._draw()
+        self.display.close()
 
 
 def estimate_rate(runs_root: str | Path) -> float:

@@ -5,9 +5,9 @@
 runs one thread), so Ray runs as many trainings at once as the cluster has CPUs, on whichever node
 has one free; an evaluation takes its training task's result (the run's small files, models
 included) as its argument, so Ray starts it when the training ends. Training tasks send events
-(started, samples so far) through a ``ray.util.queue.Queue``, which the driver folds into one live
-line (:class:`~containergym_marl.orchestration.progress.Progress`). Results are handed to the caller
-as they land, so an interrupted sweep keeps what finished.
+(started, samples so far) through a ``ray.util.queue.Queue``, which the driver folds into its progress
+display (:class:`~containergym_marl.orchestration.progress.Progress`). Results are handed to the
+caller as they land, so an interrupted sweep keeps what finished.
 
 Storage: a training task writes its run directory at the same absolute path on whichever node runs
 it. With a filesystem shared by all nodes nothing is copied; without one the driver still gets every
@@ -70,8 +70,8 @@ def execute(cluster: Cluster, runs: list[RunSpec], evaluations: list[tuple[EvalS
         arg = train_refs[source.name] if isinstance(source, RunSpec) else source
         pending[cluster.submit("evaluate", spec, arg, keep_records)] = ("evaluate", spec)
     progress = Progress({s.name: s.timesteps for s in runs}, len(evaluations), cluster.cpus(), stream, interval_s)
-    progress.tick(force=True)
     try:
+        progress.tick(force=True)
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=1.0)
             _drain(events, progress)

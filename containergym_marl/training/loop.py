@@ -4,7 +4,8 @@ run directory (see :mod:`containergym_marl.rundir` for its layout).
 One callback follows the plant's return of every training episode, keeps the model with the best
 mean return over the last 100 training episodes (``best_model.zip``), appends a metrics row at the
 end of every rollout, takes checkpoints (model, best model, replay buffer, progress) at rollout ends
-once the checkpoint interval has passed, and shows a progress bar that stops at the budget.
+once the checkpoint interval has passed, and moves the run's progress bar (:mod:`containergym_marl.progress`;
+on a terminal only), which stops at the budget.
 
 ``--resume`` continues from the newest intact checkpoint: metrics rows after it are dropped, the
 episode counter, the 100-episode window and the best model are those of the checkpoint, the
@@ -48,6 +49,7 @@ from containergym_marl.rundir import (
     truncate_metrics,
 )
 from containergym_marl.models import load_model
+from containergym_marl.progress import Bar
 from containergym_marl.training.checkpoints import (
     TrainingProgress,
     atomic_save_model,
@@ -103,7 +105,7 @@ def _no_distribution_validation():
 
 # ---- the callback ---------------------------------------------------------------------------------
 def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: TrainingProgress, n_envs: int,
-                   interval: int, start: int):
+                   interval: int, start: int, bar: Bar):
     from stable_baselines3.common.callbacks import BaseCallback
 
     budget = int(args.timesteps)
@@ -121,17 +123,9 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
             self._len = np.zeros(n_envs, dtype=np.int64)
             self._t0 = time.perf_counter()
             self._wall0 = progress.wall_time_s
-            self.bar = None
 
         def _wall(self) -> float:
             return round(self._wall0 + time.perf_counter() - self._t0, 2)
-
-        def _on_training_start(self) -> None:
-            if args.progress_bar:
-                from tqdm.auto import tqdm
-
-                self.bar = tqdm(total=budget, initial=min(start, budget), unit=" samples", unit_scale=True,
-                                dynamic_ncols=True, desc=f"{args.algo} s{args.seed}")
 
         def _on_step(self) -> bool:
             rewards, dones = self.training_env.last_plant_step()
@@ -140,8 +134,7 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
             for b in np.flatnonzero(dones):
                 self.progress.add_episode(float(self._acc[b]), int(self._len[b]))
                 self._acc[b], self._len[b] = 0.0, 0
-            if self.bar is not None:
-                self.bar.update(min(self.num_timesteps, budget) - self.bar.n)
+            bar.advance_to(self.num_timesteps)
             return True
 
         def _on_rollout_end(self) -> None:
@@ -176,16 +169,13 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
                 "saved_best": int(improved),
                 "wall_time_s": self._wall(),
             })
-            if self.bar is not None:
-                self.bar.set_postfix_str(f"training return {recent:.2f}", refresh=False)
+            bar.advance_to(steps, _return_text(p))
 
         def _on_training_end(self) -> None:
             if self.num_timesteps > self.last_row:  # replay-buffer algorithms: a last row at the end
                 self.last_row = self.num_timesteps
                 self._log(self.num_timesteps)
             self.progress.wall_time_s = self._wall()
-            if self.bar is not None:
-                self.bar.close()
 
     return RunCallback()
 
@@ -349,8 +339,8 @@ def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, env, inter
     remaining = args.timesteps - model.num_timesteps
     if remaining > 0:
         model.set_logger(_logger(run, resume=resumed is not None))
-        callback = _make_callback(run, spec, args, progress, args.n_envs, interval, start)
-        with _no_distribution_validation():
+        with _no_distribution_validation(), _training_bar(args, start) as bar:
+            callback = _make_callback(run, spec, args, progress, args.n_envs, interval, start, bar)
             model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=resumed is None,
                         progress_bar=False, tb_log_name="run")
     _finish(run, spec, args, int(model.num_timesteps), progress, start if resumed is not None else None,
@@ -371,34 +361,21 @@ def _train_native(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval
         state, start, progress = fast_ppo.new_state(env, hp, spec.view, args.seed, meta), 0, TrainingProgress()
     else:
         state, start, progress = resumed
-    bar = _ProgressBar(args, start) if args.progress_bar else None
-    try:
+    with _training_bar(args, start) as bar:
         fast_ppo.learn(run, state, env, int(args.timesteps), float(args.gamma), hp, progress, interval,
-                       on_samples=bar.update if bar is not None else None)
-    finally:
-        if bar is not None:
-            bar.close()
+                       on_samples=lambda steps, p: bar.advance_to(steps, _return_text(p)))
     _finish(run, spec, args, state.num_timesteps, progress, start if resumed is not None else None,
             lambda path: fast_ppo.save_final(state, path))
 
 
-class _ProgressBar:
-    """tqdm's bar over the budget, with the latest training return."""
+def _training_bar(args: TrainArgs, start: int) -> Bar:
+    """The run's bar on stderr (samples, samples/s, ETA, the latest training return); drawn only on a
+    terminal and unless ``--no-progress``."""
+    return Bar(f"{args.algo} s{args.seed}", int(args.timesteps), "samples", start, show=args.progress_bar)
 
-    def __init__(self, args: TrainArgs, start: int):
-        from tqdm.auto import tqdm
 
-        self.budget = int(args.timesteps)
-        self.bar = tqdm(total=self.budget, initial=min(start, self.budget), unit=" samples", unit_scale=True,
-                        dynamic_ncols=True, desc=f"{args.algo} s{args.seed}")
-
-    def update(self, steps: int, progress: TrainingProgress) -> None:
-        self.bar.update(min(steps, self.budget) - self.bar.n)
-        if progress.returns:
-            self.bar.set_postfix_str(f"training return {np.mean(progress.returns):.2f}", refresh=False)
-
-    def close(self) -> None:
-        self.bar.close()
+def _return_text(progress: TrainingProgress) -> str | None:
+    return f"training return {np.mean(progress.returns):.2f}" if progress.returns else None
 
 
 def _finish(run: Path, spec: AlgorithmSpec, args: TrainArgs, timesteps: int, progress: TrainingProgress,

@@ -74,7 +74,8 @@ class TrainArgs:
                                          help="further settings of the algorithm (SB3's keyword arguments, or "
                                               "the native PPO's fields), e.g. learning_rate=1e-4")
     progress_bar: bool = option(True, flag="--no-progress", action="store_false",
-                                help="no progress bar (samples, samples/s, latest training return)")
+                                help="no progress bar (samples, samples/s, ETA, latest training return; on a "
+                                     "terminal only)")
     torch_threads: int = option(1, type=positive_int,
                                 help="torch threads; 1 is fastest for these small networks")
     overrides: dict[str, Any] = option(default_factory=dict, flag="--override", nargs="*", metavar="KEY=VALUE",
