@@ -1,22 +1,16 @@
-"""Shared test helpers."""
+"""Fixtures shared by every test; plain helpers are in tests/helpers.py."""
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import shutil
-import sys
 import tempfile
-from pathlib import Path
 
-import numpy as np
 import pytest
 
 from containergym_marl import load_config
-from containergym_marl.core import PlantState
 
-ROOT = Path(__file__).resolve().parents[1]
-
+from tests.helpers import CFG
 
 def pytest_configure(config):
     """Ray's session folders (logs, sockets) of every instance the tests start, local or by
@@ -33,39 +27,9 @@ def pytest_unconfigure(config):
         del os.environ["RAY_TMPDIR"]
 
 
-def load_script(relative_path: str):
-    """A script of the repository (``baselines/…``, ``benchmarks/…``) imported as a module named after
-    its file, registered in sys.modules (dataclasses look their module up there)."""
-    path = ROOT / relative_path
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-PAPER_CONFIGS = (
-    "n5_m2_dt60",
-    "n5_m2_dt120",
-    "n5_m5_dt60",
-    "n5_m5_dt120",
-    "n11_m2_dt60",
-    "n11_m2_dt120",
-    "n11_m11_dt60",
-    "n11_m11_dt120",
-)
-
-
-def make_state(volumes, timers, step_count=0) -> PlantState:
-    """A one-simulation state from plain lists."""
-    v = np.atleast_2d(np.asarray(volumes, dtype=np.float64))
-    p = np.atleast_2d(np.asarray(timers, dtype=np.float64))
-    return PlantState(v, p, np.full(v.shape[0], step_count, dtype=np.int64))
-
-
 @pytest.fixture
 def cfg5():
-    return load_config("n5_m2_dt120")
+    return load_config(CFG)
 
 
 @pytest.fixture(autouse=True, scope="session")
@@ -73,8 +37,6 @@ def _sb3_logs_in_a_pytest_folder(tmp_path_factory):
     """Tests that call SB3's ``learn`` directly (not through the package's training loop, which sets
     its own logger) would each leave an empty ``SB3-<date>`` folder in the system temp directory:
     SB3 creates one when no logger is configured, unless $SB3_LOGDIR names a folder."""
-    import os
-
     previous = os.environ.get("SB3_LOGDIR")
     os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logs"))
     yield

@@ -31,7 +31,7 @@ from containergym_marl.envs.vector import (
     ContainerGymVectorEnv,
 )
 
-CFG = "n5_m2_dt120"
+from tests.helpers import CFG
 
 
 def _same(a, b, path="") -> None:

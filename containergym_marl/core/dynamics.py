@@ -269,7 +269,7 @@ def _compile_batch_step(priority: Callable, cache: bool) -> Callable:
     dispatcher pickles with an identity (uuid) new in every process, so each process compiled every
     rule it used anew (about a second) and added a cache file. A global is compiled in like a free
     variable but is not part of the key; the copy's name gives each rule a cache file of its own
-    (``benchmarks/startup.py``; ``tests/test_kernel_cache.py``).
+    (``benchmarks/startup.py``; ``tests/core/test_kernel_cache.py``).
 
     ``cache``: cache the kernel on disk. Numba keys the cache by this file (dynamics.py) and does
     not look at the priority's own source, so only rules defined in this module are cached; a

@@ -2,7 +2,7 @@
 
 The stack ``pettingzoo_env_to_vec_env_v1`` → ``concat_vec_envs_v1`` turns K copies of a PettingZoo
 parallel env into one vector env whose slots are all copies' agents. With SuperSuit 3.11 and SB3 2.9
-it has four problems, measured on this project (each has a test in ``tests/test_supersuit_adapter.py``):
+it has four problems, measured on this project (each has a test in ``tests/training/test_supersuit_adapter.py``):
 
 1. ``ConcatVecEnv`` / ``ProcConcatVec`` have no ``seed()``, ``get_attr`` or ``env_method``, so
    ``PPO(..., seed=s)`` raises ``AttributeError``.

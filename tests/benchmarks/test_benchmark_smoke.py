@@ -1,0 +1,139 @@
+"""benchmarks/throughput.py runs at tiny sizes and prints the documented tables (structure, not speed).
+
+The run compares this checkout with itself (``--compare-with``, the before/after path) and has no
+reference venv, so the earlier implementation's columns must be left out with a message.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+SCRIPT = REPO / "benchmarks" / "throughput.py"
+
+
+def _table(lines: list[str], heading: str) -> tuple[list[str], list[list[str]]]:
+    start = next(i for i, line in enumerate(lines) if line.startswith(heading))
+    rows = []
+    for line in lines[start + 1:]:
+        if line.startswith("## "):
+            break
+        if line.startswith("|") and not line.startswith("|---"):
+            rows.append([c.strip() for c in line.strip("|").split("|")])
+    return rows[0], rows[1:]
+
+
+def _number(cell: str) -> float:
+    return float(cell.replace(",", "").rstrip("×"))
+
+
+def test_smoke_run_prints_every_table(tmp_path):
+    out_json = tmp_path / "throughput.json"
+    env = {k: v for k, v in os.environ.items() if k != "CONTAINERGYM_REFERENCE_PYTHON"}
+    proc = subprocess.run([sys.executable, str(SCRIPT), "--smoke", "--quiet", "--json", str(out_json),
+                           "--compare-with", str(REPO)],
+                          capture_output=True, text=True, timeout=300, check=True, env=env)
+    lines = proc.stdout.splitlines()
+    assert lines[0] == "# Throughput (smoke run)"
+    assert any(line.startswith("- skipped: the earlier implementation: no --reference-python") for line in lines)
+    assert any(line.startswith("- **ours**:") for line in lines)
+    assert any(line.startswith("- **before**:") for line in lines)
+
+    # B = 1: no reference columns without the reference venv
+    header, rows = _table(lines, "## B = 1")
+    assert header == ["path", "n", "B", "ours steps/s", "µs per call", "ours steps per CPU-second", "before steps/s",
+                      "ours ÷ before"]
+    assert {(r[0], r[1]) for r in rows} == {
+        (path, n) for path in ("centralised env step (ContainerGymEnv)", "reset() alone (ContainerGymEnv)",
+                               "PettingZoo parallel_env step (dict API)") for n in ("5", "11")}
+    for r in rows:
+        assert r[2] == "1" and all(_number(c) > 0 for c in r[3:7])
+        assert r[7].endswith("×") and _number(r[7]) > 0
+    assert any(line.startswith("PettingZoo parallel_env step time ÷ centralised step time: n = 5: ours ")
+               for line in lines)
+
+    header, rows = _table(lines, "## Vectorised envs")
+    assert header == ["path", "n", "B", "ours env steps/s", "µs per call", "ours env steps per CPU-second",
+                      "ours agent steps/s", "before env steps/s", "ours ÷ before"]
+    assert [(r[0], r[1]) for r in rows] == [("ContainerGymVecEnv (SB3)", "5"), ("ContainerGymVecEnv (SB3)", "11"),
+                                            ("ContainerAgentsVecEnv (SB3)", "5"), ("ContainerAgentsVecEnv (SB3)", "11")]
+    for r in rows:
+        assert _number(r[3]) > 0 and _number(r[5]) > 0 and _number(r[7]) > 0 and r[8].endswith("×")
+        if r[0].startswith("ContainerAgentsVecEnv"):  # agent steps = n × env steps
+            assert abs(_number(r[6]) - int(r[1]) * _number(r[3])) <= int(r[1])
+        else:
+            assert r[6] == "–"
+    from containergym_marl.core.dynamics import PARALLEL_MIN_BATCH
+    assert (f"The step of a large batch runs in {os.cpu_count()} threads (ours from B = {PARALLEL_MIN_BATCH}, "
+            f"before from B = {PARALLEL_MIN_BATCH})") in proc.stdout
+
+    header, rows = _table(lines, "## Where the time goes at B = 1")
+    assert header[:5] == ["path", "n", "untimed", "with timers", "kernel"] and "resets" in header
+    assert len(rows) == 4 and all(len(r) == len(header) for r in rows)
+    # every path steps the kernel and the core around it (both read 0.0 while the timers wrapped
+    # functions the simulator no longer called)
+    for r in rows:
+        parts = dict(zip(header, r))
+        assert _number(parts["kernel"]) > 0 and _number(parts["core around the kernel"]) > 0, parts
+
+    header, rows = _table(lines, "## SB3 PPO training")
+    assert header == ["algorithm", "env slots", "samples/s", "env share of wall time", "projected 2M samples (min)"]
+    assert [r[0] for r in rows] == ["ppo", "shared_ppo"] and all(r[3].endswith("%") for r in rows)
+
+    header, rows = _table(lines, "## Targets")
+    assert header == ["target", "this run", "status"] and len(rows) == 7
+    assert all(r[2] == "not judged (smoke sizes)" for r in rows)
+    assert rows[0][1] == "reference not run"
+
+    data = json.loads(out_json.read_text())
+    assert set(data) >= {"meta", "implementations", "skipped", "summary", "raw", "profile", "ppo", "targets"}
+    assert list(data["implementations"]) == ["ours", "before"] and data["meta"]["smoke"] is True
+    assert len(data["summary"]["rows"]) == 10
+
+
+def test_kernel_benchmark_compares_two_checkouts():
+    """benchmarks/kernel.py times the compiled step of ours and of another checkout (here: this one
+    again) and prints one row per case with the ratio."""
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "kernel.py"), "--rounds", "1", "--smoke",
+                           "--compare-with", str(REPO), "--compare-label", "again"],
+                          capture_output=True, text=True, timeout=300, check=True)
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("|") and not line.startswith("|---")]
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert header == ["case (n = 11)", "ours µs", "ours ns per simulation", "again µs", "again ns per simulation",
+                      "again ÷ ours"]
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines[1:]]
+    assert [r[0] for r in rows] == ["B=1 p=0.01", "B=1 p=0.5", "B=512 p=0.01", "B=4096 p=0.01", "B=4096 p=0.5"]
+    for r in rows:
+        bsz = int(r[0].split()[0][2:])
+        assert _number(r[1]) > 0 and _number(r[3]) > 0 and r[5].endswith("×")
+        assert abs(_number(r[2]) - 1000 * _number(r[1]) / bsz) <= 1000 * 0.05 / bsz + 1  # µs shown to 0.1
+
+
+def test_startup_benchmark_shows_a_warm_process_compiling_nothing():
+    """benchmarks/startup.py runs a cold and a warm process per rule on a private numba cache; the
+    warm one loads the kernel (one hit, no miss) and writes no cache file."""
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "startup.py"), "--rules", "index"],
+                          capture_output=True, text=True, timeout=300, check=True)
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("|") and not line.startswith("|---")]
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines[1:]]
+    assert [r[:3] for r in rows] == [["ours", "index", "cold"], ["ours", "index", "warm"]]
+    assert rows[0][7] == "0 / 1" and int(rows[0][8]) > 0
+    assert rows[1][7] == "1 / 0" and rows[1][8] == "0"
+
+
+def test_trainer_throughput_smoke_prints_both_ratios(tmp_path):
+    """benchmarks/trainer_throughput.py end to end at one rollout a burst: the four algorithms and
+    the two native/SB3 ratios, also as JSON (structure, not speed)."""
+    out_json = tmp_path / "trainer.json"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "trainer_throughput.py"), "--smoke",
+                           "--rounds", "1", "--config", "n5_m2_dt120", "--json", str(out_json)],
+                          capture_output=True, text=True, timeout=300, check=True, cwd=tmp_path)
+    assert "| fast_shared_ppo / shared_ppo |" in proc.stdout and "| fast_ppo / ppo |" in proc.stdout
+    summary = json.loads(out_json.read_text())
+    assert set(summary["algorithms"]) == {"ppo", "fast_ppo", "shared_ppo", "fast_shared_ppo"}
+    assert all(v["samples_per_cpu_s"] > 0 for v in summary["algorithms"].values())
+    assert not any(tmp_path.glob("runs"))  # bursts train in a temporary folder

@@ -1,0 +1,120 @@
+"""The published comparison (results/paper_rows/) is consistent with itself and with the README: the
+committed table is the table of the committed evaluation files, rebuilt from them alone (what a fresh
+clone does), and the README's compact table and the results page's generated blocks are what
+containergym-marl publish writes from it now."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from containergym_marl.evaluation import table as tables
+from containergym_marl.orchestration import publish as publish_results
+
+ROOT = Path(__file__).resolve().parents[2]
+PUBLISHED = ROOT / "results" / "paper_rows"
+
+
+
+
+def test_committed_table_is_the_table_of_the_committed_evaluations(tmp_path):
+    rebuilt = tables.build_table(tables.load_evaluations(PUBLISHED / "evaluations"))
+    rebuilt.write(tmp_path, {"source": "containergym-marl publish"})
+    assert (tmp_path / "table.md").read_text() == (PUBLISHED / "table.md").read_text()
+    assert (tmp_path / "table.csv").read_text() == (PUBLISHED / "table.csv").read_text()
+
+
+def test_readme_shows_the_committed_table():
+    """The README's compact table is what the publishing step writes from the committed table now
+    (``containergym-marl publish --pages-only --readme README.md --docs docs/results.md``)."""
+    readme = (ROOT / "README.md").read_text()
+    start = readme.index(publish_results.README_START.format(source="results/paper_rows"))
+    end = readme.index(publish_results.README_END)
+    shown = readme[start:end].split("\n", 1)[1].strip()
+    assert shown == publish_results.readme_block(PUBLISHED).strip()
+
+
+def test_results_page_shows_the_committed_tables():
+    """Every generated block of docs/results.md is what the publishing step writes now, and every
+    published row has its block."""
+    page = (ROOT / "docs" / "results.md").read_text()
+    blocks = publish_results.page_blocks(PUBLISHED)
+    assert publish_results.fill_page(page, blocks) == page, (
+        "docs/results.md is stale: containergym-marl publish --pages-only --readme README.md "
+        "--docs docs/results.md")
+    for name in blocks:
+        assert publish_results.PAGE_START.format(name=name) in page, f"docs/results.md has no block {name!r}"
+    assert (PUBLISHED / "table.md").read_text().strip() in page
+
+
+def test_compact_table_has_one_row_per_config_and_the_iqm_of_each_method(tmp_path):
+    """Hand-made table.json: two configs, a rule-based controller and one learned method on one of them."""
+    import json
+
+    to = tmp_path / "paper_rows"
+    to.mkdir()
+    rows = [{"config": "n5_m2_dt120", "method": "rule_based", "seeds": 0, "iqm": 58.855},
+            {"config": "n5_m2_dt120", "method": "ppo", "seeds": 5, "iqm": 50.11},
+            {"config": "n11_m2_dt120", "method": "rule_based", "seeds": 0, "iqm": 76.8}]
+    (to / "table.json").write_text(json.dumps({"rows": rows}))
+    lines = publish_results.compact_table(to).splitlines()
+    assert lines[0] == "| row | `rule_based` | `ppo` |"
+    assert lines[2] == "| `n5_m2_dt120` | 58.9 | 50.1 (5) |"
+    assert lines[3] == "| `n11_m2_dt120` | 76.8 | – |"
+    assert "(5 evaluated policies)" in lines[5]
+
+
+def test_fill_page_replaces_known_blocks_and_refuses_unknown_ones():
+    start, end = publish_results.PAGE_START.format(name="a"), publish_results.PAGE_END.format(name="a")
+    page = f"intro\n{start}\nold\n{end}\noutro\n"
+    assert publish_results.fill_page(page, {"a": "new"}) == f"intro\n{start}\n\nnew\n\n{end}\noutro\n"
+    try:
+        publish_results.fill_page(page, {"b": "x"})
+    except ValueError as exc:
+        assert "unknown" in str(exc)
+    else:
+        raise AssertionError("an unknown block was accepted")
+
+
+def test_committed_compute_is_the_sum_of_the_committed_runs_wall_times():
+    assert (PUBLISHED / "compute.md").read_text() == publish_results.training_compute(PUBLISHED / "runs")
+
+
+def test_training_compute_sums_finished_runs_per_row(tmp_path):
+    """Hand-computed: two finished runs on one row (1800 s + 5400 s = 2 h), one on another (3600 s), an
+    interrupted run left out."""
+    import json
+
+
+    def run(name, config, wall_s, finished=True):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "args.json").write_text(json.dumps({"algo": "ppo", "config": config, "seed": 1}))
+        if finished:
+            (d / "run.json").write_text(json.dumps({"status": "finished", "wall_time_s": wall_s}))
+            (d / "final_model.zip").write_bytes(b"model")
+
+    run("ppo_n5_m2_dt120_s1", "n5_m2_dt120", 1800.0)
+    run("ppo_n5_m2_dt120_s2", "n5_m2_dt120", 5400.0)
+    run("ppo_n11_m2_dt120_s1", "n11_m2_dt120", 3600.0)
+    run("ppo_n11_m2_dt120_s2", "n11_m2_dt120", 0.0, finished=False)
+    text = publish_results.training_compute(tmp_path)
+    assert text.startswith("Training compute of the 3 finished runs published here: 3.0 core-hours")
+    assert text.endswith("Per row: n5_m2_dt120: 2 runs, 2.0 h · n11_m2_dt120: 1 run, 1.0 h.\n")
+
+
+def test_readme_block_is_replaced_in_place_and_a_missing_marker_is_named(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("# title\n\nbefore\n<!-- results table: old -->\nold table\n<!-- end of results table -->\nafter\n")
+    publish_results.show_table_in_readme(readme, "| a |\n|---|\n| 1 |\n", Path("results/x"))
+    assert readme.read_text() == (
+        "# title\n\nbefore\n"
+        "<!-- results table: written by containergym-marl publish from results/x; do not edit -->\n\n"
+        "| a |\n|---|\n| 1 |\n\n<!-- end of results table -->\nafter\n")
+    readme.write_text("no markers\n")
+    try:
+        publish_results.show_table_in_readme(readme, "| a |\n", Path("results/x"))
+    except ValueError as exc:
+        assert "results-table block" in str(exc) and "found 0 start and 0 end" in str(exc)
+    else:
+        raise AssertionError("a README without markers was accepted")
+    assert readme.read_text() == "no markers\n"  # untouched

@@ -1,0 +1,46 @@
+"""What the tests share besides fixtures (those are in conftest.py): the repository's root, the
+configurations the tests use most, a script imported by path, a plant state from plain lists."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from containergym_marl.core import PlantState
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The smallest of the paper's rows (5 containers, 2 PUs, δ = 120 s): the tests' default plant.
+CFG = "n5_m2_dt120"
+
+
+def load_script(relative_path: str):
+    """A script of the repository (``baselines/…``, ``benchmarks/…``) imported as a module named after
+    its file, registered in sys.modules (dataclasses look their module up there)."""
+    path = ROOT / relative_path
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+PAPER_CONFIGS = (
+    "n5_m2_dt60",
+    "n5_m2_dt120",
+    "n5_m5_dt60",
+    "n5_m5_dt120",
+    "n11_m2_dt60",
+    "n11_m2_dt120",
+    "n11_m11_dt60",
+    "n11_m11_dt120",
+)
+
+
+def make_state(volumes, timers, step_count=0) -> PlantState:
+    """A one-simulation state from plain lists."""
+    v = np.atleast_2d(np.asarray(volumes, dtype=np.float64))
+    p = np.atleast_2d(np.asarray(timers, dtype=np.float64))
+    return PlantState(v, p, np.full(v.shape[0], step_count, dtype=np.int64))

@@ -1,0 +1,260 @@
+"""The native PPO trainer (fast_ppo, fast_shared_ppo): the same update and GAE as SB3's PPO,
+determinism, resume after kill -9, tensor-only model files, settings checked before anything is
+written, the optional action mask."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from containergym_marl.cli import main as cli_main
+from containergym_marl.evaluation import EvalProtocol
+from containergym_marl.evaluation.runs import evaluate_run, policy_from_run
+from containergym_marl.policies.actor_critic import ActorCritic
+from containergym_marl.training import TrainArgs, train
+from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, load_checkpoint, update
+from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
+from containergym_marl.training.checkpoints import read_progress
+
+REPO = Path(__file__).resolve().parents[2]
+# 2 simulations, rollouts of 16 steps, training episodes of T = 20 steps (they finish)
+TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 32},
+            overrides={"episode_length_steps": 20})
+SHORT = EvalProtocol(episodes=2, episode_length_steps=60)
+
+
+# ---- the same algorithm as SB3's PPO --------------------------------------------------------------
+def _copy_sb3_weights(sb3_policy, model: ActorCritic) -> None:
+    """SB3's MlpPolicy (policy_net, action_net, value_net of mlp_extractor) into an ActorCritic."""
+    ext = sb3_policy.mlp_extractor
+    pairs = [(model.net.actor[0], ext.policy_net[0]), (model.net.actor[2], ext.policy_net[2]),
+             (model.net.actor[4], sb3_policy.action_net), (model.net.critic[0], ext.value_net[0]),
+             (model.net.critic[2], ext.value_net[2]), (model.net.critic[4], sb3_policy.value_net)]
+    with torch.no_grad():
+        for ours, theirs in pairs:
+            ours.weight.copy_(theirs.weight)
+            ours.bias.copy_(theirs.bias)
+
+
+@pytest.mark.parametrize("view", ["centralised", "decentralised"])
+def test_gae_and_one_update_equal_sb3_ppo(view, tmp_path):
+    """One rollout collected by SB3's PPO (with time-limit cuts in it), then one full-batch epoch:
+    our GAE reproduces SB3's advantages and our update SB3's weights, from the same start."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
+
+    from containergym_marl.envs.vector import ContainerAgentsVecEnv, ContainerGymVecEnv
+
+    env = (ContainerGymVecEnv("n5_m2_dt120", 4, episode_length_steps=10) if view == "centralised"
+           else ContainerAgentsVecEnv("n5_m2_dt120", 2, episode_length_steps=10))
+    env.seed(3)
+    n_steps = 24
+    total = n_steps * env.num_envs
+    sb3 = PPO("MlpPolicy", env, n_steps=n_steps, batch_size=total, n_epochs=1, seed=0, device="cpu")
+    sb3.set_logger(configure(str(tmp_path / "log"), []))
+    ours = ActorCritic(view, env.observation_space.shape[0], int(env.action_space.n))
+    _copy_sb3_weights(sb3.policy, ours)
+    sb3.learn(total)  # one rollout, one update
+    buf = sb3.rollout_buffer
+    assert (buf.episode_starts[1:] == 1).any(), "the rollout should hold episode ends"
+
+    t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+    # SB3's update flattened values, advantages, ... env by env: [n_envs * n_steps, ...]
+    per_step = lambda a: a.reshape(env.num_envs, n_steps).swapaxes(0, 1)  # noqa: E731
+    with torch.no_grad():
+        last_value = ours.value(t(sb3._last_obs))
+    advantages = compute_gae(t(buf.rewards), t(per_step(buf.values)), t(buf.episode_starts), last_value,
+                             t(sb3._last_episode_starts), 0.99, 0.95)
+    np.testing.assert_allclose(advantages.numpy(), per_step(buf.advantages), rtol=1e-5, atol=1e-5)
+
+    hp = PPOArgs(minibatch_size=total, n_epochs=1)
+    optimizer = torch.optim.Adam(ours.net.parameters(), lr=3e-4, eps=1e-5)
+    update(ours, optimizer, hp, torch.Generator().manual_seed(0), t(buf.observations).reshape(total, -1),
+           torch.as_tensor(buf.actions.reshape(-1), dtype=torch.long), t(buf.log_probs).reshape(-1),
+           t(buf.advantages).reshape(-1), t(buf.returns).reshape(-1))
+    expected = ActorCritic(view, ours.observation_size, ours.n_actions)
+    _copy_sb3_weights(sb3.policy, expected)
+    changed = False
+    for (name, a), b in zip(ours.net.state_dict().items(), expected.net.state_dict().values()):
+        np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-4, atol=1e-6, err_msg=name)
+    for a, b in zip(ours.net.parameters(), ActorCritic(view, ours.observation_size, ours.n_actions).net.parameters()):
+        changed |= not torch.equal(a, b)
+    assert changed
+
+
+def test_gae_by_hand():
+    """One slot, three steps, an episode ending after step 1 (the observation of step 2 starts a new one)."""
+    rewards = torch.tensor([[1.0], [2.0], [3.0]])
+    values = torch.tensor([[0.5], [1.0], [2.0]])
+    starts = torch.tensor([[1.0], [0.0], [1.0]])
+    gamma, lam = 0.9, 0.8
+    last_value, last_start = torch.tensor([4.0]), torch.tensor([0.0])
+    adv = compute_gae(rewards, values, starts, last_value, last_start, gamma, lam)[:, 0].tolist()
+    d2 = 3.0 + 0.9 * 4.0 - 2.0  # step 2 bootstraps from the value after the rollout
+    a2 = d2
+    d1 = 2.0 + 0.0 - 1.0  # step 1 ends its episode: no next value, no carried advantage
+    a1 = d1
+    d0 = 1.0 + 0.9 * 1.0 - 0.5
+    a0 = d0 + 0.9 * 0.8 * a1
+    assert adv == pytest.approx([a0, a1, a2])
+
+
+# ---- runs: determinism, files, resume --------------------------------------------------------------
+def _tensors(path) -> dict:
+    return {k: v.clone() for k, v in ActorCritic.load(path).net.state_dict().items()}
+
+
+@pytest.mark.parametrize("algo", ["fast_ppo", "fast_shared_ppo"])
+def test_same_seed_same_metrics_and_model(algo, tmp_path):
+    runs = [train(TrainArgs(algo=algo, out=str(tmp_path / f"r{k}"), timesteps=2000, seed=4, **TINY)) for k in (0, 1)]
+    other = train(TrainArgs(algo=algo, out=str(tmp_path / "other"), timesteps=2000, seed=5, **TINY))
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "wall_time_s"} for r in rows]  # noqa: E731
+    assert strip(read_metrics(runs[0])) == strip(read_metrics(runs[1]))
+    assert read_metrics(runs[0])[-1]["episodes"] > 0
+    a, b, c = (_tensors(r / "final_model.pt") for r in (*runs, other))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_run_directory_holds_tensor_only_models_that_evaluate(tmp_path):
+    run = train(TrainArgs(algo="fast_shared_ppo", out=str(tmp_path / "r"), timesteps=2000, checkpoint_every=500,
+                          **TINY))
+    names = {p.name for p in run.iterdir()}
+    assert {"args.json", "config.toml", "metrics.csv", "best_model.pt", "final_model.pt", "run.json"} <= names
+    assert not any(n.endswith(".zip") for n in names)
+    steps = [s for s, _ in checkpoints(run)]
+    assert steps and all(s < 2000 for s in steps)
+    for path in [run / "best_model.pt", run / "final_model.pt", *(p for _, p in checkpoints(run))]:
+        torch.load(path, weights_only=True)  # plain containers and tensors only
+    summary = read_run_summary(run)
+    assert summary["best_model"] == "best_model.pt" and summary["timesteps"] >= 2000
+    model = ActorCritic.load(run / "final_model.pt")
+    assert model.view == "decentralised" and model.meta["algo"] == "fast_shared_ppo"
+    result = evaluate_run(run, protocol=SHORT, write=False)
+    again = evaluate_run(run, protocol=SHORT, write=False)
+    np.testing.assert_array_equal(result.returns, again.returns)
+    assert policy_from_run(run).name == "fast_shared_ppo[s1,best]"
+    # the CLI: --no-write leaves the run directory as it was; without it, the evaluation is kept there
+    before = sorted(p.name for p in run.iterdir())
+    assert cli_main(["evaluate", str(run), "--episodes", "1", "--no-write"]) == 0
+    assert sorted(p.name for p in run.iterdir()) == before
+    assert cli_main(["evaluate", str(run), "--episodes", "1"]) == 0
+    assert (run / "evaluation_best.json").is_file()
+
+
+def test_team_reward_run_is_named_as_its_method(tmp_path):
+    run = train(TrainArgs(algo="fast_shared_ppo", reward_mode="team", out=str(tmp_path / "r"), timesteps=500, **TINY))
+    assert policy_from_run(run).name.startswith("fast_shared_ppo_team[")
+
+
+class _Payload:
+    """Unpickling this runs code: it writes a marker file."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.write_text, (self.marker, "code ran"))
+
+
+def _plant_payload(path: Path, marker: Path) -> None:
+    """Replace a torch file with one whose pickle carries the payload (a valid torch archive)."""
+    torch.save({"format": "containergym-marl actor-critic", "payload": _Payload(marker)}, path)
+
+
+def test_a_crafted_model_file_never_runs_its_code(tmp_path, capsys):
+    run = train(TrainArgs(algo="fast_ppo", out=str(tmp_path / "r"), timesteps=1000, checkpoint_every=200, **TINY))
+    marker = tmp_path / "ran.txt"
+    _plant_payload(run / "best_model.pt", marker)
+    assert cli_main(["evaluate", str(run), "--episodes", "1"]) == 2
+    assert "holds more than tensors" in capsys.readouterr().err
+    # resuming from a crafted checkpoint: set aside as broken, the previous one used
+    newest = checkpoints(run)[0][1]
+    _plant_payload(newest, marker)
+    (run / "final_model.pt").unlink()
+    with pytest.warns(UserWarning, match="set aside"):
+        train(TrainArgs(algo="fast_ppo", out=str(run), timesteps=1000, checkpoint_every=200, resume=True, **TINY))
+    assert not marker.exists()
+    assert (run / "final_model.pt").is_file()
+
+
+def test_kill_9_then_resume_keeps_metrics_and_episode_window(tmp_path):
+    """A run killed with SIGKILL after some checkpoints resumes: every metrics row once, the episode
+    counter continuing from the checkpoint's, the final model at the budget."""
+    run = tmp_path / "r"
+    argv = [sys.executable, "-m", "containergym_marl.cli", "train", "--algo", "fast_shared_ppo", "--out", str(run),
+            "--timesteps", "400000", "--n-envs", "2", "--checkpoint-every", "20000", "--no-progress",
+            "--hp", "n_steps=16", "minibatch_size=160", "--override", "episode_length_steps=20"]
+    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while time.time() < deadline and len(checkpoints(run)) < 2 and proc.poll() is None:
+        time.sleep(0.2)
+    assert proc.poll() is None, proc.stderr.read().decode()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    proc.stderr.close()
+    assert not (run / "final_model.pt").exists()
+    steps, _ = checkpoints(run)[0]
+    at_checkpoint = read_progress(run, steps)
+    with pytest.warns(UserWarning):
+        train(TrainArgs(algo="fast_shared_ppo", out=str(run), timesteps=400000, resume=True, checkpoint_every=20000,
+                        n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 160},
+                        overrides={"episode_length_steps": 20}))
+    rows = read_metrics(run)
+    samples = [int(r["timesteps"]) for r in rows]
+    assert samples == sorted(set(samples)) and samples[-1] >= 400000
+    after = [r for r in rows if r["timesteps"] > steps]
+    assert after[0]["episodes"] >= at_checkpoint.episodes and after[-1]["episodes"] > at_checkpoint.episodes
+    assert read_run_summary(run)["resumed_from"] == steps
+    state = load_checkpoint(checkpoints(run)[0][1], PPOArgs(n_steps=16, minibatch_size=160))
+    assert state.num_timesteps == checkpoints(run)[0][0]
+
+
+# ---- settings, masks --------------------------------------------------------------------------------
+@pytest.mark.parametrize("hp, field", [({"bogus": 1}, "bogus"), ({"n_steps": 0}, "n_steps"),
+                                       ({"learning_rate": "nan"}, "learning_rate"),
+                                       ({"action_mask": "maybe"}, "action_mask"),
+                                       ({"minibatch_size": 2.5}, "minibatch_size")])
+def test_bad_settings_are_refused_before_anything_is_written(hp, field, tmp_path):
+    with pytest.raises(ValueError, match=field):
+        train(TrainArgs(algo="fast_ppo", out=str(tmp_path / "r"), timesteps=100, hyperparams=hp, progress_bar=False))
+    assert not (tmp_path / "r").exists()
+
+
+def test_cli_settings_parse_from_strings():
+    hp = PPOArgs.from_hyperparams({"n_steps": "32", "action_mask": "true", "hidden": "32,16", "clip_range": "0.1"})
+    assert (hp.n_steps, hp.action_mask, hp.hidden, hp.clip_range) == (32, True, (32, 16), 0.1)
+
+
+def test_gamma_out_of_range_is_refused(tmp_path):
+    for gamma in (float("nan"), 2.5, 0.0):
+        with pytest.raises(ValueError, match="gamma"):
+            train(TrainArgs(algo="fast_ppo", out=str(tmp_path / "r"), timesteps=100, gamma=gamma, progress_bar=False))
+    assert not (tmp_path / "r").exists()
+
+
+def test_masked_controller_never_empties_without_a_free_pu(tmp_path):
+    run = train(TrainArgs(algo="fast_ppo", out=str(tmp_path / "r"), timesteps=1000,
+                          **{**TINY, "hyperparams": {**TINY["hyperparams"], "action_mask": True}}))
+    assert ActorCritic.load(run / "final_model.pt").action_mask
+    result = evaluate_run(run, protocol=EvalProtocol(episodes=3), write=False)
+    assert sum(e.denied_requests for e in result.episodes) == 0
+    unmasked = train(TrainArgs(algo="fast_ppo", out=str(tmp_path / "u"), timesteps=1000, **TINY))
+    assert sum(e.denied_requests for e in evaluate_run(unmasked, protocol=EvalProtocol(episodes=3), write=False).episodes) > 0
+
+
+def test_the_sigmoid_form_of_tanh_equals_torch_tanh_and_its_gradient():
+    from containergym_marl.policies._fast_tanh import Tanh
+
+    x = torch.linspace(-12, 12, 20001, dtype=torch.float32, requires_grad=True)
+    y = Tanh()(x)
+    assert (y - torch.tanh(x)).abs().max().item() < 3e-7
+    (grad,) = torch.autograd.grad(y.sum(), x)
+    np.testing.assert_allclose(grad.numpy(), (1 - torch.tanh(x) ** 2).detach().numpy(), atol=1e-6)
