@@ -42,7 +42,10 @@ n >= 11).
 
 Execution on Ray (:mod:`containergym_marl.orchestration.sweep`): one task per training run (one CPU each, torch
 one thread), one per evaluation; tables and figures in the driver. By default compare starts a
-local Ray instance with this machine's cores (``--num-cpus`` to change); ``--address`` (or
+local Ray instance with this machine's cores (``--num-cpus`` to change; its servers listen on
+every interface, which Ray 2.60 does not let a caller change, and refuse any client without the
+token Ray keeps in ``~/.ray/auth_token``: Ray's token authentication, on by default for a new local
+instance); ``--address`` (or
 ``RAY_ADDRESS``) runs the same sweep on an existing cluster. A live line shows runs done /
 running / queued, evaluations, the ETA and each running run's samples/s.
 

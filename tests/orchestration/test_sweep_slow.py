@@ -478,3 +478,43 @@ def test_ctrl_c_under_load_ends_compare_quickly_and_leaves_no_process(tmp_path):
     assert elapsed < 30, f"compare took {elapsed:.0f} s to stop after Ctrl-C"
     assert "interrupted: finished runs are kept, the others resume from their last checkpoint" in output
     assert orphans == [], f"processes of the compare outlived it by 30 s: {orphans}"
+
+
+_PROBE = """
+import sys
+import ray
+try:
+    ray.init(address=sys.argv[1], logging_level="ERROR", log_to_driver=False)
+    print("CONNECTED")
+except Exception as exc:
+    print("REFUSED", type(exc).__name__)
+"""
+
+
+def test_a_local_instance_refuses_clients_without_its_token(tmp_path):
+    """A local instance's servers listen on every interface (Ray 2.60 cannot bind them to
+    localhost, whatever ``_node_ip_address`` says); what keeps other hosts out is Ray's token
+    authentication, which Ray turns on for every new local instance (its token in
+    ``~/.ray/auth_token``, readable by this user only through the home folder). A client without the
+    token, or with another one, is refused; the driver's own processes have it."""
+    import ray
+
+    from containergym_marl.orchestration.cluster import Cluster
+
+    if os.environ.get("RAY_AUTH_MODE", "token") != "token":
+        pytest.skip("RAY_AUTH_MODE turns Ray's token authentication off here")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("RAY_AUTH", "RAY_ADDRESS"))}
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv("RAY_ADDRESS", raising=False)
+        with Cluster(num_cpus=1) as cluster:
+            cluster.ray()
+            gcs = ray.get_runtime_context().gcs_address
+
+            def probe(extra: dict) -> str:
+                r = subprocess.run([sys.executable, "-c", _PROBE, gcs], env={**env, **extra}, capture_output=True,
+                                   text=True, timeout=120)
+                return r.stdout.strip()
+
+            assert probe({}) == "REFUSED ConnectionError"
+            assert probe({"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": "0" * 64}) == "REFUSED ConnectionError"
+            assert probe({"RAY_AUTH_MODE": "token"}) == "CONNECTED"  # the token Ray keeps for this user
