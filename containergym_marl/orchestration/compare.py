@@ -5,19 +5,18 @@
     containergym-marl compare --configs n5_m2_dt120 n11_m2_dt120 --methods rule_based rule_based_agents \\
         ppo shared_ppo shared_ppo_team --seeds 1 2 3 --timesteps paper   # the paper's budgets: hours
 
-**Shipped policies** (the default: no ``--train`` and no training option, that is none of
-``--timesteps``, ``--seeds``, ``--runs``, ``--n-envs``, ``--hp``, ``--checkpoint-every``): nothing is
-trained. The repository publishes the comparison's runs in ``results/paper_rows/runs/``
+**Shipped policies** (the default: no ``--train``; a training option without it is refused):
+nothing is trained. The repository publishes the comparison's runs in ``results/paper_rows/runs/``
 (``containergym-marl publish``; ``--shipped`` names another such folder, which is only read).
 On every row of :data:`PAPER_ROWS` it evaluates the rule-based controllers and, for each learned
-method of :data:`PAPER_METHODS` with finished shipped runs (a readable ``final_model.zip``; runs
+method of :data:`PAPER_METHODS` with finished shipped runs (a readable final model; runs
 published with only a checkpoint are still training and are skipped), the best model of its best
 seed, ranked by the published evaluations (``<shipped>/evaluations/``); a seed without a published
 evaluation of the same model, plant and protocol is evaluated too. The other seeds' published
 evaluations complete the table (median, IQM), so it reads as the sweep's own. Rows without shipped
 policies are named.
 
-**Training** (``--train``, or any training option): for every configuration it trains (or reuses)
+**Training** (``--train``): for every configuration it trains (or reuses)
 each learned method for each seed, evaluates every
 policy with the paper's test protocol (δ = 120 s, T = 600, ``--episodes`` episodes, best model of
 each run) and writes the same files. Before it trains it says how long that will take.

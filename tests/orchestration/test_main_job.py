@@ -31,6 +31,7 @@ from containergym_marl.evaluation import EvalProtocol  # noqa: E402
 from containergym_marl.methods import METHODS  # noqa: E402
 from containergym_marl.evaluation.runs import evaluate_run  # noqa: E402
 from containergym_marl.manifest import write_manifest  # noqa: E402
+from containergym_marl.rundir import model_file  # noqa: E402
 from containergym_marl.training import TrainArgs, train  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -227,7 +228,7 @@ def test_the_repository_s_shipped_folder_is_planned_from_its_files(tmp_path):
     plan = shipped_plan(args, tmp_path / "cmp")
     keys = {(spec.config, spec.key) for spec, _ in plan.to_evaluate} | set(plan.evaluations)
     assert {(c, m) for c in PAPER_ROWS for m in ("rule_based", "rule_based_agents")} <= keys
-    finished = {p.name for p in (ROOT / SHIPPED / "runs").glob("*") if (p / "final_model.zip").is_file()}
+    finished = {p.name for p in (ROOT / SHIPPED / "runs").glob("*") if (p / model_file(p, "final")).is_file()}
     assert plan.finished <= finished
     for config in PAPER_ROWS:
         assert (config in plan.shipped.missing) == (config not in plan.shipped.learned)
