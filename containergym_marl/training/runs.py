@@ -121,9 +121,14 @@ class TrainArgs:
             if self.vec != "native":
                 raise ValueError(f"vec: {self.algo} trains on the native vector env only, not {self.vec!r}")
             require_training_extra(())  # torch, with a message naming the extra
-            from containergym_marl.training.fast_ppo import PPOArgs
+            if "dagger" in spec.phases:
+                from containergym_marl.training.dagger import DAggerArgs
 
-            PPOArgs.from_hyperparams(self.hyperparams)
+                DAggerArgs.from_hyperparams(self.hyperparams, fine_tune="ppo" in spec.phases)
+            else:
+                from containergym_marl.training.fast_ppo import PPOArgs
+
+                PPOArgs.from_hyperparams(self.hyperparams)
 
 
 #: The largest training seed: SB3 seeds numpy's global generator, which takes seeds below 2**32.
