@@ -45,9 +45,9 @@ for the native PPO; after the fine-tuning starts, PPO's training episodes contin
 **Run directory and resume** as the native PPO's: tensor-only ``best_model.pt`` / ``final_model.pt``
 (``ActorCritic``) and checkpoints ``checkpoints/ckpt_<S>_steps.pt`` (model, optimiser, generator,
 iteration, the per-iteration record) every checkpoint interval. The data set of the newest
-checkpoint is kept beside it (``ckpt_dataset_<S>_steps.pt``; older ones are removed: it is the
-size of a replay buffer); a resume from an older checkpoint continues with an empty data set, with
-a warning. A checkpoint of the fine-tuning phase is the native PPO's. All randomness comes from the
+checkpoint is kept beside it (``ckpt_dataset_<S>_steps.pt``; older ones are removed, and the last
+when imitation ends: it is the size of a replay buffer); a resume from a checkpoint without one
+continues with an empty data set, with a warning. A checkpoint of the fine-tuning phase is the native PPO's. All randomness comes from the
 run's seed: the simulations (``seed + b``, ``seed + samples`` after a resume or the switch to PPO),
 the planners (seeded like their simulations) and one ``torch.Generator`` (initialisation, action
 samples, minibatches).
@@ -114,14 +114,15 @@ class DAggerArgs:
         own = {f.name: f for f in dataclasses.fields(cls) if f.name != "ppo"}
         if not fine_tune:
             own.pop("imitation_share")
-        ppo_keys = {k[4:]: v for k, v in hyperparams.items() if k.startswith("ppo_") and fine_tune}
-        unknown = sorted(k for k in hyperparams if k not in own and not (fine_tune and k.startswith("ppo_")))
-        if unknown:
-            choices = sorted(own) + (["ppo_<native PPO setting>"] if fine_tune else [])
-            raise ValueError(f"hp: unknown DAgger setting(s) {unknown}; choose from {choices}")
-        taken = sorted(f"ppo_{k}" for k in ppo_keys if k in MODEL_SETTINGS)
+        ppo_fields = {f"ppo_{f.name}" for f in dataclasses.fields(fast_ppo.PPOArgs)} if fine_tune else set()
+        taken = sorted(k for k in hyperparams if k in ppo_fields and k[4:] in MODEL_SETTINGS)
         if taken:
             raise ValueError(f"hp: {taken} cannot be set: the fine-tuning keeps the imitated model's network")
+        unknown = sorted(k for k in hyperparams if k not in own and k not in ppo_fields)
+        if unknown:
+            choices = sorted(own) + sorted(ppo_fields - {f"ppo_{k}" for k in MODEL_SETTINGS})
+            raise ValueError(f"hp: unknown DAgger setting(s) {unknown}; choose from {choices}")
+        ppo_keys = {k[4:]: v for k, v in hyperparams.items() if k in ppo_fields}
         values: dict[str, Any] = {"imitation_share": FINE_TUNE_IMITATION_SHARE} if fine_tune else {}
         for key, value in hyperparams.items():
             if key in own:
@@ -482,6 +483,8 @@ def train(run: Path, state, env, budget: int, gamma: float, hp: DAggerArgs, prog
             env.seed(seed + state.num_timesteps)
             learn(run, state, env, imitation, gamma, hp, progress, interval, seed + state.num_timesteps, budget,
                   on_samples)
+        for done_with in (run / "checkpoints").glob("ckpt_dataset_*_steps.pt"):
+            done_with.unlink()  # imitation is over: a resume from here on needs no data set
         if hp.ppo is None:
             return state
         state = fast_ppo.state_from_model(state.model, hp.ppo, state.generator, state.num_timesteps)
