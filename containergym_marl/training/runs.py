@@ -72,7 +72,8 @@ class TrainArgs:
     hyperparams: dict[str, Any] = option(default_factory=dict, flag="--hp", nargs="*", metavar="KEY=VALUE",
                                          convert=key_values,
                                          help="further settings of the algorithm (SB3's keyword arguments, or "
-                                              "the native PPO's fields), e.g. learning_rate=1e-4")
+                                              "the fields of the native trainers' PPOArgs and DAggerArgs), "
+                                              "e.g. learning_rate=1e-4")
     progress_bar: bool = option(True, flag="--no-progress", action="store_false",
                                 help="no progress bar (samples, samples/s, ETA, latest training return; on a "
                                      "terminal only)")
