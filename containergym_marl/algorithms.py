@@ -6,7 +6,9 @@ learns from rollouts (``n_steps`` samples per update) or from a replay buffer, a
 adapter evaluates its models. Adding an algorithm = one entry in :data:`REGISTRY`.
 
 ``fast_ppo`` and ``fast_shared_ppo`` are the package's own PPO (:mod:`containergym_marl.training.fast_ppo`:
-SB3's network and loss, a wider batch), with tensor-only model files (``.pt``). An entry with neither
+SB3's network and loss, a wider batch), with tensor-only model files (``.pt``); ``dagger_agents`` and
+``dagger_ppo_agents`` train ``fast_shared_ppo``'s network by imitating the rollout planner
+(:mod:`containergym_marl.training.dagger`), the second then fine-tuning it with the native PPO. An entry with neither
 is trained by a script of its own (``trainer``) and only evaluated here: ``mappo`` (BenchMARL's
 MAPPO, ``baselines/train_mappo.py``), whose run directories ``containergym-marl evaluate`` reads like
 any other. :data:`ALGORITHMS` lists the ones that ``containergym-marl train`` and ``compare`` train.
@@ -68,7 +70,10 @@ class AlgorithmSpec:
         name: the registry key (CLI ``--algo``, run directory names, table rows).
         class_path: ``"module:Class"`` of the SB3 / sb3-contrib algorithm (imported by :meth:`load_class`),
             or None for an algorithm trained outside SB3 (``native``, or by ``trainer``).
-        native: trained by the package's own PPO (:mod:`containergym_marl.training.fast_ppo`).
+        native: trained by the package's own trainers, in the order of ``phases``.
+        phases: a native algorithm's training phases: ``("ppo",)`` the native PPO
+            (:mod:`containergym_marl.training.fast_ppo`), ``("dagger",)`` imitation of the rollout
+            planner (:mod:`containergym_marl.training.dagger`), ``("dagger", "ppo")`` both in one run.
         policy_adapter: the class that evaluates its models; its ``view`` ("centralised" or
             "decentralised") is the algorithm's view. For a non-SB3 algorithm it also loads them
             (``policy_adapter.load_model(path)``).
@@ -93,6 +98,7 @@ class AlgorithmSpec:
     policy_adapter: type
     description: str
     native: bool = False
+    phases: tuple[str, ...] = ("ppo",)
     default_n_envs: int = 8
     rollout: bool = True
     minibatch: int | None = 64
@@ -197,6 +203,14 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       "decentralised PPO, native trainer: one policy shared by every container agent, "
                       "64 simulations, minibatches of 1024", native=True, default_n_envs=64, minibatch=None,
                       adam_eps=None, reward_modes=REWARD_MODES, model_suffix=".pt"),
+        AlgorithmSpec("dagger_agents", None, SharedActorCriticPolicy,
+                      "decentralised imitation of planner_agents (DAgger): fast_shared_ppo's shared policy, "
+                      "trained on the planner's decisions in the states it visits itself", native=True,
+                      phases=("dagger",), default_n_envs=64, minibatch=None, adam_eps=None, model_suffix=".pt"),
+        AlgorithmSpec("dagger_ppo_agents", None, SharedActorCriticPolicy,
+                      "dagger_agents for a fifth of the budget, then fast_shared_ppo from the imitated policy",
+                      native=True, phases=("dagger", "ppo"), default_n_envs=64, minibatch=None, adam_eps=None,
+                      reward_modes=REWARD_MODES, model_suffix=".pt"),
         AlgorithmSpec("mappo", None, SharedActorPolicy,
                       "MAPPO (BenchMARL, CTDE): one actor shared by the container agents, a critic on the "
                       "global state; team reward (its settings are BenchMARL's, in the script)",

@@ -12,6 +12,8 @@ A run directory holds everything needed to inspect, resume and evaluate a run::
                           absent when no training episode finished (run.json says so)
       final_model.zip     the policy at the end of the budget
       run.json            written when training ends: samples, episodes, training returns, notes
+      imitation.json      the imitation runs' (dagger_*) record per iteration: agreement with the
+                          planner, its labelling CPU seconds
       checkpoints/        ckpt_<S>_steps.zip every checkpoint interval, used by --resume, with
                           ckpt_<S>_steps.json (episode counter, 100-episode window, best so far),
                           best_model_<S>_steps.zip (the best model at that point) and, for
@@ -145,7 +147,7 @@ class RunLock:
 
 #: The files of a run directory that training writes (checkpoints/ is the training's too).
 TRAINING_FILES = ("args.json", "config.toml", "metrics.csv", "best_model.zip", "final_model.zip", "best_model.pt",
-                  "final_model.pt", "run.json")
+                  "final_model.pt", "run.json", "imitation.json")
 
 
 def remove_stale_temporaries(run: str | Path) -> list[Path]:

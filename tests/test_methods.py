@@ -26,6 +26,7 @@ def test_each_method_is_what_its_name_says():
         "maskable_ppo": ("learned", "centralised"), "shared_ppo": ("learned", "decentralised"),
         "shared_ppo_team": ("learned", "decentralised"), "fast_ppo": ("learned", "centralised"),
         "fast_shared_ppo": ("learned", "decentralised"), "fast_shared_ppo_team": ("learned", "decentralised"),
+        "dagger_agents": ("learned", "decentralised"), "dagger_ppo_agents": ("learned", "decentralised"),
         "mappo": ("learned", "decentralised"),
     }
     assert {name: (m.kind, m.view) for name, m in METHODS.items()} == expected
@@ -34,6 +35,9 @@ def test_each_method_is_what_its_name_says():
     team = METHODS["shared_ppo_team"]
     assert (team.algo, team.train_settings()) == ("shared_ppo", {"reward_mode": "team"})
     assert METHODS["ppo"].train_settings() == {}
+    # the imitations of planner_agents are set against the centralised planner, as planner_agents is
+    assert METHODS["dagger_ppo_agents"].train_settings() == {"reward_mode": "individual"}
+    assert {METHODS[m].counterpart for m in ("dagger_agents", "dagger_ppo_agents", "planner_agents")} == {"planner"}
 
 
 def test_pairs_set_a_decentralised_method_against_a_centralised_one():

@@ -89,7 +89,7 @@ class PPOArgs:
         values = {}
         for key, value in hyperparams.items():
             default = getattr(cls, key) if key != "hidden" else cls.hidden
-            values[key] = _coerce(key, value, default)
+            values[key] = coerce_setting(key, value, default)
         args = cls(**values)
         args.validate()
         return args
@@ -113,7 +113,7 @@ class PPOArgs:
             raise ValueError(f"hp: hidden must list positive layer widths, got {list(self.hidden)}")
 
 
-def _coerce(key: str, value: Any, default: Any) -> Any:
+def coerce_setting(key: str, value: Any, default: Any) -> Any:
     """``value`` (a CLI string or a Python value) as the type of ``default``; a ValueError naming ``key``."""
     try:
         if isinstance(default, bool):
@@ -166,6 +166,12 @@ def new_state(env, hp: PPOArgs, view: str, seed: int, meta: dict[str, Any]) -> T
     model = ActorCritic(view, env.observation_space.shape[0], int(env.action_space.n), hp.hidden,
                         action_mask=hp.action_mask, meta=meta, generator=generator)
     return TrainingState(model, _optimizer(model, hp), generator, 0, dataclasses.asdict(hp))
+
+
+def state_from_model(model: ActorCritic, hp: PPOArgs, generator: torch.Generator, num_timesteps: int) -> TrainingState:
+    """A training state that continues from ``model`` (an imitated policy, :mod:`~containergym_marl.training.dagger`)
+    with a fresh optimiser, the run's generator and its samples so far."""
+    return TrainingState(model, _optimizer(model, hp), generator, int(num_timesteps), dataclasses.asdict(hp))
 
 
 def _optimizer(model: ActorCritic, hp: PPOArgs):
@@ -264,7 +270,7 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
 
         steps = state.num_timesteps
         wall = round(wall0 + time.perf_counter() - t0, 2)
-        _log(run, best_file, model, progress, steps, wall)
+        log_rollout(run, best_file, model, progress, steps, wall)
         if on_samples is not None:
             on_samples(steps, progress)
 
@@ -325,7 +331,8 @@ def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, 
             optimizer.step()
 
 
-def _log(run: Path, best_file: Path, model: ActorCritic, progress: TrainingProgress, steps: int, wall: float) -> None:
+def log_rollout(run: Path, best_file: Path, model: ActorCritic, progress: TrainingProgress, steps: int,
+                wall: float) -> None:
     """A metrics row, and the best model (the policy that collected this rollout) when the
     100-episode mean training return improved; nothing before the first training episode ends."""
     if not progress.returns:
@@ -352,4 +359,5 @@ def save_final(state: TrainingState, path: Path) -> None:
     state.model.save(path)
 
 
-__all__ = ["PPOArgs", "TrainingState", "compute_gae", "learn", "update", "load_checkpoint", "new_state", "save_final"]
+__all__ = ["PPOArgs", "TrainingState", "coerce_setting", "compute_gae", "learn", "load_checkpoint", "log_rollout",
+           "new_state", "save_final", "state_from_model", "update"]

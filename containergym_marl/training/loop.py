@@ -296,7 +296,9 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
         try:
             if _finished_already(run, spec, args):
                 return run
-            if spec.native:
+            if spec.native and "dagger" in spec.phases:
+                _train_dagger(run, spec, args, env, interval)
+            elif spec.native:
                 _train_native(run, spec, args, env, interval)
             else:
                 _train(run, spec, algo_cls, args, env, interval, model)
@@ -368,6 +370,27 @@ def _train_native(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval
             lambda path: fast_ppo.save_final(state, path))
 
 
+def _train_dagger(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval: int):
+    """Imitation of the rollout planner (:mod:`containergym_marl.training.dagger`), then the native
+    PPO where the algorithm has that phase, in the run directory."""
+    from containergym_marl.training import dagger, fast_ppo
+
+    hp = dagger.DAggerArgs.from_hyperparams(args.hyperparams, fine_tune="ppo" in spec.phases)
+    resumed = _resume(run, spec, args, env, load=lambda path: dagger.load_checkpoint(path, hp)) \
+        if args.resume else None
+    if resumed is None:
+        meta = {"algo": args.algo, "config": Path(str(args.config)).stem, "seed": args.seed,
+                "reward_mode": args.reward_mode if spec.reward_modes else None}
+        state, start, progress = dagger.new_state(env, hp, args.seed, meta), 0, TrainingProgress()
+    else:
+        state, start, progress = resumed
+    with _training_bar(args, start) as bar:
+        state = dagger.train(run, state, env, int(args.timesteps), float(args.gamma), hp, progress, interval,
+                             args.seed, on_samples=lambda steps, p: bar.advance_to(steps, _return_text(p)))
+    _finish(run, spec, args, state.num_timesteps, progress, start if resumed is not None else None,
+            lambda path: fast_ppo.save_final(state, path), extra={"imitation": dagger.summary(run)})
+
+
 def _training_bar(args: TrainArgs, start: int) -> Bar:
     """The run's bar on stderr (samples, samples/s, ETA, the latest training return); drawn only on a
     terminal and unless ``--no-progress``."""
@@ -379,8 +402,9 @@ def _return_text(progress: TrainingProgress) -> str | None:
 
 
 def _finish(run: Path, spec: AlgorithmSpec, args: TrainArgs, timesteps: int, progress: TrainingProgress,
-            resumed_from: int | None, save_final) -> None:
-    """run.json, then the final model (``save_final(path)``): the mark of a finished run."""
+            resumed_from: int | None, save_final, extra: dict[str, Any] | None = None) -> None:
+    """run.json (with ``extra``'s entries: what a trainer adds), then the final model
+    (``save_final(path)``): the mark of a finished run."""
     best_name = spec.model_file("best")
     if progress.episodes == 0 and not progress.returns:
         (run / best_name).unlink(missing_ok=True)
@@ -398,6 +422,7 @@ def _finish(run: Path, spec: AlgorithmSpec, args: TrainArgs, timesteps: int, pro
         "resumed_from": resumed_from,
         "wall_time_s": progress.wall_time_s,
         "note": no_episode_note(best_name) if progress.episodes == 0 and not best else None,
+        **(extra or {}),
     }
     # run.json first: the final model is the mark of a finished run (compare reuses such runs).
     atomic_write_text(run / "run.json", json.dumps(summary, indent=2))

@@ -72,7 +72,8 @@ class TrainArgs:
     hyperparams: dict[str, Any] = option(default_factory=dict, flag="--hp", nargs="*", metavar="KEY=VALUE",
                                          convert=key_values,
                                          help="further settings of the algorithm (SB3's keyword arguments, or "
-                                              "the native PPO's fields), e.g. learning_rate=1e-4")
+                                              "the fields of the native trainers' PPOArgs and DAggerArgs), "
+                                              "e.g. learning_rate=1e-4")
     progress_bar: bool = option(True, flag="--no-progress", action="store_false",
                                 help="no progress bar (samples, samples/s, ETA, latest training return; on a "
                                      "terminal only)")
@@ -121,9 +122,14 @@ class TrainArgs:
             if self.vec != "native":
                 raise ValueError(f"vec: {self.algo} trains on the native vector env only, not {self.vec!r}")
             require_training_extra(())  # torch, with a message naming the extra
-            from containergym_marl.training.fast_ppo import PPOArgs
+            if "dagger" in spec.phases:
+                from containergym_marl.training.dagger import DAggerArgs
 
-            PPOArgs.from_hyperparams(self.hyperparams)
+                DAggerArgs.from_hyperparams(self.hyperparams, fine_tune="ppo" in spec.phases)
+            else:
+                from containergym_marl.training.fast_ppo import PPOArgs
+
+                PPOArgs.from_hyperparams(self.hyperparams)
 
 
 #: The largest training seed: SB3 seeds numpy's global generator, which takes seeds below 2**32.

@@ -19,15 +19,18 @@ def test_registry_entries_load_their_classes_and_views():
     from stable_baselines3 import DQN, PPO
 
     classes = {"ppo": PPO, "trpo": TRPO, "dqn": DQN, "maskable_ppo": MaskablePPO, "shared_ppo": PPO}
-    assert set(ALGORITHMS) == set(classes) | {"fast_ppo", "fast_shared_ppo"}
+    assert set(ALGORITHMS) == set(classes) | {"fast_ppo", "fast_shared_ppo", "dagger_agents", "dagger_ppo_agents"}
     for name, cls in classes.items():
         assert get_algorithm(name).load_class() is cls
-    for name in ("fast_ppo", "fast_shared_ppo"):  # the native PPO: no SB3 class, tensor-only files
+    for name in ("fast_ppo", "fast_shared_ppo", "dagger_agents", "dagger_ppo_agents"):  # native: tensor-only files
         spec = get_algorithm(name)
         assert spec.native and not spec.sb3 and spec.model_file("best") == "best_model.pt"
         with pytest.raises(ValueError, match="not a Stable-Baselines3 algorithm"):
             spec.load_class()
     assert get_algorithm("fast_shared_ppo").method_name("team") == "fast_shared_ppo_team"
+    assert [get_algorithm(a).phases for a in ("fast_shared_ppo", "dagger_agents", "dagger_ppo_agents")] == [
+        ("ppo",), ("dagger",), ("dagger", "ppo")]
+    assert get_algorithm("dagger_agents").policy_adapter is get_algorithm("fast_shared_ppo").policy_adapter
     assert get_algorithm("shared_ppo").policy_adapter is SharedModelPolicy
     assert all(REGISTRY[a].policy_adapter is CentralisedModelPolicy for a in ("ppo", "trpo", "dqn", "maskable_ppo"))
     assert get_algorithm("dqn").replay_buffer and not get_algorithm("ppo").replay_buffer

@@ -1,0 +1,210 @@
+"""The imitations of the rollout planner on every row, against ``planner_agents`` (issue 27).
+
+    python benchmarks/dagger_rows.py             # nine rows x 5 seeds x 2 methods at the paper's budgets
+    python benchmarks/dagger_rows.py --smoke     # one row, one seed, 20k samples, 2 episodes (runs/dagger_smoke)
+
+Trains ``dagger_agents`` and ``dagger_ppo_agents`` with ``containergym-marl compare --train`` (one
+Ray task per run on one core, torch one thread; resumable: rerun the same command to continue), each
+row under its own training settings (the δ = 60 rows at δ = 60 s), the paper's budget (2M samples
+for n = 5, 5M for n >= 11, agent steps) and seeds 1–5, and evaluates each run's best model with
+the paper's test protocol (δ = 120 s, T = 600, 15 episodes, seeds 10000–10014), beside
+``planner_agents``, the reference. Then writes ``--out``/rows.json and rows.md: per row and method
+the IQM over seeds, its share of ``planner_agents``' mean return (the issue's target: >= 97 %), the
+best seed's overflowing test episodes, and the training cost per seed (wall seconds, the planner's
+labelling CPU seconds from run.json's ``"imitation"``, samples per second); and the decision time
+of a learned policy per plant step at n = 11 on one thread (``SharedActorCriticPolicy.act``: one
+forward for all agents, over 600 steps).
+
+Cost, measured in smoke runs on a 2-core machine that another training sweep kept busy (load
+average about 7, so these are upper bounds; one core, default settings, 64 simulations):
+
+* ``dagger_agents`` on n11_m2_dt120, 1.53M samples: 152 s wall, i.e. about 100 µs per sample
+  (10,000 samples/s) including the planner's labelling, which took 56.6 CPU-s (37 µs per sample;
+  115k of the 1.5M labelled simulation steps needed a look-ahead). An earlier 315k-sample run on
+  the same row ran at 18,500 samples/s with labelling 66 % of it (1.6 CPU-s per 45k-sample
+  iteration). n5_m2_dt120, 200k samples: 15 s (75 µs per sample), labelling 10 CPU-s.
+* At the paper's budgets that is about 500 s per seed at n >= 11 (5M samples) and 150 s at n = 5
+  (2M) for ``dagger_agents``; ``dagger_ppo_agents`` labels only its first fifth. The whole set
+  (9 rows × 5 seeds × 2 methods, 90 runs) is about 9 core-hours: 4–5 hours on 2 cores.
+* The learned policy decides in a median 0.047 ms per plant step at n = 11 on one thread
+  (``SharedActorCriticPolicy.act`` with an n = 11 network, 3000 calls; mean 0.14 ms on the busy
+  machine); the planner takes 1–2 ms.
+
+The one smoke result so far (one seed, not a claim): the 1.53M-sample ``dagger_agents`` run's final
+model scored 94.4 ± 3.1 on n11_m2_dt120 with no overflow (``planner_agents``: 96.8; the best learned
+IQM before: 83.9), its best model 91.0 with one overflowing episode of 15.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from containergym_marl.files import atomic_write_text
+
+ROWS = ("n5_m2_dt60", "n5_m2_dt120", "n5_m5_dt60", "n5_m5_dt120", "n11_m2_dt60", "n11_m2_dt120",
+        "n11_m11_dt60", "n11_m11_dt120", "n16_m2_dt120")
+METHODS = ("dagger_agents", "dagger_ppo_agents")
+REFERENCE = "planner_agents"
+#: the row on which the decision time is measured (n = 11)
+TIMING_ROW = "n11_m2_dt120"
+
+
+@dataclass
+class Args:
+    rows: list[str] = field(default_factory=lambda: list(ROWS))
+    methods: list[str] = field(default_factory=lambda: list(METHODS))
+    seeds: list[int] = field(default_factory=lambda: [1, 2, 3, 4, 5])
+    timesteps: int | None = None  # None: the paper's budget of each row
+    episodes: int = 15
+    out: str = "results/dagger"
+    runs: str = "runs/dagger"
+    num_cpus: int | None = None
+    smoke: bool = False
+
+    def for_smoke(self) -> "Args":
+        return Args(rows=["n5_m2_dt120"], methods=self.methods, seeds=[1], timesteps=20_000, episodes=2,
+                    out=self.out if self.out != Args.out else "runs/dagger_smoke/results",
+                    runs=self.runs if self.runs != Args.runs else "runs/dagger_smoke/runs", num_cpus=self.num_cpus,
+                    smoke=True)
+
+
+def train_and_evaluate(args: Args) -> dict:
+    """``compare --train`` of the methods and the reference on the rows; its table.json."""
+    from containergym_marl.orchestration import CompareArgs, compare
+
+    compare(CompareArgs(configs=args.rows, methods=[REFERENCE, *args.methods], seeds=args.seeds,
+                        timesteps=args.timesteps, episodes=args.episodes, out=str(Path(args.out) / "compare"),
+                        runs=args.runs, num_cpus=args.num_cpus, figures="none"))
+    return json.loads((Path(args.out) / "compare" / "table.json").read_text())
+
+
+def training_cost(runs: Path, method: str, row: str) -> dict | None:
+    """Mean per finished seed: wall seconds, labelling CPU seconds, samples and samples per second."""
+    from containergym_marl.rundir import read_run_summary, seeded_runs
+
+    summaries = [s for _, run in seeded_runs(runs, method, row) if (s := read_run_summary(run))]
+    if not summaries:
+        return None
+    wall = np.array([s["wall_time_s"] for s in summaries])
+    label = np.array([(s.get("imitation") or {}).get("label_cpu_s", 0.0) for s in summaries])
+    samples = np.array([s["timesteps"] for s in summaries])
+    return {"seeds": len(summaries), "wall_s": float(wall.mean()), "label_cpu_s": float(label.mean()),
+            "samples": int(samples.mean()), "samples_per_s": float((samples / wall).mean())}
+
+
+def decision_time(runs: Path, methods: list[str], steps: int = 600) -> dict:
+    """Wall time of the learned policy's ``act`` per plant step at n = 11, one torch thread (the
+    median, which a busy machine disturbs least; the mean and p99 too):
+    a trained model of :data:`TIMING_ROW` if there is one (the time does not depend on the weights,
+    only on the network's shape), else an untrained network of that shape."""
+    import torch
+
+    from containergym_marl.config import load_config
+    from containergym_marl.core.observations import agent_feature_names
+    from containergym_marl.core.params import PlantParams
+    from containergym_marl.envs.container_agents_v0 import parallel_env
+    from containergym_marl.policies.actor_critic import ActorCritic, policy_for
+    from containergym_marl.rundir import seeded_runs
+
+    torch.set_num_threads(1)
+    found = [run / "final_model.pt" for m in methods for _, run in seeded_runs(runs, m, TIMING_ROW)
+             if (run / "final_model.pt").is_file()]
+    if found:
+        model, source = ActorCritic.load(found[0]), str(found[0])
+    else:
+        features = len(agent_feature_names(PlantParams.from_config(load_config(TIMING_ROW))))
+        model = ActorCritic("decentralised", features, 2, generator=torch.Generator().manual_seed(0))
+        source = "an untrained network of the same shape"
+    policy = policy_for(model, "timed")
+    env = parallel_env(TIMING_ROW)
+    observations, _ = env.reset(seed=0)
+    times: list[float] = []
+    for _ in range(steps):  # an untrained policy's episodes end early: the next one continues
+        if not env.agents:
+            observations, _ = env.reset()
+        t0 = time.perf_counter()
+        actions = policy.act(observations, env)
+        times.append(time.perf_counter() - t0)
+        observations, *_ = env.step(actions)
+    return {"row": TIMING_ROW, "model": source, "steps": len(times), "ms_per_step_median": 1e3 * float(np.median(times)),
+            "ms_per_step_mean": 1e3 * float(np.mean(times)), "ms_per_step_p99": 1e3 * float(np.quantile(times, 0.99)),
+            "torch_threads": 1}
+
+
+def summarise(args: Args, table: dict) -> dict:
+    by = {(r["config"], r["method"]): r for r in table["rows"]}
+    entries = []
+    for row in args.rows:
+        reference = by.get((row, REFERENCE))
+        ref_return = reference["best_mean"] if reference else None
+        for method in args.methods:
+            r = by.get((row, method))
+            if r is None:
+                continue
+            entries.append({
+                "row": row, "method": method, "seeds": r["seeds"], "iqm": r["iqm"], "iqm_low": r["iqm_low"],
+                "iqm_high": r["iqm_high"], "best_mean": r["best_mean"], "reference_return": ref_return,
+                "share_of_reference": r["iqm"] / ref_return if ref_return else None,
+                "best_seed_overflow_rate": r["overflow_rate"], "samples": r["samples"],
+                "training_cost_per_seed": training_cost(Path(args.runs), method, row)})
+    return {"args": asdict(args), "reference": REFERENCE, "entries": entries,
+            "decision_time": decision_time(Path(args.runs), args.methods), "load_average": os.getloadavg()}
+
+
+def markdown(report: dict) -> str:
+    lines = ["# Imitations of the rollout planner on every row", "",
+             f"Paper test protocol, best model of each run; share: the IQM over seeds as a share of "
+             f"`{REFERENCE}`'s mean return on the row (target >= 97 %). Cost per seed: mean wall time of a "
+             f"run (one core), of which the planner's labelling CPU time.", "",
+             "| row | method | seeds | IQM [95 % CI] | share | best seed's overflows | wall s / seed | "
+             "labelling CPU s | samples/s |", "|---|---|---|---|---|---|---|---|---|"]
+    for e in report["entries"]:
+        cost = e["training_cost_per_seed"] or {}
+        share = f"{100 * e['share_of_reference']:.1f} %" if e["share_of_reference"] is not None else "–"
+        lines.append(f"| {e['row']} | {e['method']} | {e['seeds']} | {e['iqm']:.2f} [{e['iqm_low']:.2f}, "
+                     f"{e['iqm_high']:.2f}] | {share} | {e['best_seed_overflow_rate']:.2f} | "
+                     f"{cost.get('wall_s', float('nan')):.0f} | {cost.get('label_cpu_s', float('nan')):.0f} | "
+                     f"{cost.get('samples_per_s', float('nan')):,.0f} |")
+    d = report["decision_time"]
+    lines += ["", f"Decision time of the learned policy at n = 11 ({d['row']}, one thread, {d['model']}): "
+              f"median {d['ms_per_step_median']:.3f} ms per plant step (mean {d['ms_per_step_mean']:.3f} ms, "
+              f"p99 {d['ms_per_step_p99']:.3f} ms).", ""]
+    return "\n".join(lines)
+
+
+def main(args: Args) -> dict:
+    if args.smoke:
+        args = args.for_smoke()
+    table = train_and_evaluate(args)
+    report = summarise(args, table)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "rows.json", json.dumps(report, indent=2))
+    atomic_write_text(out / "rows.md", markdown(report))
+    print(markdown(report))
+    return report
+
+
+def parse(argv=None) -> Args:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--rows", nargs="+", default=list(ROWS))
+    p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    p.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
+    p.add_argument("--timesteps", type=int, default=None, help="samples per run (default: the paper's budget)")
+    p.add_argument("--episodes", type=int, default=15)
+    p.add_argument("--out", default=Args.out)
+    p.add_argument("--runs", default=Args.runs)
+    p.add_argument("--num-cpus", type=int, default=None)
+    p.add_argument("--smoke", action="store_true", help="one row, one seed, 20k samples, 2 episodes")
+    return Args(**vars(p.parse_args(argv)))
+
+
+if __name__ == "__main__":
+    main(parse())

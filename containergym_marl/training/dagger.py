@@ -1,0 +1,497 @@
+"""DAgger: the shared container-agent policy imitates the rollout planner in the states it visits
+itself (Ross, Gordon & Bagnell, 2011), then, for ``dagger_ppo_agents``, the native PPO fine-tunes it.
+
+Two registry entries train with it (``containergym-marl train --algo ...``, ``compare``, the sweep):
+
+* ``dagger_agents``: DAgger for the whole budget;
+* ``dagger_ppo_agents``: DAgger for ``imitation_share`` of the budget (default 0.2), then
+  ``fast_shared_ppo``'s trainer (:mod:`~containergym_marl.training.fast_ppo`) from the imitated
+  policy for the rest, in the same run and budget (``--reward-mode`` as for ``fast_shared_ppo``).
+
+The policy is ``fast_shared_ppo``'s :class:`~containergym_marl.policies.actor_critic.ActorCritic`:
+one network shared by every container agent, acting on the agent's own observation (the
+decentralised view's, ``Discrete(2)``), so it is evaluated by the same adapter and decides by one
+forward of a [64, 64] MLP for all agents. Only the labels come from the global state.
+
+**One iteration** (:func:`learn`):
+
+1. *act*: ``n_steps`` steps of every simulation. The container agents act with the shared policy
+   (a sample from it, as PPO's rollouts; ``greedy`` for its most likely action); in the first
+   ``expert_iterations`` the planner acts instead: β = 1, then β = 0, the schedule Ross et al. use
+   in practice, so the first data set is behaviour cloning on the expert's own states.
+2. *label*: in every visited state ``planner_agents`` (:class:`~containergym_marl.policies.planner.PlannerAgents`
+   with its defaults, the reference the method is measured against) decides for all agents from the
+   global state; agent i's label is 1 where the planner would have container i request. One planner
+   per simulation, reset with the simulation's seed, as an evaluation resets it: the labels are
+   what ``planner_agents`` decides in the same states.
+3. *aggregate*: the (observation, label) pairs join the data set; the latest ``dataset_size`` are
+   kept (DAgger keeps all; the cap bounds memory and the checkpoint).
+4. *train*: ``n_epochs`` × new samples / ``minibatch_size`` Adam steps, each on a minibatch drawn
+   from the whole data set: the cross-entropy of the policy's logits against the labels. The value
+   network regresses on the λ-returns of this iteration's rollout at the same time (the agents'
+   rewards, time-limit cuts bootstrapped as PPO does), so a PPO fine-tuning starts from a critic of
+   the imitated policy: a random critic's advantages would drive its first updates away from it.
+
+**Budget and cost.** Samples are agent steps, as for ``fast_shared_ppo`` (a simulation step of an
+n-container plant is n samples), whoever acted. Labelling costs the planner's decision per
+simulation step (about 1–2 ms of CPU where it plans; nothing when no PU is free or no container is
+eligible); its CPU seconds are recorded in ``imitation.json`` (per iteration) and in run.json's
+``"imitation"``, so the training cost per seed can be reported with and without them.
+
+**Best model.** The 100-episode training return of episodes the learner played from start to end
+(episodes in which the planner acted are not the policy's and are neither counted nor windowed), as
+for the native PPO; after the fine-tuning starts, PPO's training episodes continue the same window.
+
+**Run directory and resume** as the native PPO's: tensor-only ``best_model.pt`` / ``final_model.pt``
+(``ActorCritic``) and checkpoints ``checkpoints/ckpt_<S>_steps.pt`` (model, optimiser, generator,
+iteration, the per-iteration record) every checkpoint interval. The data set of the newest
+checkpoint is kept beside it (``ckpt_dataset_<S>_steps.pt``; older ones are removed, and the last
+when imitation ends: it is the size of a replay buffer); a resume from a checkpoint without one
+continues with an empty data set, with a warning. A checkpoint of the fine-tuning phase is the native PPO's. All randomness comes from the
+run's seed: the simulations (``seed + b``, ``seed + samples`` after a resume or the switch to PPO),
+the planners (seeded like their simulations) and one ``torch.Generator`` (initialisation, action
+samples, minibatches).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from containergym_marl.files import atomic_write_text
+from containergym_marl.policies.actor_critic import ActorCritic, load_tensors, save_tensors
+from containergym_marl.policies.planner import PlannerAgents
+from containergym_marl.rundir import RunWarning
+from containergym_marl.training import fast_ppo
+from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
+
+CHECKPOINT_FORMAT = "containergym-marl dagger checkpoint"
+DATASET_FORMAT = "containergym-marl dagger dataset"
+CHECKPOINT_VERSION = 1
+#: The share of the budget that ``dagger_ppo_agents`` imitates before PPO takes over, unless ``imitation_share``.
+FINE_TUNE_IMITATION_SHARE = 0.2
+#: PPO settings a fine-tuning takes from the imitated model, not from ``ppo_<key>``.
+MODEL_SETTINGS = ("hidden", "action_mask")
+#: The record of the imitation phase in the run directory, rewritten after every iteration.
+RECORD = "imitation.json"
+
+
+@dataclass(frozen=True)
+class DAggerArgs:
+    """DAgger's settings (``--hp KEY=VALUE``); ``dagger_ppo_agents`` also takes ``imitation_share``
+    and the native PPO's settings as ``ppo_<field>`` (e.g. ``ppo_learning_rate=1e-4``)."""
+
+    n_steps: int = 64  # steps of every simulation per iteration: n_envs × n × n_steps new samples
+    n_epochs: int = 4  # Adam steps per iteration = n_epochs × new samples / minibatch_size
+    minibatch_size: int = 1024  # samples per Adam step, drawn from the whole data set
+    learning_rate: float = 1e-3  # Adam's step size, constant
+    adam_eps: float = 1e-5  # Adam's eps (the native PPO's)
+    max_grad_norm: float = 0.5  # gradient norm clip (the native PPO's)
+    vf_coef: float = 0.5  # weight of the value loss (λ-returns of the acting policy)
+    gae_lambda: float = 0.95  # λ of the value targets
+    expert_iterations: int = 1  # first iterations in which the planner acts (β = 1), the learner after them (β = 0)
+    greedy: bool = False  # the learner acts by its most likely action, not by a sample (PPO's rollouts sample)
+    dataset_size: int = 1_000_000  # most recent labelled samples kept (each F float32 + 1 byte)
+    hidden: tuple[int, ...] = (64, 64)  # hidden units of the policy and value networks (fast_shared_ppo's)
+    futures: int = 16  # K of the labelling planner (planner_agents' default)
+    horizon: int = 8  # H of the labelling planner (planner_agents' default)
+    imitation_share: float = 1.0  # share of the budget DAgger trains; dagger_ppo_agents: 0.2, PPO the rest
+    ppo: fast_ppo.PPOArgs | None = None  # the fine-tuning's settings (``ppo_<field>``); None: no fine-tuning
+
+    @classmethod
+    def from_hyperparams(cls, hyperparams: dict[str, Any], fine_tune: bool = False) -> "DAggerArgs":
+        """The settings with ``hyperparams`` applied (``fine_tune``: with a PPO phase); a ValueError
+        naming an unknown key or a bad value."""
+        own = {f.name: f for f in dataclasses.fields(cls) if f.name != "ppo"}
+        if not fine_tune:
+            own.pop("imitation_share")
+        ppo_fields = {f"ppo_{f.name}" for f in dataclasses.fields(fast_ppo.PPOArgs)} if fine_tune else set()
+        taken = sorted(k for k in hyperparams if k in ppo_fields and k[4:] in MODEL_SETTINGS)
+        if taken:
+            raise ValueError(f"hp: {taken} cannot be set: the fine-tuning keeps the imitated model's network")
+        unknown = sorted(k for k in hyperparams if k not in own and k not in ppo_fields)
+        if unknown:
+            choices = sorted(own) + sorted(ppo_fields - {f"ppo_{k}" for k in MODEL_SETTINGS})
+            raise ValueError(f"hp: unknown DAgger setting(s) {unknown}; choose from {choices}")
+        ppo_keys = {k[4:]: v for k, v in hyperparams.items() if k in ppo_fields}
+        values: dict[str, Any] = {"imitation_share": FINE_TUNE_IMITATION_SHARE} if fine_tune else {}
+        for key, value in hyperparams.items():
+            if key in own:
+                values[key] = fast_ppo.coerce_setting(key, value, getattr(cls, key) if key != "hidden" else cls.hidden)
+        if fine_tune:
+            try:
+                values["ppo"] = fast_ppo.PPOArgs.from_hyperparams(ppo_keys)
+            except ValueError as exc:  # name the key as it was given
+                raise ValueError(str(exc).replace("hp: ", "hp: ppo_", 1)) from None
+        args = cls(**values)
+        args.validate()
+        return args
+
+    def validate(self) -> None:
+        for name in ("n_steps", "n_epochs", "minibatch_size", "dataset_size", "futures", "horizon"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"hp: {name} must be >= 1, got {getattr(self, name)}")
+        if self.expert_iterations < 0:
+            raise ValueError(f"hp: expert_iterations must be >= 0, got {self.expert_iterations}")
+        for name in ("learning_rate", "adam_eps", "max_grad_norm"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"hp: {name} must be a finite number > 0, got {value}")
+        if not (math.isfinite(self.vf_coef) and self.vf_coef >= 0):
+            raise ValueError(f"hp: vf_coef must be a finite number >= 0, got {self.vf_coef}")
+        if not 0 <= self.gae_lambda <= 1:
+            raise ValueError(f"hp: gae_lambda must be in [0, 1], got {self.gae_lambda}")
+        if self.ppo is not None and not 0 < self.imitation_share < 1:
+            raise ValueError(f"hp: imitation_share must be in (0, 1), got {self.imitation_share}")
+        if not self.hidden or any(h < 1 for h in self.hidden):
+            raise ValueError(f"hp: hidden must list positive layer widths, got {list(self.hidden)}")
+
+    def imitation_budget(self, budget: int) -> int:
+        """The samples DAgger trains of a run's ``budget`` (all of it without fine-tuning)."""
+        return budget if self.ppo is None else max(int(round(self.imitation_share * budget)), 1)
+
+
+# ---- the expert ---------------------------------------------------------------------------------------
+class Labeller:
+    """``planner_agents`` for every simulation of a vectorised env: planner b is reset with seed
+    ``seed + b``, the seed simulation b starts from (later episodes: the planner's own rule, a seed
+    from the episode's initial state), as an evaluation of ``planner_agents`` seeds it. Counts the
+    CPU seconds it spends."""
+
+    def __init__(self, num_sims: int, hp: DAggerArgs, seed: int):
+        self.planners = [PlannerAgents(futures=hp.futures, horizon=hp.horizon) for _ in range(num_sims)]
+        for b, planner in enumerate(self.planners):
+            planner.reset(seed + b)
+        self.cpu_s = 0.0
+
+    def label(self, simulator) -> np.ndarray:
+        """(B, n) bool: the containers the planner has request in each simulation's current state."""
+        t0 = time.process_time()
+        state, params = simulator.state, simulator.params
+        out = np.stack([p.decide(state.select(slice(b, b + 1)), params) for b, p in enumerate(self.planners)])
+        self.cpu_s += time.process_time() - t0
+        return out
+
+    @property
+    def planned(self) -> int:
+        """Decisions that needed a look-ahead (the others cost nothing)."""
+        return sum(p.planned for p in self.planners)
+
+
+# ---- the data set and the training state ----------------------------------------------------------------
+class Dataset:
+    """The aggregated (observation, label) pairs: a ring of ``capacity`` samples, the oldest replaced
+    first. The storage is reserved, not touched, until filled."""
+
+    def __init__(self, capacity: int, obs_size: int):
+        self.obs = torch.empty((capacity, obs_size))
+        self.labels = torch.empty(capacity, dtype=torch.uint8)
+        self.size = self.next = 0
+
+    def add(self, obs: torch.Tensor, labels: torch.Tensor) -> None:
+        capacity = self.labels.shape[0]
+        obs, labels = obs[-capacity:], labels[-capacity:]
+        idx = (self.next + torch.arange(labels.shape[0])) % capacity
+        self.obs[idx], self.labels[idx] = obs, labels.to(torch.uint8)
+        self.next = int(idx[-1] + 1) % capacity
+        self.size = min(self.size + labels.shape[0], capacity)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"format": DATASET_FORMAT, "version": CHECKPOINT_VERSION, "obs": self.obs[:self.size].clone(),
+                "labels": self.labels[:self.size].clone(), "next": self.next}
+
+    def load(self, data: Any, source: str) -> None:
+        """Fill from :meth:`to_dict`'s output (a ValueError naming ``source`` when it does not fit)."""
+        try:
+            if data.get("format") != DATASET_FORMAT or data.get("version") != CHECKPOINT_VERSION:
+                raise ValueError("not a DAgger data set of this version")
+            obs, labels = data["obs"], data["labels"]
+            if obs.shape[1:] != self.obs.shape[1:] or labels.shape[0] != obs.shape[0]:
+                raise ValueError(f"its observations are {tuple(obs.shape)}, expected (*, {self.obs.shape[1]})")
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: {exc}") from exc
+        capacity = self.labels.shape[0]
+        kept = min(obs.shape[0], capacity)
+        self.obs[:kept], self.labels[:kept] = obs[:kept], labels[:kept]
+        self.size = kept
+        self.next = int(data["next"]) % capacity if kept == capacity else kept  # the oldest sample, when full
+
+
+@dataclass
+class DAggerState:
+    """Everything a resumed run needs besides the run directory's progress files and the data set
+    (saved beside the checkpoint). ``save(f)`` writes a tensor-only checkpoint."""
+
+    model: ActorCritic
+    optimizer: Any
+    generator: torch.Generator
+    dataset: Dataset
+    num_timesteps: int = 0
+    iteration: int = 0
+    history: list[dict[str, Any]] = field(default_factory=list)  # one row per iteration (imitation.json)
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+
+    def save(self, f) -> None:
+        torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "model": self.model.to_dict(),
+                    "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
+                    "num_timesteps": int(self.num_timesteps), "iteration": int(self.iteration),
+                    "history": self.history, "hyperparams": self.hyperparams}, f)
+
+
+def _optimizer(model: ActorCritic, hp: DAggerArgs):
+    return torch.optim.Adam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps, fused=True)
+
+
+def new_state(env, hp: DAggerArgs, seed: int, meta: dict[str, Any]) -> DAggerState:
+    """A fresh shared policy (initialised from ``seed``), its optimiser and an empty data set."""
+    generator = torch.Generator().manual_seed(int(seed))
+    obs_size = env.observation_space.shape[0]
+    model = ActorCritic("decentralised", obs_size, int(env.action_space.n), hp.hidden,
+                        meta={**meta, "expert": "planner_agents"}, generator=generator)
+    return DAggerState(model, _optimizer(model, hp), generator, Dataset(hp.dataset_size, obs_size),
+                       hyperparams=_jsonable(hp))
+
+
+def _jsonable(hp: DAggerArgs) -> dict[str, Any]:
+    return json.loads(json.dumps(dataclasses.asdict(hp)))
+
+
+def dataset_file(run: Path, steps: int) -> Path:
+    return Path(run) / "checkpoints" / f"ckpt_dataset_{steps}_steps.pt"
+
+
+def load_checkpoint(path: str | Path, hp: DAggerArgs):
+    """The training state saved at ``path`` (tensors only): a :class:`DAggerState` (its data set
+    from beside it, or empty with a warning), or, in the fine-tuning phase, the native PPO's; a
+    ValueError when it is broken or neither."""
+    path = Path(path)
+    data = load_tensors(path)
+    source = f"checkpoint {str(path)!r}"
+    if isinstance(data, dict) and data.get("format") == fast_ppo.CHECKPOINT_FORMAT and hp.ppo is not None:
+        return fast_ppo.load_checkpoint(path, hp.ppo)
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{source} is not a DAgger checkpoint (format {CHECKPOINT_FORMAT!r})")
+    if data.get("version") != CHECKPOINT_VERSION:
+        raise ValueError(f"{source}: version {data.get('version')!r}; this package reads {CHECKPOINT_VERSION}")
+    model = ActorCritic.from_dict(data.get("model"), source)
+    optimizer, generator = _optimizer(model, hp), torch.Generator()
+    try:
+        optimizer.load_state_dict(data["optimizer"])
+        generator.set_state(data["generator"])
+        steps, iteration, history = int(data["num_timesteps"]), int(data["iteration"]), list(data["history"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(f"{source}: its optimiser or generator state is unreadable ({exc})") from exc
+    dataset = Dataset(hp.dataset_size, model.observation_size)
+    saved = dataset_file(path.parent.parent, steps)
+    try:
+        dataset.load(load_tensors(saved, "not a data set"), f"data set {str(saved)!r}")
+    except (ValueError, FileNotFoundError) as exc:
+        warnings.warn(f"{exc if saved.is_file() else f'no data set saved with {path.name}'}; "
+                      f"DAgger continues with an empty one", RunWarning, stacklevel=2)
+    return DAggerState(model, optimizer, generator, dataset, steps, iteration, history, _jsonable(hp))
+
+
+# ---- one iteration ----------------------------------------------------------------------------------------
+@dataclass
+class Rollout:
+    """One iteration's data, [T, S] for T steps of S = B × n agent slots (slot b·n + i: agent i of simulation b)."""
+
+    obs: torch.Tensor  # [T, S, F] what each agent saw
+    labels: torch.Tensor  # [T, S] the planner's decision for it (1: request)
+    actions: torch.Tensor  # [T, S] what it did (the learner's action, or the label where the planner acted)
+    rewards: torch.Tensor  # [T, S] its reward, time-limit cuts bootstrapped
+    values: torch.Tensor  # [T, S] the critic's value of its observation
+    starts: torch.Tensor  # [T, S] 1 where the observation starts an episode
+    last_value: torch.Tensor  # [S] after the last step
+    last_start: torch.Tensor  # [S]
+
+
+class Episodes:
+    """Training episodes of B simulations: their plant return and length, and whether the planner
+    acted in them (then they are not the learner's and are left out of ``progress``)."""
+
+    def __init__(self, num_sims: int, progress: TrainingProgress):
+        self.progress = progress
+        self.ret, self.length = np.zeros(num_sims), np.zeros(num_sims, dtype=np.int64)
+        self.expert = np.zeros(num_sims, dtype=bool)
+
+    def step(self, plant_reward: np.ndarray, done: np.ndarray, expert_acted: bool) -> None:
+        self.ret += plant_reward
+        self.length += 1
+        self.expert |= expert_acted
+        for b in np.flatnonzero(done).tolist():
+            if not self.expert[b]:
+                self.progress.add_episode(float(self.ret[b]), int(self.length[b]))
+            self.ret[b], self.length[b], self.expert[b] = 0.0, 0, False
+
+
+def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Tensor, labeller: Labeller,
+            n_steps: int, gamma: float, generator: torch.Generator, expert_acts: bool, greedy: bool,
+            episodes: Episodes) -> tuple[Rollout, torch.Tensor, torch.Tensor]:
+    """``n_steps`` steps of every simulation of ``env`` from observations ``obs``, the planner
+    labelling every agent's decision; the planner acts where ``expert_acts``, the learner otherwise.
+    Returns the rollout, the next observations and their episode-start flags."""
+    slots = env.num_envs
+    buf = {k: torch.zeros((n_steps, slots)) for k in ("rewards", "values", "starts")}
+    obs_buf = torch.zeros((n_steps, slots, obs.shape[-1]))
+    label_buf = torch.zeros((n_steps, slots), dtype=torch.long)
+    act_buf = torch.zeros((n_steps, slots), dtype=torch.long)
+    with torch.no_grad():
+        for t in range(n_steps):
+            labels = torch.from_numpy(labeller.label(env.simulator).reshape(-1).astype(np.int64))
+            if expert_acts:
+                actions = labels
+            else:
+                logits = model.logits(obs)
+                if greedy:
+                    actions = logits.argmax(-1)
+                else:  # Gumbel-max: a sample, from the run's generator
+                    actions = (logits - torch.log(-torch.log(torch.rand(logits.shape, generator=generator)))).argmax(-1)
+            obs_buf[t], label_buf[t], act_buf[t] = obs, labels, actions
+            buf["values"][t], buf["starts"][t] = model.value(obs), episode_start
+            next_obs, rewards, dones, infos = env.step(actions.numpy())
+            rewards = torch.from_numpy(rewards)
+            if dones.any():  # a time-limit cut is not terminal: bootstrap (as the native PPO)
+                cut = [k for k in np.flatnonzero(dones).tolist() if infos[k].get("TimeLimit.truncated")]
+                if cut:
+                    last = torch.from_numpy(np.stack([infos[k]["terminal_observation"] for k in cut]))
+                    rewards[cut] += gamma * model.value(last)
+            buf["rewards"][t] = rewards
+            episode_start = torch.from_numpy(dones.astype(np.float32))
+            obs = torch.from_numpy(next_obs)
+            episodes.step(*env.last_plant_step(), expert_acts)
+        last_value = model.value(obs)
+    rollout = Rollout(obs_buf, label_buf, act_buf, buf["rewards"], buf["values"], buf["starts"], last_value,
+                      episode_start)
+    return rollout, obs, episode_start
+
+
+def update(model: ActorCritic, optimizer, hp: DAggerArgs, generator: torch.Generator, dataset: Dataset,
+           obs: torch.Tensor, returns: torch.Tensor) -> float:
+    """The supervised step of an iteration: ``n_epochs`` × len(obs) / ``minibatch_size`` Adam steps
+    on the cross-entropy of minibatches drawn from the whole ``dataset`` plus ``vf_coef`` × the
+    value MSE on minibatches of this rollout's (``obs``, ``returns``). Returns the mean cross-entropy."""
+    new = obs.shape[0]
+    steps = max(hp.n_epochs * new // hp.minibatch_size, 1)
+    total = 0.0
+    for _ in range(steps):
+        idx = torch.randint(dataset.size, (min(hp.minibatch_size, dataset.size),), generator=generator)
+        cross_entropy = torch.nn.functional.cross_entropy(model.logits(dataset.obs[idx]), dataset.labels[idx].long())
+        j = torch.randint(new, (min(hp.minibatch_size, new),), generator=generator)
+        value_loss = torch.nn.functional.mse_loss(model.value(obs[j]), returns[j])
+        loss = cross_entropy + hp.vf_coef * value_loss
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.net.parameters(), hp.max_grad_norm)
+        optimizer.step()
+        total += cross_entropy.detach().item()
+    return total / steps
+
+
+# ---- the trainer ----------------------------------------------------------------------------------------
+def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAggerArgs,
+          progress: TrainingProgress, interval: int, seed: int, checkpoint_before: int, on_samples=None) -> None:
+    """DAgger iterations on ``env`` (a :class:`~containergym_marl.envs.vector.ContainerAgentsVecEnv`)
+    until ``budget`` samples; planners seeded from ``seed`` (the simulations' seed). After every
+    iteration: a metrics row (and the best model when the training return improved), the record;
+    a checkpoint after every iteration that crosses ``interval`` samples, below ``checkpoint_before``."""
+    model, optimizer, generator = state.model, state.optimizer, state.generator
+    labeller = Labeller(env.num_sims, hp, seed)
+    episodes = Episodes(env.num_sims, progress)
+    obs, episode_start = torch.from_numpy(env.reset()), torch.ones(env.num_envs)
+    t0, wall0 = time.perf_counter(), progress.wall_time_s
+    cpu0 = state.history[-1]["label_cpu_s"] if state.history else 0.0
+    planned0 = state.history[-1]["planned_decisions"] if state.history else 0
+    last_checkpoint = state.num_timesteps
+    while state.num_timesteps < budget:
+        expert_acts = state.iteration < hp.expert_iterations
+        rollout, obs, episode_start = collect(model, env, obs, episode_start, labeller, hp.n_steps, gamma, generator,
+                                              expert_acts, hp.greedy, episodes)
+        returns = fast_ppo.compute_gae(rollout.rewards, rollout.values, rollout.starts, rollout.last_value,
+                                       rollout.last_start, gamma, hp.gae_lambda) + rollout.values
+        flat_obs, flat_labels = rollout.obs.view(-1, rollout.obs.shape[-1]), rollout.labels.view(-1)
+        state.num_timesteps += flat_labels.shape[0]
+        steps = state.num_timesteps
+        with torch.no_grad():  # how far the policy that acted is from the planner, on its own states
+            greedy = model.logits(flat_obs).argmax(-1)
+        requests = flat_labels == 1
+        wall = round(wall0 + time.perf_counter() - t0, 2)
+        fast_ppo.log_rollout(run, run / "best_model.pt", model, progress, steps, wall)
+        if on_samples is not None:
+            on_samples(steps, progress)
+
+        state.dataset.add(flat_obs, flat_labels)
+        cross_entropy = update(model, optimizer, hp, generator, state.dataset, flat_obs, returns.view(-1))
+        state.iteration += 1
+        state.history.append({
+            "iteration": state.iteration, "timesteps": steps, "expert_acted": expert_acts,
+            "dataset_samples": state.dataset.size,
+            "agreement": float((greedy == flat_labels).float().mean()),
+            "request_share": float(requests.float().mean()),
+            "request_recall": float((greedy[requests] == 1).float().mean()) if requests.any() else None,
+            "cross_entropy": cross_entropy,
+            "label_cpu_s": round(cpu0 + labeller.cpu_s, 3), "planned_decisions": planned0 + labeller.planned,
+            "wall_time_s": round(wall0 + time.perf_counter() - t0, 2)})
+        write_record(run, state, hp)
+        progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
+        if steps - last_checkpoint >= interval and steps < checkpoint_before:
+            save_tensors(dataset_file(run, steps), state.dataset.to_dict())
+            last_checkpoint = save_checkpoint(run, state, progress, suffix=".pt")
+            for old in (run / "checkpoints").glob("ckpt_dataset_*_steps.pt"):
+                if old.name != dataset_file(run, steps).name:  # one data set on disk: the newest checkpoint's
+                    old.unlink()
+    progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
+
+
+def write_record(run: Path, state: DAggerState, hp: DAggerArgs) -> None:
+    """``imitation.json``: the expert, the totals so far and one row per iteration."""
+    last = state.history[-1] if state.history else {}
+    atomic_write_text(Path(run) / RECORD, json.dumps({
+        "expert": "planner_agents", "futures": hp.futures, "horizon": hp.horizon,
+        "samples": state.num_timesteps,
+        "label_cpu_s": last.get("label_cpu_s", 0.0), "planned_decisions": last.get("planned_decisions", 0),
+        "iterations": state.history}, indent=1))
+
+
+def summary(run: Path) -> dict[str, Any] | None:
+    """What run.json says of the imitation phase: its samples and the planner's labelling cost."""
+    path = Path(run) / RECORD
+    if not path.is_file():
+        return None
+    record = json.loads(path.read_text())
+    return {k: record[k] for k in ("expert", "samples", "label_cpu_s", "planned_decisions")}
+
+
+def train(run: Path, state, env, budget: int, gamma: float, hp: DAggerArgs, progress: TrainingProgress,
+          interval: int, seed: int, on_samples=None):
+    """The run's phases from ``state`` (a :class:`DAggerState`, or a PPO state of a resumed
+    fine-tuning) to ``budget`` samples: DAgger to ``hp.imitation_budget(budget)``, then, with
+    ``hp.ppo``, the native PPO from the imitated policy. The simulations (and planners) of each
+    phase start from ``seed + samples``. Returns the final state."""
+    if isinstance(state, DAggerState):
+        imitation = hp.imitation_budget(budget)
+        if state.num_timesteps < imitation:
+            env.seed(seed + state.num_timesteps)
+            learn(run, state, env, imitation, gamma, hp, progress, interval, seed + state.num_timesteps, budget,
+                  on_samples)
+        for done_with in (run / "checkpoints").glob("ckpt_dataset_*_steps.pt"):
+            done_with.unlink()  # imitation is over: a resume from here on needs no data set
+        if hp.ppo is None:
+            return state
+        state = fast_ppo.state_from_model(state.model, hp.ppo, state.generator, state.num_timesteps)
+    env.seed(seed + state.num_timesteps)
+    fast_ppo.learn(run, state, env, budget, gamma, hp.ppo, progress, interval, on_samples)
+    return state
+
+
+__all__ = ["DAggerArgs", "DAggerState", "Dataset", "Episodes", "Labeller", "Rollout", "collect", "learn",
+           "load_checkpoint", "new_state", "summary", "train", "update"]

@@ -1,0 +1,197 @@
+"""Imitation of the rollout planner (dagger_agents, dagger_ppo_agents): the labels are planner_agents'
+decisions in the learner's states, seen through an independent single environment; imitation beats a
+random policy clearly within a small budget; the CLI trains, resumes after kill -9 and evaluates; the
+fine-tuning phase continues the same run; bad settings are refused before anything is written."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from containergym_marl.cli import main as cli_main
+from containergym_marl.envs.container_agents_v0 import parallel_env
+from containergym_marl.envs.vector import ContainerAgentsVecEnv
+from containergym_marl.evaluation import EvalProtocol, evaluate
+from containergym_marl.policies.actor_critic import ActorCritic, policy_for
+from containergym_marl.policies.planner import PlannerAgents
+from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
+from containergym_marl.training import TrainArgs, train
+from containergym_marl.training.checkpoints import TrainingProgress, read_progress
+from containergym_marl.training.dagger import DAggerArgs, Episodes, Labeller, collect
+from tests.helpers import ROOT
+
+# 2 simulations, iterations of 16 steps, training episodes of T = 20 steps (they finish)
+TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 64},
+            overrides={"episode_length_steps": 20})
+
+
+def test_labels_are_planner_agents_decisions_in_the_learners_states():
+    """The learner (an untrained policy, so it often disagrees with the planner) acts in 2 simulations
+    for 30 steps, across an episode end; replaying its actions in single environments with the
+    simulations' seeds, a PlannerAgents evaluated there as in an evaluation decides exactly the labels,
+    and every agent's observation is the one the learner saw."""
+    config, seed, n_steps = "n5_m2_dt120", 7, 30
+    env = ContainerAgentsVecEnv(config, 2, episode_length_steps=20)
+    n = env.n_agents
+    hp = DAggerArgs()
+    model = ActorCritic("decentralised", env.observation_space.shape[0], 2, generator=torch.Generator().manual_seed(0))
+    env.seed(seed)
+    obs = torch.from_numpy(env.reset())
+    labeller = Labeller(env.num_sims, hp, seed)
+    rollout, *_ = collect(model, env, obs, torch.ones(env.num_envs), labeller, n_steps, 0.99,
+                          torch.Generator().manual_seed(1), expert_acts=False, greedy=False,
+                          episodes=Episodes(env.num_sims, TrainingProgress()))
+    assert labeller.planned > 0, "the planner should have planned (a choice between candidates) somewhere"
+    assert (rollout.labels == 1).any() and (rollout.actions != rollout.labels).any()
+    for b in range(env.num_sims):
+        single = parallel_env(config, episode_length_steps=20)
+        planner = PlannerAgents()
+        planner.reset(seed + b)
+        observations, _ = single.reset(seed=seed + b)
+        for t in range(n_steps):
+            if not single.agents:  # the episode ended: the next one continues the env's stream, as autoreset does
+                observations, _ = single.reset()
+            agents = single.possible_agents
+            np.testing.assert_array_equal(np.stack([observations[a] for a in agents]),
+                                          rollout.obs[t, b * n:(b + 1) * n].numpy())
+            decided = planner.act(observations, single)
+            assert [decided[a] for a in agents] == rollout.labels[t, b * n:(b + 1) * n].tolist(), (b, t)
+            observations, *_ = single.step({a: int(rollout.actions[t, b * n + i]) for i, a in enumerate(agents)})
+
+
+class _RandomAgents:
+    """Every agent requests with probability 1/2 (its own seeded generator)."""
+
+    name, view = "random_agents", "decentralised"
+
+    def __init__(self, seed: int):
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, observations, env):
+        return {a: int(self.rng.integers(2)) for a in observations}
+
+
+def test_imitation_beats_a_random_policy_clearly_within_a_small_budget(tmp_path):
+    """40k samples (about 5 s) of DAgger on n5_m2_dt120; 5 test episodes of the paper's protocol. The
+    imitated policy's mean return exceeds the random agents' by more than 5 standard errors of the
+    difference, and no episode of it overflows (the planner never lets one)."""
+    run = train(TrainArgs(algo="dagger_agents", out=str(tmp_path / "r"), timesteps=40_000, n_envs=8, seed=1,
+                          progress_bar=False))
+    protocol = EvalProtocol(episodes=5)
+    learned = evaluate(policy_for(ActorCritic.load(run / "final_model.pt"), "dagger_agents"), "n5_m2_dt120",
+                       protocol, keep_records=False)
+    random = evaluate(_RandomAgents(0), "n5_m2_dt120", protocol, keep_records=False)
+    a, b = learned.returns, random.returns
+    se = np.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size)
+    assert a.mean() - b.mean() > 5 * se, (a, b)
+    assert learned.summary()["overflow_rate"] == 0.0
+    record = json.loads((run / "imitation.json").read_text())
+    assert record["iterations"][0]["expert_acted"] and not record["iterations"][1]["expert_acted"]
+    assert record["iterations"][-1]["agreement"] > 0.95  # on its own states, the learner decides as the planner
+
+
+def test_cli_trains_resumes_after_kill_9_and_evaluates(tmp_path):
+    """A run killed with SIGKILL after some checkpoints resumes from the newest: every metrics row and
+    every iteration of the record once, the labelling cost continuing from the checkpoint's; the
+    finished run's models are tensor-only and evaluate through the CLI."""
+    run = tmp_path / "r"
+    common = ["--algo", "dagger_agents", "--out", str(run), "--timesteps", "60000", "--n-envs", "2",
+              "--checkpoint-every", "1000", "--no-progress", "--hp", "n_steps=16", "minibatch_size=64",
+              "--override", "episode_length_steps=20"]
+    proc = subprocess.Popen([sys.executable, "-m", "containergym_marl.cli", "train", *common], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while time.time() < deadline and len(checkpoints(run)) < 3 and proc.poll() is None:
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.stderr.read().decode()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    proc.stderr.close()
+    assert not (run / "final_model.pt").exists()
+    steps, _ = checkpoints(run)[0]
+    at_checkpoint = read_progress(run, steps)
+    assert len(list((run / "checkpoints").glob("ckpt_dataset_*_steps.pt"))) <= 2  # the newest, and one being replaced
+    assert cli_main(["train", *common, "--resume"]) == 0
+
+    summary = read_run_summary(run)
+    assert summary["resumed_from"] == steps and summary["timesteps"] >= 60000
+    rows = read_metrics(run)
+    samples = [int(r["timesteps"]) for r in rows]
+    assert samples == sorted(set(samples)) and samples[-1] >= 60000
+    after = [r for r in rows if r["timesteps"] > steps]
+    assert after[0]["episodes"] >= at_checkpoint.episodes and after[-1]["episodes"] > at_checkpoint.episodes
+    iterations = json.loads((run / "imitation.json").read_text())["iterations"]
+    assert [r["iteration"] for r in iterations] == list(range(1, len(iterations) + 1))
+    assert [r["timesteps"] for r in iterations] == [160 * k for k in range(1, len(iterations) + 1)]
+    costs = [r["label_cpu_s"] for r in iterations]
+    assert costs == sorted(costs) and summary["imitation"]["label_cpu_s"] == costs[-1] > 0
+    assert summary["imitation"]["samples"] == summary["timesteps"]
+    assert not list((run / "checkpoints").glob("ckpt_dataset_*"))  # imitation over: no data set left
+    for path in (run / "best_model.pt", run / "final_model.pt", *(p for _, p in checkpoints(run))):
+        torch.load(path, weights_only=True)
+    model = ActorCritic.load(run / "final_model.pt")
+    assert (model.view, model.meta["algo"], model.meta["expert"]) == ("decentralised", "dagger_agents", "planner_agents")
+    assert cli_main(["evaluate", str(run), "--episodes", "1"]) == 0
+    assert json.loads((run / "evaluation_best.json").read_text())["policy"] == "dagger_agents[s1,best]"
+
+
+def test_fine_tuning_continues_the_imitated_policy_in_the_same_run(tmp_path):
+    """dagger_ppo_agents: DAgger to imitation_share of the budget, then the native PPO from the
+    imitated model (its checkpoints are PPO's), one metrics file and one budget."""
+    hp = {"n_steps": 16, "minibatch_size": 64, "imitation_share": 0.5, "ppo_n_steps": 16, "ppo_minibatch_size": 64}
+    run = train(TrainArgs(algo="dagger_ppo_agents", out=str(tmp_path / "r"), timesteps=4000, checkpoint_every=400,
+                          **{**TINY, "hyperparams": hp}))
+    summary = read_run_summary(run)
+    assert summary["imitation"]["samples"] == 2080  # 13 iterations of 160 samples reach half of 4000
+    assert summary["timesteps"] >= 4000
+    formats = {s: torch.load(p, weights_only=True)["format"] for s, p in checkpoints(run)}
+    assert {f for s, f in formats.items() if s <= 2080} == {"containergym-marl dagger checkpoint"}
+    assert {f for s, f in formats.items() if s > 2080} == {"containergym-marl ppo checkpoint"}
+    assert torch.load(checkpoints(run)[0][1], weights_only=True)["hyperparams"]["minibatch_size"] == 64
+    assert ActorCritic.load(run / "final_model.pt").meta["algo"] == "dagger_ppo_agents"
+    # the team reward names the method, as for fast_shared_ppo
+    team = train(TrainArgs(algo="dagger_ppo_agents", reward_mode="team", out=str(tmp_path / "t"), timesteps=400,
+                           **{**TINY, "hyperparams": hp}))
+    assert json.loads((team / "args.json").read_text())["reward_mode"] == "team"
+
+
+def test_same_seed_same_run(tmp_path):
+    runs = [train(TrainArgs(algo="dagger_agents", out=str(tmp_path / f"r{k}"), timesteps=1600, seed=seed, **TINY))
+            for k, seed in ((0, 4), (1, 4), (2, 5))]
+    strip = lambda rows: [{k: v for k, v in r.items() if "wall" not in k and "cpu" not in k} for r in rows]  # noqa: E731
+    records = [json.loads((r / "imitation.json").read_text())["iterations"] for r in runs]
+    assert strip(records[0]) == strip(records[1]) != strip(records[2])
+    a, b, c = (ActorCritic.load(r / "final_model.pt").net.state_dict() for r in runs)
+    assert all(torch.equal(a[k], b[k]) for k in a) and not all(torch.equal(a[k], c[k]) for k in a)
+
+
+@pytest.mark.parametrize("algo, hp, field", [
+    ("dagger_agents", {"bogus": 1}, "bogus"),
+    ("dagger_agents", {"n_steps": 0}, "n_steps"),
+    ("dagger_agents", {"learning_rate": "nan"}, "learning_rate"),
+    ("dagger_agents", {"expert_iterations": -1}, "expert_iterations"),
+    ("dagger_agents", {"imitation_share": 0.5}, "imitation_share"),  # no PPO phase to share with
+    ("dagger_agents", {"ppo_learning_rate": 1e-4}, "ppo_learning_rate"),
+    ("dagger_ppo_agents", {"imitation_share": 1.0}, "imitation_share"),
+    ("dagger_ppo_agents", {"ppo_clip_range": 0}, "ppo_clip_range"),
+    ("dagger_ppo_agents", {"ppo_hidden": "32,32"}, "ppo_hidden"),
+    ("dagger_ppo_agents", {"ppo_bogus": 1}, "ppo_bogus"),
+])
+def test_bad_settings_are_refused_before_anything_is_written(algo, hp, field, tmp_path):
+    with pytest.raises(ValueError, match=field):
+        train(TrainArgs(algo=algo, out=str(tmp_path / "r"), timesteps=100, hyperparams=hp, progress_bar=False))
+    assert not (tmp_path / "r").exists()
+
+
+def test_settings_parse_from_strings():
+    hp = DAggerArgs.from_hyperparams({"n_steps": "32", "greedy": "true", "hidden": "32,16", "ppo_clip_range": "0.1"},
+                                     fine_tune=True)
+    assert (hp.n_steps, hp.greedy, hp.hidden, hp.ppo.clip_range, hp.imitation_share) == (32, True, (32, 16), 0.1, 0.2)
+    assert hp.imitation_budget(1000) == 200 and DAggerArgs().imitation_budget(1000) == 1000
