@@ -95,7 +95,7 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -117,7 +117,8 @@ from containergym_marl.rundir import (
 )
 from containergym_marl.training.checkpoints import TrainingProgress
 from containergym_marl.evaluation.table import evaluation_key
-from containergym_marl.training.script_args import parse_args
+from containergym_marl.options import key_values, option, positive_int
+from containergym_marl.options import parse as parse_args
 
 try:
     import torch
@@ -141,32 +142,27 @@ class Args:
     """Train BenchMARL's MAPPO (shared actor, critic on the global state, team reward) on one plant,
     then evaluate its best model with the paper's test protocol."""
 
-    config: str = "n5_m2_dt120"  # built-in plant config (one BenchMARL task each)
-    seed: int = 1  # training seed (BenchMARL's seed_everything and the simulations' seeds)
-    timesteps: int | None = None  # budget in plant steps (BenchMARL frames); default: 2M (n=5), 5M (n>=11)
-    out: str | None = None  # run directory (default runs/mappo_<config>_s<seed>)
-    resume: bool = False  # continue the interrupted run in --out from its newest checkpoint
-    frames_per_batch: int = 6000  # plant steps collected per MAPPO iteration (BenchMARL's default)
-    n_envs: int = 10  # batched simulations collecting them (BenchMARL's default)
-    checkpoint_every: int | None = None  # plant steps between checkpoints; default min(200k, budget/10)
-    hp: list[str] = field(default_factory=list)  # KEY=VALUE: BenchMARL Experiment/Mappo/Mlp config fields
-    override: list[str] = field(default_factory=list)  # KEY=VALUE: plant overrides for training
-    episodes: int = 15  # test episodes of the evaluation (paper protocol: delta=120 s, T=600)
-    evaluations: str | None = None  # also write the evaluation to DIR/<config>/mappo_s<seed>.json
-    torch_threads: int = 1  # torch.set_num_threads: one is fastest for these small MLPs
-
-
-def _key_values(items: list[str], what: str) -> dict:
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"{what}: expected KEY=VALUE, got {item!r}")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
+    config: str = option("n5_m2_dt120", help="built-in plant config (one BenchMARL task each)")
+    seed: int = option(1, type=int, help="training seed (BenchMARL's seed_everything and the simulations' seeds)")
+    timesteps: int | None = option(None, type=positive_int,
+                                   help="budget in plant steps (BenchMARL frames); default: 2M (n=5), 5M (n>=11)")
+    out: str | None = option(None, help="run directory (default: runs/mappo_<config>_s<seed>)")
+    resume: bool = option(False, action="store_true",
+                          help="continue the interrupted run in --out from its newest checkpoint")
+    frames_per_batch: int = option(6000, type=positive_int,
+                                   help="plant steps collected per MAPPO iteration (BenchMARL's default)")
+    n_envs: int = option(10, type=positive_int, help="batched simulations collecting them (BenchMARL's default)")
+    checkpoint_every: int | None = option(None, type=positive_int,
+                                          help="plant steps between checkpoints; default: min(200k, budget/10)")
+    hp: dict = option(default_factory=dict, nargs="*", metavar="KEY=VALUE", convert=key_values,
+                      help="BenchMARL Experiment/Mappo/Mlp config fields")
+    override: dict = option(default_factory=dict, nargs="*", metavar="KEY=VALUE", convert=key_values,
+                            help="plant overrides for training")
+    episodes: int = option(15, type=positive_int,
+                           help="test episodes of the evaluation (paper protocol: delta=120 s, T=600)")
+    evaluations: str | None = option(None, help="also write the evaluation to DIR/<config>/mappo_s<seed>.json")
+    torch_threads: int = option(1, type=positive_int,
+                                help="torch.set_num_threads: one is fastest for these small networks")
 
 
 # ---- BenchMARL's configs, with the deviations the docstring lists ---------------------------------
@@ -183,7 +179,7 @@ def benchmarl_configs(args: Args, run: Path, budget: int, interval: int):
     experiment.save_folder = str(run / "benchmarl")
     experiment.checkpoint_interval, experiment.checkpoint_at_end = interval, True
     experiment.keep_checkpoints_num, experiment.exclude_buffer_from_checkpoint = 2, True
-    for key, value in _key_values(args.hp, "--hp").items():
+    for key, value in args.hp.items():
         target = next((c for c in (experiment, algorithm, model) if hasattr(c, key)), None)
         if target is None:
             raise SystemExit(f"--hp: {key!r} is not a field of BenchMARL's ExperimentConfig, MappoConfig or MlpConfig")
@@ -337,7 +333,7 @@ def prepare(args: Args, saved_args: dict, run: Path, plant) -> str:
 def train(args: Args) -> Path:
     """Train (or resume) one MAPPO run; returns its directory."""
     torch.set_num_threads(max(args.torch_threads, 1))
-    overrides = _key_values(args.override, "--override")
+    overrides = args.override
     plant = load_config(args.config, **overrides)
     budget = args.timesteps if args.timesteps is not None else paper_budget(plant.n_containers)
     if min(budget, args.frames_per_batch, args.n_envs, args.episodes) < 1:
@@ -352,7 +348,7 @@ def train(args: Args) -> Path:
     saved_args = {"algo": "mappo", "config": args.config, "seed": args.seed, "timesteps": budget,
                   "budget_unit": "plant steps", "frames_per_batch": args.frames_per_batch, "n_envs": args.n_envs,
                   "checkpoint_every": interval, "reward_mode": DEFAULT_TASK_CONFIG["reward_mode"],
-                  "arbitration": DEFAULT_TASK_CONFIG["arbitration"], "hyperparams": _key_values(args.hp, "--hp"),
+                  "arbitration": DEFAULT_TASK_CONFIG["arbitration"], "hyperparams": args.hp,
                   "overrides": overrides, "torch_threads": args.torch_threads,
                   "library": f"benchmarl {BENCHMARL_VERSION}"}
     with RunLock(run):

@@ -124,6 +124,18 @@ def from_namespace(cls, ns: argparse.Namespace, **overrides: Any):
     return cls(**{**values(cls, ns), **overrides})
 
 
+def parse(cls, argv: list[str] | None = None, description: str | None = None):
+    """``cls`` from a command line: a parser generated from its option fields (a script's ``Args``,
+    CleanRL style); a value a field's ``convert`` refuses is a usage error naming the option."""
+    parser = argparse.ArgumentParser(description=description or cls.__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_options(parser, cls)
+    try:
+        return from_namespace(cls, parser.parse_args(argv))
+    except ValueError as exc:
+        parser.error(str(exc))
+
+
 def key_values(items: list[str] | None, flag: str) -> dict[str, Any]:
     """``KEY=VALUE`` items as a dict; each value read as JSON where it parses (numbers, booleans,
     lists), else kept as text. A ValueError names ``flag`` and the item."""
@@ -152,5 +164,5 @@ def positive_int(text: str) -> int:
     return value
 
 
-__all__ = ["add_options", "flag_of", "from_namespace", "given", "key_values", "option", "option_fields",
+__all__ = ["add_options", "flag_of", "from_namespace", "given", "key_values", "option", "option_fields", "parse",
            "positive_int", "values"]

@@ -44,3 +44,24 @@ def make_state(volumes, timers, step_count=0) -> PlantState:
     v = np.atleast_2d(np.asarray(volumes, dtype=np.float64))
     p = np.atleast_2d(np.asarray(timers, dtype=np.float64))
     return PlantState(v, p, np.full(v.shape[0], step_count, dtype=np.int64))
+
+
+def train_until_killed(train_argv: list[str], run: Path, checkpoints_wanted: int, timeout_s: float = 120) -> None:
+    """``containergym-marl train ARGV`` in a subprocess, killed with SIGKILL (no clean-up of any
+    kind) once ``run`` holds ``checkpoints_wanted`` checkpoints; fails if it ended before."""
+    import signal
+    import subprocess
+    import time
+
+    from containergym_marl.rundir import checkpoints
+
+    proc = subprocess.Popen([sys.executable, "-m", "containergym_marl.cli", "train", *train_argv], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + timeout_s
+    while time.time() < deadline and len(checkpoints(run)) < checkpoints_wanted and proc.poll() is None:
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.stderr.read().decode()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    proc.stderr.close()
+

@@ -6,10 +6,6 @@ fine-tuning phase continues the same run; bad settings are refused before anythi
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
-import sys
-import time
 
 import numpy as np
 import pytest
@@ -25,7 +21,7 @@ from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.checkpoints import TrainingProgress, read_progress
 from containergym_marl.training.dagger import DAggerArgs, Episodes, Labeller, collect
-from tests.helpers import ROOT
+from tests.helpers import train_until_killed
 
 # 2 simulations, iterations of 16 steps, training episodes of T = 20 steps (they finish)
 TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 64},
@@ -105,15 +101,7 @@ def test_cli_trains_resumes_after_kill_9_and_evaluates(tmp_path):
     common = ["--algo", "dagger_agents", "--out", str(run), "--timesteps", "60000", "--n-envs", "2",
               "--checkpoint-every", "1000", "--no-progress", "--hp", "n_steps=16", "minibatch_size=64",
               "--override", "episode_length_steps=20"]
-    proc = subprocess.Popen([sys.executable, "-m", "containergym_marl.cli", "train", *common], cwd=ROOT,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.time() + 120
-    while time.time() < deadline and len(checkpoints(run)) < 3 and proc.poll() is None:
-        time.sleep(0.1)
-    assert proc.poll() is None, proc.stderr.read().decode()
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    proc.stderr.close()
+    train_until_killed(common, run, checkpoints_wanted=3)
     assert not (run / "final_model.pt").exists()
     steps, _ = checkpoints(run)[0]
     at_checkpoint = read_progress(run, steps)

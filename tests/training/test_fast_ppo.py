@@ -4,10 +4,6 @@ written, the optional action mask."""
 
 from __future__ import annotations
 
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +18,8 @@ from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, load_checkpoint, update
 from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
 from containergym_marl.training.checkpoints import read_progress
+from tests.helpers import train_until_killed
 
-REPO = Path(__file__).resolve().parents[2]
 # 2 simulations, rollouts of 16 steps, training episodes of T = 20 steps (they finish)
 TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 32},
             overrides={"episode_length_steps": 20})
@@ -189,17 +185,9 @@ def test_kill_9_then_resume_keeps_metrics_and_episode_window(tmp_path):
     """A run killed with SIGKILL after some checkpoints resumes: every metrics row once, the episode
     counter continuing from the checkpoint's, the final model at the budget."""
     run = tmp_path / "r"
-    argv = [sys.executable, "-m", "containergym_marl.cli", "train", "--algo", "fast_shared_ppo", "--out", str(run),
-            "--timesteps", "400000", "--n-envs", "2", "--checkpoint-every", "20000", "--no-progress",
-            "--hp", "n_steps=16", "minibatch_size=160", "--override", "episode_length_steps=20"]
-    proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.time() + 120
-    while time.time() < deadline and len(checkpoints(run)) < 2 and proc.poll() is None:
-        time.sleep(0.2)
-    assert proc.poll() is None, proc.stderr.read().decode()
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    proc.stderr.close()
+    train_until_killed(["--algo", "fast_shared_ppo", "--out", str(run), "--timesteps", "400000", "--n-envs", "2",
+                        "--checkpoint-every", "20000", "--no-progress", "--hp", "n_steps=16", "minibatch_size=160",
+                        "--override", "episode_length_steps=20"], run, checkpoints_wanted=2)
     assert not (run / "final_model.pt").exists()
     steps, _ = checkpoints(run)[0]
     at_checkpoint = read_progress(run, steps)
