@@ -66,10 +66,15 @@ except ImportError:  # pragma: no cover - Windows: no OS lock (documented in Run
 NODE_LOCAL = ("checkpoints", "tb")
 
 
+def config_stem(config: str | Path) -> str:
+    """A config's name in file and folder names: a built-in's name, or a path's stem."""
+    return Path(str(config)).stem
+
+
 def run_name(method: str, config: str | Path, seed: int) -> str:
     """The name of a run directory: ``<method>_<config>_s<seed>``, the config by its file stem (a
     built-in name, or a path's stem). The one place this rule is written."""
-    return f"{method}_{Path(str(config)).stem}_s{seed}"
+    return f"{method}_{config_stem(config)}_s{seed}"
 
 
 def seeded_runs(root: str | Path, method: str, config: str | Path) -> list[tuple[int, Path]]:

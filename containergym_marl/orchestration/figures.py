@@ -9,10 +9,10 @@ from pathlib import Path
 
 from containergym_marl.config import load_config
 from containergym_marl.orchestration.compare_args import HEADLINE_ROW, CompareArgs
-from containergym_marl.orchestration.plan import config_stem, eval_spec, run_files
+from containergym_marl.orchestration.plan import eval_spec, run_files
 from containergym_marl.orchestration.cluster import SweepError
 from containergym_marl.orchestration.sweep import execute
-from containergym_marl.rundir import run_name
+from containergym_marl.rundir import config_stem, run_name
 
 
 def figure_configs(args: CompareArgs) -> list[str]:

@@ -18,12 +18,7 @@ from containergym_marl.manifest import sha256_bytes
 from containergym_marl.methods import METHODS, Method
 from containergym_marl.orchestration.compare_args import CompareArgs
 from containergym_marl.orchestration.tasks import EvalSpec, RunSpec, check_budget
-from containergym_marl.rundir import latest_checkpoint, run_name
-
-
-def config_stem(config: str) -> str:
-    """A config's name in file names: a built-in's name, or a path's stem."""
-    return Path(config).stem
+from containergym_marl.rundir import config_stem, latest_checkpoint, run_name
 
 
 def evaluation_path(out: Path, config: str, key: str) -> Path:

@@ -40,6 +40,7 @@ from containergym_marl.rundir import (
     RunLock,
     RunWarning,
     append_metrics,
+    config_stem,
     checkpoint_files,
     checkpoints,
     intact_checkpoints,
@@ -358,7 +359,7 @@ def _train_native(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval
         if args.resume else None
     if resumed is None:
         env.seed(args.seed)
-        meta = {"algo": args.algo, "config": Path(str(args.config)).stem, "seed": args.seed,
+        meta = {"algo": args.algo, "config": config_stem(args.config), "seed": args.seed,
                 "reward_mode": args.reward_mode if spec.reward_modes else None}
         state, start, progress = fast_ppo.new_state(env, hp, spec.view, args.seed, meta), 0, TrainingProgress()
     else:
@@ -379,7 +380,7 @@ def _train_dagger(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval
     resumed = _resume(run, spec, args, env, load=lambda path: dagger.load_checkpoint(path, hp)) \
         if args.resume else None
     if resumed is None:
-        meta = {"algo": args.algo, "config": Path(str(args.config)).stem, "seed": args.seed,
+        meta = {"algo": args.algo, "config": config_stem(args.config), "seed": args.seed,
                 "reward_mode": args.reward_mode if spec.reward_modes else None}
         state, start, progress = dagger.new_state(env, hp, args.seed, meta), 0, TrainingProgress()
     else:
