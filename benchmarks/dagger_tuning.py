@@ -1,0 +1,200 @@
+"""Choosing ``dagger_agents``' settings on validation episodes (issue 27).
+
+    python benchmarks/dagger_tuning.py                       # the variants below, n11_m2 at δ = 60 and 120, seeds 1-2
+    python benchmarks/dagger_tuning.py --variants greedy --rows n11_m2_dt60 --seeds 1 --workers 1
+    python benchmarks/dagger_tuning.py --smoke               # two variants, one row, 20k samples, 2 episodes
+
+Trains ``dagger_agents`` once per (variant, row, seed) at the row's own training settings and the
+paper's budget (5M agent samples at n = 11), each run in a process of its own on one core (torch one
+thread), ``--workers`` at a time, then evaluates every run's best and final model on the
+*validation* episodes (δ = 120 s, T = 600, seeds 20000–20029: disjoint from the test seeds
+10000–10014 and the fresh seeds 30000+ on which the published results are reported). Writes
+``--out``/tuning.json after every evaluation and ``--out``/tuning.md: per variant and row, the mean
+validation return over seeds and the overflowing episodes, of the best and of the final model.
+
+Resumable: finished runs and evaluations already in tuning.json are reused, an interrupted run
+resumes from its newest checkpoint (``train --resume``). ``--deadline-s`` stops the training
+processes at that many seconds after the start (their checkpoints stay); a run stopped before its
+budget has no final model, and its best model so far is evaluated, with the samples it trained
+recorded (``trained_samples``, from its metrics.csv), so a bounded machine still returns a comparison.
+
+Each variant sets ``--hp`` settings of :class:`containergym_marl.training.dagger.Args` (the others
+stay at their defaults).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from containergym_marl.files import atomic_write_text
+
+#: variant name -> --hp settings (KEY=VALUE strings, as the CLI takes them)
+VARIANTS: dict[str, tuple[str, ...]] = {
+    "sampled": ("greedy=false",),
+    "greedy": ("greedy=true",),
+    "all_data": ("greedy=false", "dataset_size=6000000"),
+    "greedy_all_data": ("greedy=true", "dataset_size=6000000"),
+    "greedy_all_data_wide": ("greedy=true", "dataset_size=6000000", "hidden=128,128"),
+    "greedy_all_data_k32": ("greedy=true", "dataset_size=6000000", "futures=32"),
+}
+ROWS = ("n11_m2_dt60", "n11_m2_dt120")
+METHOD = "dagger_agents"
+
+
+def run_dir(runs: Path, variant: str, row: str, seed: int) -> Path:
+    return runs / variant / f"{METHOD}_{row}_s{seed}"
+
+
+def train_one(job: tuple[str, str, int, str, int | None, float | None]) -> tuple[str, str, int, int]:
+    """``containergym-marl train`` of one run in a child process (killed at the deadline); its exit code."""
+    variant, row, seed, runs, timesteps, deadline = job
+    out = run_dir(Path(runs), variant, row, seed)
+    cmd = [sys.executable, "-m", "containergym_marl.cli", "train", "--algo", METHOD, "--config", row,
+           "--seed", str(seed), "--out", str(out), "--no-progress", "--torch-threads", "1"]
+    if timesteps is not None:
+        cmd += ["--timesteps", str(timesteps)]
+    if VARIANTS[variant]:
+        cmd += ["--hp", *VARIANTS[variant]]
+    if out.exists():
+        cmd.append("--resume")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    timeout = None if deadline is None else max(1.0, deadline - time.time())
+    with open(out.parent / f"{out.name}.log", "a") as log:
+        try:
+            return variant, row, seed, subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, timeout=timeout).returncode
+        except subprocess.TimeoutExpired:
+            return variant, row, seed, -9
+
+
+def evaluate_one(job: tuple[str, str, int, str, str, int]) -> dict:
+    """A run's model on the validation episodes."""
+    import torch
+
+    from containergym_marl.evaluation.protocol import VALIDATION, EvalProtocol
+    from containergym_marl.evaluation.runs import evaluate_run
+
+    torch.set_num_threads(1)
+    variant, row, seed, runs, which, episodes = job
+    protocol = EvalProtocol(episodes=episodes, first_seed=VALIDATION.first_seed)
+    result = evaluate_run(run_dir(Path(runs), variant, row, seed), which=which, protocol=protocol, write=False)
+    returns = result.returns
+    run = run_dir(Path(runs), variant, row, seed)
+    return {"variant": variant, "row": row, "seed": seed, "model": which, "finished": finished(run),
+            "trained_samples": trained_samples(run), "episodes": len(returns),
+            "first_seed": protocol.first_seed, "return_mean": float(returns.mean()), "return_std": float(returns.std()),
+            "overflowing_episodes": int(sum(e.overflow for e in result.episodes)), "returns": returns.tolist()}
+
+
+def finished(run: Path) -> bool:
+    return (run / "final_model.pt").is_file() and (run / "run.json").is_file()
+
+
+def evaluable(run: Path, which: str) -> bool:
+    """A finished run's models; an unfinished run's best model so far."""
+    return finished(run) or (which == "best" and (run / "best_model.pt").is_file())
+
+
+def trained_samples(run: Path) -> int:
+    """A finished run's samples (run.json); an unfinished run's newest metrics row (its training so far)."""
+    if finished(run):
+        return int(json.loads((run / "run.json").read_text())["timesteps"])
+    if not (run / "metrics.csv").is_file():
+        return 0
+    with open(run / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    return int(rows[-1]["timesteps"]) if rows else 0
+
+
+def table(entries: list[dict], variants: list[str], rows: list[str], note: str = "") -> str:
+    lines = ["# `dagger_agents` settings on validation episodes", "",
+             "Mean validation return over training seeds (each seed: the mean of its episodes, δ = 120 s, "
+             "T = 600, seeds 20000+), and overflowing episodes over all seeds' episodes, of each run's best "
+             "and final model; samples: the training of the runs (fewer than the budget where a run was "
+             "stopped before it: then only its best model so far exists). Settings: `--hp` of "
+             "`containergym_marl.training.dagger.Args`.", "",
+             "| variant | settings | row | seeds | samples | best: return | best: overflows | final: return | final: overflows |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    if note:
+        lines[3:3] = ["Where the runs were trained: " + note, ""]
+    for variant in variants:
+        for row in rows:
+            cells = []
+            seeds, samples = 0, []
+            for which in ("best", "final"):
+                found = [e for e in entries if (e["variant"], e["row"], e["model"]) == (variant, row, which)]
+                seeds = max(seeds, len(found))
+                samples += [e["trained_samples"] for e in found]
+                if found:
+                    means = np.array([e["return_mean"] for e in found])
+                    cells += [f"{means.mean():.2f} (min {means.min():.2f})",
+                              f"{sum(e['overflowing_episodes'] for e in found)}/{sum(e['episodes'] for e in found)}"]
+                else:
+                    cells += ["–", "–"]
+            settings = " ".join(VARIANTS[variant]) or "(defaults)"
+            span = f"{min(samples) / 1e6:.1f}–{max(samples) / 1e6:.1f}M" if samples else "–"
+            lines.append(f"| {variant} | {settings} | {row} | {seeds} | {span} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    p.add_argument("--rows", nargs="+", default=list(ROWS))
+    p.add_argument("--seeds", nargs="+", type=int, default=[1, 2])
+    p.add_argument("--timesteps", type=int, default=None, help="training budget (default: the paper's of each row)")
+    p.add_argument("--episodes", type=int, default=30, help="validation episodes (seeds 20000 on)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--deadline-s", type=float, default=None, help="stop training this many seconds after the start")
+    p.add_argument("--runs", default="runs/dagger_tuning")
+    p.add_argument("--out", default="results/dagger_tuning")
+    p.add_argument("--no-train", action="store_true", help="only evaluate the runs there are")
+    p.add_argument("--note", default=None, help="where and how the runs were trained (kept in tuning.json, shown in tuning.md)")
+    p.add_argument("--smoke", action="store_true", help="two variants, one row, one seed, 20k samples, 2 episodes")
+    ns = p.parse_args(argv)
+    if ns.smoke:
+        ns.variants, ns.rows, ns.seeds, ns.timesteps, ns.episodes = ["sampled", "greedy"], ["n5_m2_dt120"], [1], 20_000, 2
+        ns.runs = ns.runs if ns.runs != p.get_default("runs") else "runs/dagger_tuning_smoke/runs"
+        ns.out = ns.out if ns.out != p.get_default("out") else "runs/dagger_tuning_smoke/results"
+    runs, out = Path(ns.runs), Path(ns.out)
+    out.mkdir(parents=True, exist_ok=True)
+    deadline = None if ns.deadline_s is None else time.time() + ns.deadline_s
+    jobs = [(v, r, s, str(runs), ns.timesteps, deadline) for v in ns.variants for r in ns.rows for s in ns.seeds
+            if not ns.no_train and not finished(run_dir(runs, v, r, s))]
+    with ProcessPoolExecutor(ns.workers) as pool:
+        for variant, row, seed, code in pool.map(train_one, jobs):
+            print(f"train {variant} {row} s{seed}: exit {code}", flush=True)
+    path = out / "tuning.json"
+    saved = json.loads(path.read_text()) if path.is_file() else {}
+    entries, note = saved.get("evaluations", []), ns.note if ns.note is not None else saved.get("note", "")
+    done = {(e["variant"], e["row"], e["seed"], e["model"], e["episodes"]) for e in entries}
+    evals = [(v, r, s, str(runs), w, ns.episodes) for v in ns.variants for r in ns.rows for s in ns.seeds
+             for w in ("best", "final") if evaluable(run_dir(runs, v, r, s), w) and (v, r, s, w, ns.episodes) not in done]
+    with ProcessPoolExecutor(ns.workers) as pool:
+        for entry in pool.map(evaluate_one, evals):
+            entries.append(entry)
+            print(f"{entry['variant']:22s} {entry['row']:13s} s{entry['seed']} {entry['model']:5s} "
+                  f"{entry['return_mean']:7.2f} ± {entry['return_std']:5.2f}  overflows {entry['overflowing_episodes']}",
+                  flush=True)
+            save(path, ns.variants, entries, note)
+    save(path, ns.variants, entries, note)
+    atomic_write_text(out / "tuning.md", table(entries, ns.variants, ns.rows, note))
+    print(table(entries, ns.variants, ns.rows, note))
+
+
+def save(path: Path, variants: list[str], entries: list[dict], note: str) -> None:
+    atomic_write_text(path, json.dumps({"variants": {v: list(VARIANTS[v]) for v in variants}, "note": note,
+                                        "evaluations": entries}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()

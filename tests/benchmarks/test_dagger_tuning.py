@@ -1,0 +1,40 @@
+"""benchmarks/dagger_tuning.py at its smoke size: trains two variants, evaluates them on validation
+episodes, and after a deadline that stops a run early still evaluates its best model so far."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+SCRIPT = str(REPO / "benchmarks" / "dagger_tuning.py")
+
+
+def test_smoke_run_evaluates_each_variant_on_validation_seeds(tmp_path):
+    out, runs = tmp_path / "out", tmp_path / "runs"
+    subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "2", "--out", str(out), "--runs", str(runs)],
+                   capture_output=True, text=True, timeout=300, check=True)
+    saved = json.loads((out / "tuning.json").read_text())
+    assert saved["variants"] == {"sampled": ["greedy=false"], "greedy": ["greedy=true"]}
+    found = {(e["variant"], e["model"]) for e in saved["evaluations"]}
+    assert found == {(v, m) for v in ("sampled", "greedy") for m in ("best", "final")}
+    for e in saved["evaluations"]:
+        assert e["first_seed"] == 20_000 and e["episodes"] == 2 == len(e["returns"])
+        assert e["finished"] and e["trained_samples"] >= 20_000
+    args = json.loads((runs / "greedy" / "dagger_agents_n5_m2_dt120_s1" / "args.json").read_text())
+    assert args["hyperparams"] == {"greedy": True}
+    assert "| greedy | greedy=true | n5_m2_dt120 | 1 |" in (out / "tuning.md").read_text()
+
+
+def test_a_run_stopped_by_the_deadline_is_evaluated_by_its_best_model(tmp_path):
+    out, runs = tmp_path / "out", tmp_path / "runs"
+    common = [sys.executable, SCRIPT, "--variants", "greedy", "--rows", "n5_m2_dt120", "--seeds", "1",
+              "--episodes", "2", "--workers", "1", "--out", str(out), "--runs", str(runs), "--timesteps", "5000000"]
+    subprocess.run([*common, "--deadline-s", "12"], capture_output=True, text=True, timeout=300, check=True)
+    run = runs / "greedy" / "dagger_agents_n5_m2_dt120_s1"
+    assert not (run / "final_model.pt").exists() and (run / "best_model.pt").exists()
+    saved = json.loads((out / "tuning.json").read_text())
+    [entry] = saved["evaluations"]
+    assert entry["model"] == "best" and not entry["finished"] and 0 < entry["trained_samples"] < 5_000_000
