@@ -1,15 +1,19 @@
-"""What the rollout planner does differently from the rule-based agents on a contended row (m = 2).
+"""What the rollout planner and the learned container agents do on a contended row (m = 2).
 
     python benchmarks/planner_figures.py                     # n11_m2_dt120, 15 test episodes (~2 min)
-    python benchmarks/planner_figures.py --config n16_m2_dt120
+    python benchmarks/planner_figures.py --config n16_m2_dt120 --learned
+    python benchmarks/planner_figures.py --learned dagger_agents=runs/dagger_agents_n11_m2_dt120_s1/best_model.pt
 
-Evaluates ``rule_based_agents`` and ``planner_agents`` (default setting) with the paper's test protocol,
-keeps the episode records, and writes to ``--out`` (default docs/figures) the package's figures:
-emptying-volume ECDFs and the reward ECDF of both methods, and for the first test episode of each a
+Evaluates ``rule_based_agents``, ``planner_agents`` (default setting) and the learned shared
+container-agent policies of ``--learned`` (NAME=PATH of a tensor-only ``.pt`` model; by default the
+published best models of ``fast_shared_ppo`` and ``dagger_agents`` for the row, where they exist,
+each checked against its folder's MANIFEST.sha256) with the paper's test protocol, keeps the
+episode records, and writes to ``--out`` (default docs/figures) the package's figures:
+emptying-volume ECDFs and the reward ECDF of all methods, and for the first test episode of each a
 rollout (the first ``--window`` steps) and the PU timeline. It prints, and writes to ``--json``, the
 numbers behind the explanation: per container, where the emptyings fall relative to the optimum v*
-(earlier than the rule's margin, v < v* − 1; later, v > v* + 1), and how often a ready container had to
-wait because both PUs were busy.
+(earlier than the rule's margin, v < v* − 1; later, v > v* + 1), how often a ready container had to
+wait because both PUs were busy, and how many requests were denied (no free PU).
 """
 
 from __future__ import annotations
@@ -25,7 +29,38 @@ from containergym_marl.config import load_config
 from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import PAPER, EpisodeRecord, evaluate
 from containergym_marl.evaluation import plots
+from containergym_marl.manifest import check, read_manifest
 from containergym_marl.policies import PlannerAgents, RuleBasedAgents
+from containergym_marl.policies.actor_critic import ActorCritic, policy_for
+
+#: (method, published models folder): the learned policies shown by default, where published
+PUBLISHED = (("fast_shared_ppo", Path("results/paper_rows")), ("dagger_agents", Path("results/dagger_rows")))
+
+
+def learned_policies(specs: list[str] | None, config: str) -> list[tuple]:
+    """The shared container-agent policies of NAME=PATH specs; None: the published best models of
+    :data:`PUBLISHED` for ``config`` that exist. A published file (under a folder with a
+    MANIFEST.sha256) must match its hash. Returns (policy, path) pairs."""
+    if specs is None:
+        specs = [f"{name}={folder / 'models' / config / f'{name}_best.pt'}" for name, folder in PUBLISHED
+                 if (folder / "models" / config / f"{name}_best.pt").is_file()]
+    policies = []
+    for spec in specs:
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path.endswith(".pt"):
+            raise SystemExit(f"--learned: expected NAME=PATH of a .pt model, got {spec!r}")
+        path = Path(path)
+        if not path.is_file():
+            raise SystemExit(f"--learned {name}: no model file {path}")
+        for folder in path.parents:
+            if (folder / "MANIFEST.sha256").is_file():
+                check(folder, path.relative_to(folder).as_posix(), path.read_bytes(), read_manifest(folder))
+                break
+        model = ActorCritic.load(path)
+        if model.view != "decentralised":
+            raise SystemExit(f"--learned {name}: {path} is a {model.view} model; a container-agent policy is needed")
+        policies.append((policy_for(model, name), path))
+    return policies
 
 
 def window(record: EpisodeRecord, steps: int) -> EpisodeRecord:
@@ -95,12 +130,16 @@ def main(argv=None) -> None:
     p.add_argument("--window", type=int, default=200, help="steps shown in the rollout figures")
     p.add_argument("--out", default="docs/figures")
     p.add_argument("--json", default=None, help="default: results/planner/behaviour_<config>.json")
+    p.add_argument("--learned", nargs="*", default=None, metavar="NAME=PATH",
+                   help="learned container-agent policies to show (default: the published best models of "
+                        + " and ".join(name for name, _ in PUBLISHED) + "; none: --learned with no value)")
     ns = p.parse_args(argv)
     cfg = load_config(ns.config)
     params = PlantParams.from_config(cfg)
     protocol = dataclasses.replace(PAPER, episodes=ns.episodes)
-    records = {policy.name: evaluate(policy, cfg, protocol).records
-               for policy in (RuleBasedAgents(params), PlannerAgents(params))}
+    learned = learned_policies(ns.learned, cfg.name)
+    policies = (RuleBasedAgents(params), PlannerAgents(params), *(policy for policy, _ in learned))
+    records = {policy.name: evaluate(policy, cfg, protocol).records for policy in policies}
     plant = protocol.plant(cfg)
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -114,7 +153,7 @@ def main(argv=None) -> None:
     summary = {method: behaviour(recs, PlantParams.from_config(plant), plant.container_names)
                for method, recs in records.items()}
     summary["meta"] = {"config": cfg.name, "episodes": ns.episodes, "window_steps": ns.window,
-                       "first_seed": protocol.first_seed}
+                       "first_seed": protocol.first_seed, "learned": {p.name: str(path) for p, path in learned}}
     path = Path(ns.json or f"results/planner/behaviour_{cfg.name}.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(summary, indent=1) + "\n")

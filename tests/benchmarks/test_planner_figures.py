@@ -1,0 +1,51 @@
+"""benchmarks/planner_figures.py: the learned policies it shows are loaded safely (a published file only
+while it matches its manifest, container-agent models only), by default the published ones that exist."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from containergym_marl.manifest import write_manifest
+from containergym_marl.policies.actor_critic import ActorCritic
+from tests.helpers import load_script
+
+script = load_script("benchmarks/planner_figures.py")
+
+
+def _model(view: str, path):
+    ActorCritic(view, 8, 2 if view == "decentralised" else 12, generator=torch.Generator().manual_seed(0)).save(path)
+    return path
+
+
+def test_a_published_model_loads_only_while_it_matches_its_manifest(tmp_path):
+    folder = tmp_path / "published"
+    (folder / "models" / "n11_m2_dt120").mkdir(parents=True)
+    path = _model("decentralised", folder / "models" / "n11_m2_dt120" / "dagger_agents_best.pt")
+    write_manifest(folder)
+    [(policy, found)] = script.learned_policies([f"dagger_agents={path}"], "n11_m2_dt120")
+    assert policy.name == "dagger_agents" and found == path
+    path.write_bytes(path.read_bytes() + b"\0")
+    with pytest.raises(Exception, match="sha256 differs"):
+        script.learned_policies([f"dagger_agents={path}"], "n11_m2_dt120")
+
+
+def test_bad_learned_specs_are_refused_with_the_offending_name(tmp_path):
+    centralised = _model("centralised", tmp_path / "ppo.pt")
+    with pytest.raises(SystemExit, match="--learned ppo: .* centralised model"):
+        script.learned_policies([f"ppo={centralised}"], "n11_m2_dt120")
+    with pytest.raises(SystemExit, match="expected NAME=PATH"):
+        script.learned_policies([str(centralised)], "n11_m2_dt120")
+    with pytest.raises(SystemExit, match="--learned x: no model file"):
+        script.learned_policies([f"x={tmp_path / 'missing.pt'}"], "n11_m2_dt120")
+
+
+def test_default_learned_policies_are_the_published_best_models_that_exist(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for name, folder in script.PUBLISHED[:1]:
+        (folder / "models" / "n11_m2_dt120").mkdir(parents=True)
+        _model("decentralised", folder / "models" / "n11_m2_dt120" / f"{name}_best.pt")
+        write_manifest(folder)
+    found = script.learned_policies(None, "n11_m2_dt120")
+    assert [p.name for p, _ in found] == [script.PUBLISHED[0][0]]
+    assert script.learned_policies(None, "n16_m2_dt120") == []
