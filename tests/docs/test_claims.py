@@ -278,6 +278,31 @@ def planner_overflows_on_fresh_n16():
             and sum(r["episodes"] for r in replays) == 3 * overflowed)
 
 
+def tuning() -> dict[tuple[str, str], tuple[float, int]]:
+    """benchmarks/dagger_tuning.py's best models: (variant, row) -> (mean over seeds, overflowing episodes)."""
+    out: dict[tuple[str, str], list] = {}
+    for e in json.loads((ROOT / "results" / "dagger_tuning" / "tuning.json").read_text())["evaluations"]:
+        if e["model"] == "best":
+            out.setdefault((e["variant"], e["row"]), []).append(e)
+    return {k: (float(np.mean([e["return_mean"] for e in v])), sum(e["overflowing_episodes"] for e in v))
+            for k, v in out.items()}
+
+
+TUNING_ROWS = ("n11_m2_dt60", "n11_m2_dt120")
+
+
+def greedy_is_better():
+    t = tuning()
+    return all(t[("greedy", r)][0] > t[("sampled", r)][0] and t[("greedy", r)][1] < t[("sampled", r)][1]
+               for r in TUNING_ROWS)
+
+
+def more_data_or_width_no_better():
+    t = tuning()
+    return (all(t[("greedy_all_data", r)][0] < t[("greedy", r)][0] for r in TUNING_ROWS)
+            and sum(t[("greedy_all_data_wide", r)][0] for r in TUNING_ROWS) < sum(t[("greedy", r)][0] for r in TUNING_ROWS))
+
+
 PLANNER_CLAIMS = {
     "The planner, in both views and with the default setting, scores above both rule-based controllers on "
     "every row, with no overflowing test episode.": planner_beats_rules,
@@ -297,6 +322,9 @@ PLANNER_CLAIMS = {
     "The planner is not overflow-free: on `n16_m2` both views overflow in 2–3 % of the fresh episodes. Replayed "
     "with another planner seed or with 64 futures, almost none of those episodes overflows again":
         planner_overflows_on_fresh_n16,
+    "on both rows tried, greedy acting scored higher with fewer overflowing episodes.": greedy_is_better,
+    "Keeping every labelled sample instead of the latest million scored lower on both rows, and a wider network "
+    "was no better over the two rows together.": more_data_or_width_no_better,
 }
 
 
