@@ -198,9 +198,9 @@ def training_compute(runs: Path) -> str:
 
 #: The columns of the compact table, in order (a method without any published evaluation is left out):
 #: the rules, the paper's PPO baselines as the package trains them (15 seeds a row), SB3's runs of the
-#: same methods at the paper's settings (the reproduction), MAPPO.
+#: same methods at the paper's settings (the reproduction), MAPPO, the imitations of the planner.
 COMPACT_METHODS = ("rule_based", "rule_based_agents", "fast_ppo", "fast_shared_ppo", "fast_shared_ppo_team",
-                   "ppo", "shared_ppo", "shared_ppo_team", "mappo")
+                   "ppo", "shared_ppo", "shared_ppo_team", "mappo", "dagger_agents", "dagger_ppo_agents")
 #: The reference column of the compact table: the rollout planner of ``results/planner/rows.json``.
 PLANNER = ("planner_agents", "default")
 
