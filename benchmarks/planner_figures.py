@@ -123,6 +123,38 @@ def behaviour(records: list[EpisodeRecord], params: PlantParams, names: tuple[st
     }
 
 
+#: (key of :func:`behaviour`, panel title) of the behaviour summary figure
+BEHAVIOUR_PANELS = (("denied_requests_per_episode", "requests denied (no free PU)\nper episode"),
+                    ("early_share_before_the_end_game", "share of emptyings early (v < v* − 1),\nbefore the last 20 steps"),
+                    ("ready_waiting_for_a_pu_per_episode", "ready containers waiting for a PU\n(container-steps per episode)"),
+                    ("return_mean", "test return\n(mean over episodes)"))
+
+
+def plot_behaviour(summary: dict, path: Path) -> None:
+    """One bar per method in each panel of :data:`BEHAVIOUR_PANELS`: how each avoids or meets contention."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = [m for m in summary if m != "meta"]
+    fig, axes = plt.subplots(1, len(BEHAVIOUR_PANELS), figsize=(3.2 * len(BEHAVIOUR_PANELS), 3.4))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, (key, title) in zip(axes, BEHAVIOUR_PANELS):
+        values = [summary[m][key] for m in methods]
+        ax.bar(range(len(methods)), values, color=colours[:len(methods)])
+        for i, v in enumerate(values):
+            ax.annotate(f"{v:.3g}", (i, v), ha="center", va="bottom", fontsize=8)
+        ax.set_xticks(range(len(methods)), methods, rotation=30, ha="right", fontsize=8)
+        ax.set_title(title, fontsize=9)
+        ax.grid(axis="y", alpha=0.3)
+    fig.suptitle(f"{summary['meta']['config']}: how each method meets contention "
+                 f"({summary['meta']['episodes']} test episodes)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", default="n11_m2_dt120")
@@ -157,6 +189,7 @@ def main(argv=None) -> None:
     path = Path(ns.json or f"results/planner/behaviour_{cfg.name}.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(summary, indent=1) + "\n")
+    plot_behaviour(summary, Path(f"{stem}_behaviour.png"))
     for method in records:
         s = summary[method]
         print(f"{method}: return {s['return_mean']:.2f}, {s['emptyings_per_episode']:.1f} emptyings/episode, "
