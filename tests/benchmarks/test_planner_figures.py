@@ -3,6 +3,8 @@ while it matches its manifest, container-agent models only), by default the publ
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -49,3 +51,23 @@ def test_default_learned_policies_are_the_published_best_models_that_exist(tmp_p
     found = script.learned_policies(None, "n11_m2_dt120")
     assert [p.name for p, _ in found] == [script.PUBLISHED[0][0]]
     assert script.learned_policies(None, "n16_m2_dt120") == []
+
+
+def test_a_short_run_writes_the_figures_and_the_behaviour_of_every_method(tmp_path):
+    """One test episode of n5_m2_dt120: the rule, the planner and an untrained shared policy."""
+    from containergym_marl.config import load_config
+    from containergym_marl.core.observations import agent_feature_names
+    from containergym_marl.core.params import PlantParams
+
+    features = len(agent_feature_names(PlantParams.from_config(load_config("n5_m2_dt120"))))
+    model = tmp_path / "untrained.pt"
+    ActorCritic("decentralised", features, 2, generator=torch.Generator().manual_seed(0)).save(model)
+    out, summary = tmp_path / "figures", tmp_path / "behaviour.json"
+    script.main(["--config", "n5_m2_dt120", "--episodes", "1", "--window", "20", "--out", str(out),
+                 "--json", str(summary), "--learned", f"untrained={model}"])
+    saved = json.loads(summary.read_text())
+    assert list(saved) == ["rule_based_agents", "planner_agents", "untrained", "meta"]
+    assert saved["meta"]["learned"] == {"untrained": str(model)}
+    assert saved["planner_agents"]["denied_requests_per_episode"] == 0
+    for name in ("behaviour", "emptying_volume_ecdfs", "reward_ecdf", "pu_timeline_untrained", "episode_planner_agents"):
+        assert (out / f"n5_m2_dt120_planner_{name}.png").stat().st_size > 0
