@@ -187,11 +187,15 @@ def main(argv=None) -> None:
                   flush=True)
             save(path, ns.variants, entries, note)
     save(path, ns.variants, entries, note)
-    atomic_write_text(out / "tuning.md", table(entries, ns.variants, ns.rows, note))
-    print(table(entries, ns.variants, ns.rows, note))
+    # the table shows every evaluation on record, also of variants, rows and seeds not asked for this time
+    variants = [v for v in VARIANTS if any(e["variant"] == v for e in entries)]
+    rows = list(dict.fromkeys([*ns.rows, *(e["row"] for e in entries)]))
+    atomic_write_text(out / "tuning.md", table(entries, variants, rows, note))
+    print(table(entries, variants, rows, note))
 
 
 def save(path: Path, variants: list[str], entries: list[dict], note: str) -> None:
+    variants = [v for v in VARIANTS if v in variants or any(e["variant"] == v for e in entries)]
     atomic_write_text(path, json.dumps({"variants": {v: list(VARIANTS[v]) for v in variants}, "note": note,
                                         "evaluations": entries}, indent=1) + "\n")
 

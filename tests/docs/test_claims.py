@@ -278,29 +278,37 @@ def planner_overflows_on_fresh_n16():
             and sum(r["episodes"] for r in replays) == 3 * overflowed)
 
 
-def tuning() -> dict[tuple[str, str], tuple[float, int]]:
-    """benchmarks/dagger_tuning.py's best models: (variant, row) -> (mean over seeds, overflowing episodes)."""
+def tuning(seeds: tuple[int, ...] = (1, 2, 3, 4, 5)) -> dict[tuple[str, str], tuple[float, int, int]]:
+    """benchmarks/dagger_tuning.py's best models of these seeds: (variant, row) -> (mean over seeds,
+    overflowing episodes, seeds)."""
     out: dict[tuple[str, str], list] = {}
     for e in json.loads((ROOT / "results" / "dagger_tuning" / "tuning.json").read_text())["evaluations"]:
-        if e["model"] == "best":
+        if e["model"] == "best" and e["seed"] in seeds:
             out.setdefault((e["variant"], e["row"]), []).append(e)
-    return {k: (float(np.mean([e["return_mean"] for e in v])), sum(e["overflowing_episodes"] for e in v))
+    return {k: (float(np.mean([e["return_mean"] for e in v])), sum(e["overflowing_episodes"] for e in v), len(v))
             for k, v in out.items()}
 
 
 TUNING_ROWS = ("n11_m2_dt60", "n11_m2_dt120")
 
 
-def greedy_is_better():
+def greedy_against_sampled():
     t = tuning()
-    return all(t[("greedy", r)][0] > t[("sampled", r)][0] and t[("greedy", r)][1] < t[("sampled", r)][1]
-               for r in TUNING_ROWS)
+    dt60 = t[("greedy", "n11_m2_dt60")][0] - t[("sampled", "n11_m2_dt60")][0]
+    dt120 = t[("greedy", "n11_m2_dt120")][0] - t[("sampled", "n11_m2_dt120")][0]
+    five = all(t[(v, r)][2] == 5 for v in ("greedy", "sampled") for r in TUNING_ROWS)
+    return five and abs(dt60) < 0.2 and round(dt120, 1) == 1.7
 
 
 def more_data_or_width_no_better():
-    t = tuning()
-    return (all(t[("greedy_all_data", r)][0] < t[("greedy", r)][0] for r in TUNING_ROWS)
-            and sum(t[("greedy_all_data_wide", r)][0] for r in TUNING_ROWS) < sum(t[("greedy", r)][0] for r in TUNING_ROWS))
+    t = tuning(seeds=(1, 2))
+    greedy = sum(t[("greedy", r)][0] for r in TUNING_ROWS)
+    return all(sum(t[(v, r)][0] for r in TUNING_ROWS) <= greedy and all(t[(v, r)][2] == 2 for r in TUNING_ROWS)
+               for v in ("greedy_all_data", "greedy_all_data_wide"))
+
+
+def every_setting_overflows():
+    return all(overflows > 0 for _, overflows, _ in tuning().values())
 
 
 PLANNER_CLAIMS = {
@@ -322,9 +330,11 @@ PLANNER_CLAIMS = {
     "The planner is not overflow-free: on `n16_m2` both views overflow in 2–3 % of the fresh episodes. Replayed "
     "with another planner seed or with 64 futures, almost none of those episodes overflows again":
         planner_overflows_on_fresh_n16,
-    "on both rows tried, greedy acting scored higher with fewer overflowing episodes.": greedy_is_better,
-    "Keeping every labelled sample instead of the latest million scored lower on both rows, and a wider network "
-    "was no better over the two rows together.": more_data_or_width_no_better,
+    "over five seeds each, greedy acting scored within 0.2 of sampling on `n11_m2_dt60` and 1.7 higher on "
+    "`n11_m2_dt120`.": greedy_against_sampled,
+    "On the two seeds tried, keeping every labelled sample instead of the latest million, or a wider network, did "
+    "not score higher over the two rows together.": more_data_or_width_no_better,
+    "No setting tried removes the rare overflowing episodes.": every_setting_overflows,
 }
 
 
