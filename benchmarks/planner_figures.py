@@ -72,6 +72,29 @@ def window(record: EpisodeRecord, steps: int) -> EpisodeRecord:
                                terminated=record.terminated and t == record.steps, **per_step)
 
 
+def overflow_causes(records: list[EpisodeRecord], params: PlantParams, margin: float = 1.0,
+                    lookback: int = 10) -> dict[str, int]:
+    """Why each overflowing episode overflowed, from the overflowing container's last ``lookback``
+    steps: ``denied`` (it asked and another request got the free PU: the agents did not coordinate),
+    ``not_requested`` (it was ready with a PU free and did not ask), else ``no_free_pu`` (it was
+    ready too late, or every PU stayed busy: only an earlier emptying would have helped)."""
+    target = np.asarray(params.target_volume)
+    causes = {"denied": 0, "not_requested": 0, "no_free_pu": 0}
+    for r in records:
+        for name in r.overflowed_containers:
+            i = r.container_names.index(name)
+            last = slice(max(r.steps - lookback, 0), r.steps)
+            ready = target[i] - r.volumes[:-1][last, i] <= margin
+            free = (r.pu_timers_s[:-1][last] == 0).any(axis=1)
+            if r.denied[last, i].any():
+                causes["denied"] += 1
+            elif (ready & free & ~r.requested[last, i]).any():
+                causes["not_requested"] += 1
+            else:
+                causes["no_free_pu"] += 1
+    return causes
+
+
 def behaviour(records: list[EpisodeRecord], params: PlantParams, names: tuple[str, ...], margin: float = 1.0,
               end_game: int = 20) -> dict:
     """Where emptyings fall relative to v*, and how long ready containers wait for a PU. The
@@ -119,6 +142,8 @@ def behaviour(records: list[EpisodeRecord], params: PlantParams, names: tuple[st
         "ready_waiting_for_a_pu_per_episode": waits / len(records),
         "all_pus_busy_share_of_steps": both_busy / steps,
         "denied_requests_per_episode": float(np.mean([r.denied.sum() for r in records])),
+        "overflowing_episodes": int(sum(r.terminated for r in records)),
+        "overflow_causes": overflow_causes(records, params, margin),
         "per_container": per_container,
     }
 
@@ -198,7 +223,9 @@ def main(argv=None) -> None:
               f"{s['early_share_before_the_end_game']:.3f}; {s['end_game_emptyings_per_episode']:.1f} emptyings "
               f"in them per episode; mean reward of those early ones "
               f"{s['mean_reward_of_early_emptyings_before_the_end_game'] or float('nan'):.3f}), ready and waiting for a PU {s['ready_waiting_for_a_pu_per_episode']:.1f} "
-              f"container-steps/episode, all PUs busy {s['all_pus_busy_share_of_steps']:.3f} of steps")
+              f"container-steps/episode, all PUs busy {s['all_pus_busy_share_of_steps']:.3f} of steps, "
+              f"{s['denied_requests_per_episode']:.1f} denied requests/episode, {s['overflowing_episodes']} "
+              f"overflowing episode(s): {s['overflow_causes']}")
         for name, c in s["per_container"].items():
             print(f"   {name:6s} v*={c['target']:5.1f}  n={c['emptyings']:4d}  median {c['median_volume']:5.2f}"
                   f"  early {c['early_share']:.2f}  late {c['late_share']:.2f}"

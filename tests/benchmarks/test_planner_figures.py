@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -71,3 +72,34 @@ def test_a_short_run_writes_the_figures_and_the_behaviour_of_every_method(tmp_pa
     assert saved["planner_agents"]["denied_requests_per_episode"] == 0
     for name in ("behaviour", "emptying_volume_ecdfs", "reward_ecdf", "pu_timeline_untrained", "episode_planner_agents"):
         assert (out / f"n5_m2_dt120_planner_{name}.png").stat().st_size > 0
+
+
+def _overflowing_episode(denied: bool, pu_busy: bool):
+    """Two containers (v* = 10 and 20, v_max = 12 and 40), one PU, three steps; container 0 is ready
+    from the start and overflows at the last step."""
+    from containergym_marl.evaluation import EpisodeRecord
+
+    steps, n = 3, 2
+    volumes = np.array([[9.5, 5.0], [10.5, 5.0], [11.5, 5.0], [12.5, 5.0]])
+    timers = np.full((steps + 1, 1), 100.0 if pu_busy else 0.0)
+    requested = np.zeros((steps, n), bool)
+    deny = np.zeros((steps, n), bool)
+    if denied:
+        requested[1, 0] = deny[1, 0] = True
+    zeros = np.zeros((steps, n))
+    return EpisodeRecord("toy", ("a", "b"), "decentralised", "p", 0, 120.0, volumes, timers, requested,
+                         np.zeros((steps, n), bool), deny, np.full((steps, n), -1), zeros, zeros, np.zeros(steps),
+                         True, False, overflowed_containers=("a",))
+
+
+def test_overflow_causes_tell_a_denied_request_from_a_missed_one_and_from_no_free_pu():
+    from types import SimpleNamespace
+
+    params = SimpleNamespace(target_volume=np.array([10.0, 20.0]))
+    cases = {"denied": _overflowing_episode(denied=True, pu_busy=False),
+             "not_requested": _overflowing_episode(denied=False, pu_busy=False),
+             "no_free_pu": _overflowing_episode(denied=False, pu_busy=True)}
+    for cause, record in cases.items():
+        counts = script.overflow_causes([record], params)
+        assert counts == {k: int(k == cause) for k in ("denied", "not_requested", "no_free_pu")}, cause
+    assert script.overflow_causes(list(cases.values()), params) == {"denied": 1, "not_requested": 1, "no_free_pu": 1}
