@@ -46,6 +46,8 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "greedy_all_data": ("greedy=true", "dataset_size=6000000"),
     "greedy_all_data_wide": ("greedy=true", "dataset_size=6000000", "hidden=128,128"),
     "greedy_all_data_k32": ("greedy=true", "dataset_size=6000000", "futures=32"),
+    "greedy_anneal": ("greedy=true", "anneal_lr=true"),
+    "greedy_request_weight_4": ("greedy=true", "request_weight=4"),
 }
 ROWS = ("n11_m2_dt60", "n11_m2_dt120")
 METHOD = "dagger_agents"

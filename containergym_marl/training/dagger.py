@@ -28,7 +28,8 @@ forward of a [64, 64] MLP for all agents. Only the labels come from the global s
 3. *aggregate*: the (observation, label) pairs join the data set; the latest ``dataset_size`` are
    kept (DAgger keeps all; the cap bounds memory and the checkpoint).
 4. *train*: ``n_epochs`` × new samples / ``minibatch_size`` Adam steps, each on a minibatch drawn
-   from the whole data set: the cross-entropy of the policy's logits against the labels. The value
+   from the whole data set: the cross-entropy of the policy's logits against the labels (requests
+   weighted by ``request_weight``; the step size annealed to 0 with ``anneal_lr``). The value
    network regresses on the λ-returns of this iteration's rollout at the same time (the agents'
    rewards, time-limit cuts bootstrapped as PPO does), so a PPO fine-tuning starts from a critic of
    the imitated policy: a random critic's advantages would drive its first updates away from it.
@@ -94,7 +95,11 @@ class DAggerArgs:
     n_steps: int = 64  # steps of every simulation per iteration: n_envs × n × n_steps new samples
     n_epochs: int = 4  # Adam steps per iteration = n_epochs × new samples / minibatch_size
     minibatch_size: int = 1024  # samples per Adam step, drawn from the whole data set
-    learning_rate: float = 1e-3  # Adam's step size, constant
+    learning_rate: float = 1e-3  # Adam's step size (constant unless anneal_lr)
+    anneal_lr: bool = False  # the step size decays linearly to 0 over the imitation budget
+    # weight of the request class (label 1) in the cross-entropy: the planner requests in only 1-2 % of
+    # agent steps, and a missed request under contention is what overflows
+    request_weight: float = 1.0
     adam_eps: float = 1e-5  # Adam's eps (the native PPO's)
     max_grad_norm: float = 0.5  # gradient norm clip (the native PPO's)
     vf_coef: float = 0.5  # weight of the value loss (λ-returns of the acting policy)
@@ -150,6 +155,8 @@ class DAggerArgs:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"hp: {name} must be a finite number > 0, got {value}")
+        if not (math.isfinite(self.request_weight) and self.request_weight > 0):
+            raise ValueError(f"hp: request_weight must be a finite number > 0, got {self.request_weight}")
         if not (math.isfinite(self.vf_coef) and self.vf_coef >= 0):
             raise ValueError(f"hp: vf_coef must be a finite number >= 0, got {self.vf_coef}")
         if not 0 <= self.gae_lambda <= 1:
@@ -158,6 +165,10 @@ class DAggerArgs:
             raise ValueError(f"hp: imitation_share must be in (0, 1), got {self.imitation_share}")
         if not self.hidden or any(h < 1 for h in self.hidden):
             raise ValueError(f"hp: hidden must list positive layer widths, got {list(self.hidden)}")
+
+    def learning_rate_at(self, samples: int, budget: int) -> float:
+        """Adam's step size after ``samples`` of an imitation budget of ``budget`` samples."""
+        return self.learning_rate * max(1.0 - samples / budget, 0.0) if self.anneal_lr else self.learning_rate
 
     def imitation_budget(self, budget: int) -> int:
         """The samples DAgger trains of a run's ``budget`` (all of it without fine-tuning)."""
@@ -386,10 +397,12 @@ def update(model: ActorCritic, optimizer, hp: DAggerArgs, generator: torch.Gener
     value MSE on minibatches of this rollout's (``obs``, ``returns``). Returns the mean cross-entropy."""
     new = obs.shape[0]
     steps = max(hp.n_epochs * new // hp.minibatch_size, 1)
+    weight = None if hp.request_weight == 1.0 else torch.tensor([1.0, hp.request_weight])
     total = 0.0
     for _ in range(steps):
         idx = torch.randint(dataset.size, (min(hp.minibatch_size, dataset.size),), generator=generator)
-        cross_entropy = torch.nn.functional.cross_entropy(model.logits(dataset.obs[idx]), dataset.labels[idx].long())
+        cross_entropy = torch.nn.functional.cross_entropy(model.logits(dataset.obs[idx]), dataset.labels[idx].long(),
+                                                          weight=weight)
         j = torch.randint(new, (min(hp.minibatch_size, new),), generator=generator)
         value_loss = torch.nn.functional.mse_loss(model.value(obs[j]), returns[j])
         loss = cross_entropy + hp.vf_coef * value_loss
@@ -434,6 +447,9 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
             on_samples(steps, progress)
 
         state.dataset.add(flat_obs, flat_labels)
+        learning_rate = hp.learning_rate_at(steps - flat_labels.shape[0], budget)
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate
         cross_entropy = update(model, optimizer, hp, generator, state.dataset, flat_obs, returns.view(-1))
         state.iteration += 1
         state.history.append({
@@ -442,7 +458,7 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
             "agreement": float((greedy == flat_labels).float().mean()),
             "request_share": float(requests.float().mean()),
             "request_recall": float((greedy[requests] == 1).float().mean()) if requests.any() else None,
-            "cross_entropy": cross_entropy,
+            "cross_entropy": cross_entropy, "learning_rate": learning_rate,
             "label_cpu_s": round(cpu0 + labeller.cpu_s, 3), "planned_decisions": planned0 + labeller.planned,
             "wall_time_s": round(wall0 + time.perf_counter() - t0, 2)})
         write_record(run, state, hp)

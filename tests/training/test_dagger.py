@@ -20,7 +20,7 @@ from containergym_marl.policies.planner import PlannerAgents
 from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.checkpoints import TrainingProgress, read_progress
-from containergym_marl.training.dagger import DAggerArgs, Episodes, Labeller, collect
+from containergym_marl.training.dagger import DAggerArgs, Dataset, Episodes, Labeller, collect, update
 from tests.helpers import train_until_killed
 
 # 2 simulations, iterations of 16 steps, training episodes of T = 20 steps (they finish)
@@ -174,6 +174,8 @@ def test_same_seed_same_run(tmp_path):
     ("dagger_ppo_agents", {"ppo_clip_range": 0}, "ppo_clip_range"),
     ("dagger_ppo_agents", {"ppo_hidden": "32,32"}, "ppo_hidden"),
     ("dagger_ppo_agents", {"ppo_bogus": 1}, "ppo_bogus"),
+    ("dagger_agents", {"request_weight": "0"}, "request_weight"),
+    ("dagger_agents", {"anneal_lr": "sometimes"}, "anneal_lr"),
 ])
 def test_bad_settings_are_refused_before_anything_is_written(algo, hp, field, tmp_path):
     with pytest.raises(ValueError, match=field):
@@ -186,3 +188,40 @@ def test_settings_parse_from_strings():
                                      fine_tune=True)
     assert (hp.n_steps, hp.greedy, hp.hidden, hp.ppo.clip_range, hp.imitation_share) == (32, False, (32, 16), 0.1, 0.2)
     assert hp.imitation_budget(1000) == 200 and DAggerArgs().imitation_budget(1000) == 1000
+
+
+def test_annealed_step_size_falls_linearly_to_zero_over_the_imitation_budget(tmp_path):
+    """The record's step size per iteration: learning_rate × (1 − samples before the iteration / budget),
+    the imitation budget of a fine-tuning run (a fifth of its budget), and constant by default."""
+    assert DAggerArgs(anneal_lr=True).learning_rate_at(250, 1000) == pytest.approx(0.75e-3)
+    assert DAggerArgs().learning_rate_at(250, 1000) == 1e-3
+    run = train(TrainArgs(algo="dagger_ppo_agents", out=str(tmp_path / "r"), timesteps=50_000, n_envs=2, seed=1,
+                          progress_bar=False, hyperparams={"anneal_lr": "true", "n_steps": "50"}))
+    rows = json.loads((run / "imitation.json").read_text())["iterations"]
+    imitation = 10_000  # a fifth of 50k: 20 iterations of 2 simulations x 5 agents x 50 steps
+    assert [r["learning_rate"] for r in rows] == pytest.approx(
+        [1e-3 * (1 - (r["timesteps"] - 500) / imitation) for r in rows])
+    assert len(rows) == 20 and rows[-1]["learning_rate"] == pytest.approx(1e-3 * 500 / imitation)
+
+
+def test_request_weight_scales_the_cross_entropy_of_requests():
+    """One update's reported cross-entropy is the class-weighted mean over its minibatch (torch's
+    ``weight`` rule: the sum of w_y × loss over the sum of w_y), computed here by hand from the same
+    logits and the same draw (with replacement, from the update's generator)."""
+    generator = torch.Generator().manual_seed(0)
+    model = ActorCritic("decentralised", 3, 2, generator=generator)
+    obs = torch.randn(8, 3, generator=generator)
+    labels = torch.tensor([1, 0, 0, 0, 1, 0, 0, 0], dtype=torch.uint8)
+    dataset = Dataset(8, 3)
+    dataset.add(obs, labels)
+    with torch.no_grad():
+        nll = -torch.log_softmax(model.logits(obs), -1)[torch.arange(8), labels.long()]
+    idx = torch.randint(8, (8,), generator=torch.Generator().manual_seed(1))
+    w = torch.where(labels[idx] == 1, 4.0, 1.0)
+    hp = DAggerArgs(request_weight=4.0, minibatch_size=8, n_epochs=1)
+    frozen = torch.optim.SGD(model.net.parameters(), lr=0.0)
+    got = update(model, frozen, hp, torch.Generator().manual_seed(1), dataset, obs, torch.zeros(8))
+    assert labels[idx].any() and got == pytest.approx(float((w * nll[idx]).sum() / w.sum()), rel=1e-5)
+    plain = update(model, frozen, DAggerArgs(minibatch_size=8, n_epochs=1), torch.Generator().manual_seed(1),
+                   dataset, obs, torch.zeros(8))
+    assert plain == pytest.approx(float(nll[idx].mean()), rel=1e-5) and plain != pytest.approx(got)
