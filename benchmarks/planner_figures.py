@@ -34,7 +34,7 @@ from containergym_marl.policies import PlannerAgents, RuleBasedAgents
 from containergym_marl.policies.actor_critic import ActorCritic, policy_for
 
 #: (method, published models folder): the learned policies shown by default, where published
-PUBLISHED = (("fast_shared_ppo", Path("results/paper_rows")), ("dagger_agents", Path("results/dagger_rows")))
+PUBLISHED = (("fast_shared_ppo", Path("results/paper_rows")), ("dagger_agents", Path("results/paper_rows")))
 
 
 def learned_policies(specs: list[str] | None, config: str) -> list[tuple]:
