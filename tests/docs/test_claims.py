@@ -326,6 +326,15 @@ def every_setting_overflows():
     return all(overflows > 0 for _, overflows, _ in tuning().values())
 
 
+def imitation_behaviour():
+    b = json.loads((PLANNER / "behaviour_n11_m2_dt120.json").read_text())
+    d, ppo, p = b["dagger_agents"], b["fast_shared_ppo"], b["planner_agents"]
+    key = "early_share_before_the_end_game"
+    wait = "ready_waiting_for_a_pu_per_episode"
+    return (0 == p["denied_requests_per_episode"] < d["denied_requests_per_episode"] < ppo["denied_requests_per_episode"]
+            and abs(d[key] - ppo[key]) < abs(d[key] - p[key]) and abs(d[wait] - ppo[wait]) < abs(d[wait] - p[wait]))
+
+
 PLANNER_CLAIMS = {
     "The planner, in both views and with the default setting, scores above both rule-based controllers on "
     "every row, with no overflowing test episode.": planner_beats_rules,
@@ -350,6 +359,10 @@ PLANNER_CLAIMS = {
     "On the two seeds tried, keeping every labelled sample instead of the latest million, or a wider network, did "
     "not score higher over the two rows together.": more_data_or_width_no_better,
     "No setting tried removes the rare overflowing episodes.": every_setting_overflows,
+    "fewer of its requests are denied per episode, though some still are, where the planner's never are.":
+        imitation_behaviour,
+    "its share of early emptyings before the last 20 steps is closer to shared PPO's than to the planner's, and "
+    "its ready containers wait for a PU about as long as shared PPO's.": imitation_behaviour,
 }
 
 
