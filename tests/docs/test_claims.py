@@ -335,6 +335,23 @@ def imitation_behaviour():
             and abs(d[key] - ppo[key]) < abs(d[key] - p[key]) and abs(d[wait] - ppo[wait]) < abs(d[wait] - p[wait]))
 
 
+def imitation_overflow_causes():
+    entries = json.loads((ROOT / "results" / "overflow_causes" / "causes.json").read_text())["entries"]
+    total: dict[tuple[str, str], dict] = {}
+    for e in entries:
+        t = total.setdefault((e["method"], e["row"]), {"episodes": 0, "overflowing": 0, "denied": 0,
+                                                       "not_requested": 0, "no_free_pu": 0})
+        t["episodes"] += e["episodes"]
+        t["overflowing"] += e["overflowing_episodes"]
+        for cause, count in e["causes"].items():
+            t[cause] += count
+    rate = {k: t["overflowing"] / t["episodes"] for k, t in total.items()}
+    fewer = all(rate[("dagger_agents", c)] < rate[("fast_shared_ppo", c)] for c in ("n11_m2_dt120", "n16_m2_dt120"))
+    dt120, dt60 = total[("dagger_agents", "n11_m2_dt120")], total[("dagger_agents", "n11_m2_dt60")]
+    return (fewer and dt120["overflowing"] > 0 and dt120["denied"] == dt120["overflowing"]
+            and dt60["not_requested"] > dt60["overflowing"] / 2)
+
+
 PLANNER_CLAIMS = {
     "The planner, in both views and with the default setting, scores above both rule-based controllers on "
     "every row, with no overflowing test episode.": planner_beats_rules,
@@ -363,6 +380,9 @@ PLANNER_CLAIMS = {
         imitation_behaviour,
     "its share of early emptyings before the last 20 steps is closer to shared PPO's than to the planner's, and "
     "its ready containers wait for a PU about as long as shared PPO's.": imitation_behaviour,
+    "on `n11_m2_dt120` and `n16_m2_dt120` it overflows in fewer episodes than shared PPO. Trained at δ = 120 s on "
+    "`n11_m2`, every one of its overflows followed a denied request": imitation_overflow_causes,
+    "Trained at δ = 60 s, most followed a request it did not make while a PU was free.": imitation_overflow_causes,
 }
 
 
