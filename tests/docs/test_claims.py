@@ -322,6 +322,13 @@ def more_data_or_width_no_better():
                for v in ("greedy_all_data", "greedy_all_data_wide"))
 
 
+def anneal_or_weight_no_better():
+    t = tuning(seeds=(1, 2, 3))
+    greedy = sum(t[("greedy", r)][0] for r in TUNING_ROWS)
+    return all(sum(t[(v, r)][0] for r in TUNING_ROWS) <= greedy and all(t[(v, r)][2] == 3 for r in TUNING_ROWS)
+               for v in ("greedy_anneal", "greedy_request_weight_4"))
+
+
 def every_setting_overflows():
     return all(overflows > 0 for _, overflows, _ in tuning().values())
 
@@ -381,7 +388,9 @@ PLANNER_CLAIMS = {
     "over five seeds each, greedy acting scored within 0.2 of sampling on `n11_m2_dt60` and 1.7 higher on "
     "`n11_m2_dt120`.": greedy_against_sampled,
     "On the two seeds tried, keeping every labelled sample instead of the latest million, or a wider network, did "
-    "not score higher over the two rows together.": more_data_or_width_no_better,
+    "not score higher over the two rows together": more_data_or_width_no_better,
+    "nor, on three seeds, did annealing the step size to zero or weighting the planner's requests four times in "
+    "the loss.": anneal_or_weight_no_better,
     "No setting tried removes the rare overflowing episodes.": every_setting_overflows,
     "fewer of its requests are denied per episode, though some still are, where the planner's never are.":
         imitation_behaviour,
