@@ -32,7 +32,7 @@ def test_a_run_stopped_by_the_deadline_is_evaluated_by_its_best_model(tmp_path):
     out, runs = tmp_path / "out", tmp_path / "runs"
     common = [sys.executable, SCRIPT, "--variants", "greedy", "--rows", "n5_m2_dt120", "--seeds", "1",
               "--episodes", "2", "--workers", "1", "--out", str(out), "--runs", str(runs), "--timesteps", "5000000"]
-    subprocess.run([*common, "--deadline-s", "12"], capture_output=True, text=True, timeout=300, check=True)
+    subprocess.run([*common, "--deadline-s", "30"], capture_output=True, text=True, timeout=300, check=True)
     run = runs / "greedy" / "dagger_agents_n5_m2_dt120_s1"
     assert not (run / "final_model.pt").exists() and (run / "best_model.pt").exists()
     saved = json.loads((out / "tuning.json").read_text())
