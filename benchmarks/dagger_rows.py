@@ -15,24 +15,10 @@ labelling CPU seconds from run.json's ``"imitation"``, samples per second); and 
 of a learned policy per plant step at n = 11 on one thread (``SharedActorCriticPolicy.act``: one
 forward for all agents, over 600 steps).
 
-Cost, measured in smoke runs on a 2-core machine that another training sweep kept busy (load
-average about 7, so these are upper bounds; one core, default settings, 64 simulations):
-
-* ``dagger_agents`` on n11_m2_dt120, 1.53M samples: 152 s wall, i.e. about 100 µs per sample
-  (10,000 samples/s) including the planner's labelling, which took 56.6 CPU-s (37 µs per sample;
-  115k of the 1.5M labelled simulation steps needed a look-ahead). An earlier 315k-sample run on
-  the same row ran at 18,500 samples/s with labelling 66 % of it (1.6 CPU-s per 45k-sample
-  iteration). n5_m2_dt120, 200k samples: 15 s (75 µs per sample), labelling 10 CPU-s.
-* At the paper's budgets that is about 500 s per seed at n >= 11 (5M samples) and 150 s at n = 5
-  (2M) for ``dagger_agents``; ``dagger_ppo_agents`` labels only its first fifth. The whole set
-  (9 rows × 5 seeds × 2 methods, 90 runs) is about 9 core-hours: 4–5 hours on 2 cores.
-* The learned policy decides in a median 0.047 ms per plant step at n = 11 on one thread
-  (``SharedActorCriticPolicy.act`` with an n = 11 network, 3000 calls; mean 0.14 ms on the busy
-  machine); the planner takes 1–2 ms.
-
-The one smoke result so far (one seed, not a claim): the 1.53M-sample ``dagger_agents`` run's final
-model scored 94.4 ± 3.1 on n11_m2_dt120 with no overflow (``planner_agents``: 96.8; the best learned
-IQM before: 83.9), its best model 91.0 with one overflowing episode of 15.
+Cost (``results/dagger_rows/rows.md``, the published run of ``dagger_agents``: 45 runs, 1h17m on a
+2-core machine training two at a time): 129–142 s of one core per seed at n = 5 (2M samples) and
+236–285 s at n >= 11 (5M), of which the planner's labelling takes 104–191 CPU seconds; the learned
+policy decides in a median 0.05 ms per plant step at n = 11 (the planner: 1–2 ms).
 """
 
 from __future__ import annotations
