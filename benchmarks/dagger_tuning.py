@@ -25,7 +25,6 @@ stay at their defaults).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import subprocess
@@ -37,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from containergym_marl.files import atomic_write_text
+from containergym_marl.rundir import read_metrics, run_status
 
 #: variant name -> --hp settings (KEY=VALUE strings, as the CLI takes them)
 VARIANTS: dict[str, tuple[str, ...]] = {
@@ -98,7 +98,7 @@ def evaluate_one(job: tuple[str, str, int, str, str, int]) -> dict:
 
 
 def finished(run: Path) -> bool:
-    return (run / "final_model.pt").is_file() and (run / "run.json").is_file()
+    return run_status(run) == "finished"
 
 
 def evaluable(run: Path, which: str) -> bool:
@@ -110,10 +110,7 @@ def trained_samples(run: Path) -> int:
     """A finished run's samples (run.json); an unfinished run's newest metrics row (its training so far)."""
     if finished(run):
         return int(json.loads((run / "run.json").read_text())["timesteps"])
-    if not (run / "metrics.csv").is_file():
-        return 0
-    with open(run / "metrics.csv") as f:
-        rows = list(csv.DictReader(f))
+    rows = read_metrics(run, quiet=True)
     return int(rows[-1]["timesteps"]) if rows else 0
 
 
