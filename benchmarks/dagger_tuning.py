@@ -1,10 +1,11 @@
-"""Choosing ``dagger_agents``' settings on validation episodes (issue 27).
+"""Choosing the imitation's settings on validation episodes: ``dagger_agents``' and the PPO
+fine-tuning of ``dagger_ppo_agents`` (issue 27).
 
     python benchmarks/dagger_tuning.py                       # the variants below, n11_m2 at δ = 60 and 120, seeds 1-2
     python benchmarks/dagger_tuning.py --variants greedy --rows n11_m2_dt60 --seeds 1 --workers 1
     python benchmarks/dagger_tuning.py --smoke               # two variants, one row, 20k samples, 2 episodes
 
-Trains ``dagger_agents`` once per (variant, row, seed) at the row's own training settings and the
+Trains each variant's method once per (variant, row, seed) at the row's own training settings and the
 paper's budget (5M agent samples at n = 11), each run in a process of its own on one core (torch one
 thread), ``--workers`` at a time, then evaluates every run's best and final model on the
 *validation* episodes (δ = 120 s, T = 600, seeds 20000–20029: disjoint from the test seeds
@@ -18,19 +19,22 @@ processes at that many seconds after the start (their checkpoints stay); a run s
 budget has no final model, and its best model so far is evaluated, with the samples it trained
 recorded (``trained_samples``, from its metrics.csv), so a bounded machine still returns a comparison.
 
-Each variant sets ``--hp`` settings of :class:`containergym_marl.training.dagger.Args` (the others
-stay at their defaults).
+Each variant (:data:`VARIANTS`) names its method, its ``--hp`` settings of
+:class:`containergym_marl.training.dagger.DAggerArgs` (the others stay at their defaults) and, for
+``dagger_ppo_agents``, the fine-tuning's ``--reward-mode``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -38,35 +42,61 @@ import numpy as np
 from containergym_marl.files import atomic_write_text
 from containergym_marl.rundir import read_metrics, run_status
 
-#: variant name -> --hp settings (KEY=VALUE strings, as the CLI takes them)
-VARIANTS: dict[str, tuple[str, ...]] = {
-    "sampled": ("greedy=false",),
-    "greedy": ("greedy=true",),
-    "all_data": ("greedy=false", "dataset_size=6000000"),
-    "greedy_all_data": ("greedy=true", "dataset_size=6000000"),
-    "greedy_all_data_wide": ("greedy=true", "dataset_size=6000000", "hidden=128,128"),
-    "greedy_all_data_k32": ("greedy=true", "dataset_size=6000000", "futures=32"),
-    "greedy_anneal": ("greedy=true", "anneal_lr=true"),
-    "greedy_request_weight_4": ("greedy=true", "request_weight=4"),
+@dataclass(frozen=True)
+class Variant:
+    """What one variant trains: the method, its ``--hp`` settings (KEY=VALUE strings, as the CLI
+    takes them) and, for ``dagger_ppo_agents``, the fine-tuning's ``--reward-mode`` (None: the default)."""
+
+    hp: tuple[str, ...]
+    method: str = "dagger_agents"
+    reward_mode: str | None = None
+
+    def train_args(self) -> list[str]:
+        """The variant's part of the ``containergym-marl train`` command."""
+        args = ["--algo", self.method]
+        if self.reward_mode is not None:
+            args += ["--reward-mode", self.reward_mode]
+        return args + (["--hp", *self.hp] if self.hp else [])
+
+    def settings(self) -> str:
+        """The variant as the table shows it."""
+        words = [] if self.method == "dagger_agents" else [self.method]
+        words += [f"--reward-mode {self.reward_mode}"] if self.reward_mode else []
+        return " ".join(words + list(self.hp)) or "(defaults)"
+
+
+#: variant name -> what it trains
+VARIANTS: dict[str, Variant] = {
+    "sampled": Variant(("greedy=false",)),
+    "greedy": Variant(("greedy=true",)),
+    "all_data": Variant(("greedy=false", "dataset_size=6000000")),
+    "greedy_all_data": Variant(("greedy=true", "dataset_size=6000000")),
+    "greedy_all_data_wide": Variant(("greedy=true", "dataset_size=6000000", "hidden=128,128")),
+    "greedy_all_data_k32": Variant(("greedy=true", "dataset_size=6000000", "futures=32")),
+    "greedy_anneal": Variant(("greedy=true", "anneal_lr=true")),
+    "greedy_request_weight_4": Variant(("greedy=true", "request_weight=4")),
+    # the PPO fine-tuning of dagger_ppo_agents: its default (each agent its own container's reward),
+    # the plant's reward for every agent (the planner's objective), and a smaller PPO step size
+    "ppo_default": Variant((), "dagger_ppo_agents"),
+    "ppo_team": Variant((), "dagger_ppo_agents", "team"),
+    "ppo_lr_1e-4": Variant(("ppo_learning_rate=1e-4",), "dagger_ppo_agents"),
+    "ppo_team_lr_1e-4": Variant(("ppo_learning_rate=1e-4",), "dagger_ppo_agents", "team"),
 }
 ROWS = ("n11_m2_dt60", "n11_m2_dt120")
-METHOD = "dagger_agents"
 
 
 def run_dir(runs: Path, variant: str, row: str, seed: int) -> Path:
-    return runs / variant / f"{METHOD}_{row}_s{seed}"
+    return runs / variant / f"{VARIANTS[variant].method}_{row}_s{seed}"
 
 
 def train_one(job: tuple[str, str, int, str, int | None, float | None]) -> tuple[str, str, int, int]:
     """``containergym-marl train`` of one run in a child process (killed at the deadline); its exit code."""
     variant, row, seed, runs, timesteps, deadline = job
     out = run_dir(Path(runs), variant, row, seed)
-    cmd = [sys.executable, "-m", "containergym_marl.cli", "train", "--algo", METHOD, "--config", row,
+    cmd = [sys.executable, "-m", "containergym_marl.cli", "train", *VARIANTS[variant].train_args(), "--config", row,
            "--seed", str(seed), "--out", str(out), "--no-progress", "--torch-threads", "1"]
     if timesteps is not None:
         cmd += ["--timesteps", str(timesteps)]
-    if VARIANTS[variant]:
-        cmd += ["--hp", *VARIANTS[variant]]
     if out.exists():
         cmd.append("--resume")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -115,12 +145,13 @@ def trained_samples(run: Path) -> int:
 
 
 def table(entries: list[dict], variants: list[str], rows: list[str], note: str = "") -> str:
-    lines = ["# `dagger_agents` settings on validation episodes", "",
+    lines = ["# The imitation's settings on validation episodes", "",
              "Mean validation return over training seeds (each seed: the mean of its episodes, δ = 120 s, "
              "T = 600, seeds 20000+), and overflowing episodes over all seeds' episodes, of each run's best "
              "and final model; samples: the training of the runs (fewer than the budget where a run was "
-             "stopped before it: then only its best model so far exists). Settings: `--hp` of "
-             "`containergym_marl.training.dagger.Args`.", "",
+             "stopped before it: then only its best model so far exists). Settings: the method "
+             "(`dagger_agents` unless named), `--reward-mode` and `--hp` of "
+             "`containergym_marl.training.dagger.DAggerArgs`.", "",
              "| variant | settings | row | seeds | samples | best: return | best: overflows | final: return | final: overflows |",
              "|---|---|---|---|---|---|---|---|---|"]
     if note:
@@ -139,7 +170,7 @@ def table(entries: list[dict], variants: list[str], rows: list[str], note: str =
                               f"{sum(e['overflowing_episodes'] for e in found)}/{sum(e['episodes'] for e in found)}"]
                 else:
                     cells += ["–", "–"]
-            settings = " ".join(VARIANTS[variant]) or "(defaults)"
+            settings = VARIANTS[variant].settings()
             span = f"{min(samples) / 1e6:.1f}–{max(samples) / 1e6:.1f}M" if samples else "–"
             lines.append(f"| {variant} | {settings} | {row} | {seeds} | {span} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -195,7 +226,7 @@ def main(argv=None) -> None:
 
 def save(path: Path, variants: list[str], entries: list[dict], note: str) -> None:
     variants = [v for v in VARIANTS if v in variants or any(e["variant"] == v for e in entries)]
-    atomic_write_text(path, json.dumps({"variants": {v: list(VARIANTS[v]) for v in variants}, "note": note,
+    atomic_write_text(path, json.dumps({"variants": {v: dataclasses.asdict(VARIANTS[v]) for v in variants}, "note": note,
                                         "evaluations": entries}, indent=1) + "\n")
 
 

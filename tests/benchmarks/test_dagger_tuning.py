@@ -17,7 +17,8 @@ def test_smoke_run_evaluates_each_variant_on_validation_seeds(tmp_path):
     subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "2", "--out", str(out), "--runs", str(runs)],
                    capture_output=True, text=True, timeout=300, check=True)
     saved = json.loads((out / "tuning.json").read_text())
-    assert saved["variants"] == {"sampled": ["greedy=false"], "greedy": ["greedy=true"]}
+    assert saved["variants"] == {name: {"hp": [hp], "method": "dagger_agents", "reward_mode": None}
+                                 for name, hp in (("sampled", "greedy=false"), ("greedy", "greedy=true"))}
     found = {(e["variant"], e["model"]) for e in saved["evaluations"]}
     assert found == {(v, m) for v in ("sampled", "greedy") for m in ("best", "final")}
     for e in saved["evaluations"]:
@@ -38,3 +39,17 @@ def test_a_run_stopped_by_the_deadline_is_evaluated_by_its_best_model(tmp_path):
     saved = json.loads((out / "tuning.json").read_text())
     [entry] = saved["evaluations"]
     assert entry["model"] == "best" and not entry["finished"] and 0 < entry["trained_samples"] < 5_000_000
+
+
+def test_a_fine_tuning_variant_trains_its_method_with_its_reward_mode(tmp_path):
+    out, runs = tmp_path / "out", tmp_path / "runs"
+    subprocess.run([sys.executable, SCRIPT, "--variants", "ppo_team_lr_1e-4", "--rows", "n5_m2_dt120", "--seeds", "1",
+                    "--episodes", "2", "--workers", "1", "--out", str(out), "--runs", str(runs), "--timesteps", "20000"],
+                   capture_output=True, text=True, timeout=300, check=True)
+    run = runs / "ppo_team_lr_1e-4" / "dagger_ppo_agents_n5_m2_dt120_s1"
+    args = json.loads((run / "args.json").read_text())
+    assert (args["algo"], args["reward_mode"]) == ("dagger_ppo_agents", "team")
+    assert args["hyperparams"] == {"ppo_learning_rate": 1e-4}
+    assert (run / "imitation.json").is_file() and (run / "final_model.pt").is_file()
+    md = (out / "tuning.md").read_text()
+    assert "| ppo_team_lr_1e-4 | dagger_ppo_agents --reward-mode team ppo_learning_rate=1e-4 | n5_m2_dt120 | 1 |" in md
