@@ -76,9 +76,12 @@ VARIANTS: dict[str, Variant] = {
     "greedy_anneal": Variant(("greedy=true", "anneal_lr=true")),
     "greedy_request_weight_4": Variant(("greedy=true", "request_weight=4")),
     # the PPO fine-tuning of dagger_ppo_agents: its default (each agent its own container's reward),
-    # the plant's reward for every agent (the planner's objective), and a smaller PPO step size
+    # the plant's reward for every agent (the planner's objective), half the budget imitated instead of
+    # a fifth, and a smaller PPO step size
     "ppo_default": Variant((), "dagger_ppo_agents"),
     "ppo_team": Variant((), "dagger_ppo_agents", "team"),
+    "ppo_share_0.5": Variant(("imitation_share=0.5",), "dagger_ppo_agents"),
+    "ppo_team_share_0.5": Variant(("imitation_share=0.5",), "dagger_ppo_agents", "team"),
     "ppo_lr_1e-4": Variant(("ppo_learning_rate=1e-4",), "dagger_ppo_agents"),
     "ppo_team_lr_1e-4": Variant(("ppo_learning_rate=1e-4",), "dagger_ppo_agents", "team"),
 }
