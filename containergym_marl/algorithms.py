@@ -207,10 +207,12 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       "decentralised imitation of planner_agents (DAgger): fast_shared_ppo's shared policy, "
                       "trained on the planner's decisions in the states it visits itself", native=True,
                       phases=("dagger",), default_n_envs=64, minibatch=None, adam_eps=None, model_suffix=".pt"),
+        # the fine-tuning's default reward is the plant's, the objective the planner it imitates plans for
         AlgorithmSpec("dagger_ppo_agents", None, SharedActorCriticPolicy,
-                      "dagger_agents for a fifth of the budget, then fast_shared_ppo from the imitated policy",
+                      "dagger_agents for half the budget, then fast_shared_ppo from the imitated policy, "
+                      "every agent rewarded with the plant's reward",
                       native=True, phases=("dagger", "ppo"), default_n_envs=64, minibatch=None, adam_eps=None,
-                      reward_modes=REWARD_MODES, model_suffix=".pt"),
+                      reward_modes=("team", "individual"), model_suffix=".pt"),
         AlgorithmSpec("mappo", None, SharedActorPolicy,
                       "MAPPO (BenchMARL, CTDE): one actor shared by the container agents, a critic on the "
                       "global state; team reward (its settings are BenchMARL's, in the script)",

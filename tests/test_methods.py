@@ -36,7 +36,8 @@ def test_each_method_is_what_its_name_says():
     assert (team.algo, team.train_settings()) == ("shared_ppo", {"reward_mode": "team"})
     assert METHODS["ppo"].train_settings() == {}
     # the imitations of planner_agents are set against the centralised planner, as planner_agents is
-    assert METHODS["dagger_ppo_agents"].train_settings() == {"reward_mode": "individual"}
+    # its fine-tuning is rewarded with the plant's reward, what the planner plans for
+    assert METHODS["dagger_ppo_agents"].train_settings() == {"reward_mode": "team"}
     assert {METHODS[m].counterpart for m in ("dagger_agents", "dagger_ppo_agents", "planner_agents")} == {"planner"}
 
 

@@ -4,9 +4,13 @@ itself (Ross, Gordon & Bagnell, 2011), then, for ``dagger_ppo_agents``, the nati
 Two registry entries train with it (``containergym-marl train --algo ...``, ``compare``, the sweep):
 
 * ``dagger_agents``: DAgger for the whole budget;
-* ``dagger_ppo_agents``: DAgger for ``imitation_share`` of the budget (default 0.2), then
+* ``dagger_ppo_agents``: DAgger for ``imitation_share`` of the budget (default 0.5), then
   ``fast_shared_ppo``'s trainer (:mod:`~containergym_marl.training.fast_ppo`) from the imitated
-  policy for the rest, in the same run and budget (``--reward-mode`` as for ``fast_shared_ppo``).
+  policy for the rest, in the same run and budget, every agent rewarded with the plant's reward
+  (``--reward-mode team``, its default; ``individual`` as for ``fast_shared_ppo``). Both defaults
+  were chosen on validation episodes (``benchmarks/dagger_tuning.py``, the ``ppo_*`` variants): with
+  each container's own reward the fine-tuning overflowed about three times as often on n16_m2, and
+  with a fifth of the budget imitated it fell below the imitation on n11_m11_dt60.
 
 The policy is ``fast_shared_ppo``'s :class:`~containergym_marl.policies.actor_critic.ActorCritic`:
 one network shared by every container agent, acting on the agent's own observation (the
@@ -80,7 +84,7 @@ CHECKPOINT_FORMAT = "containergym-marl dagger checkpoint"
 DATASET_FORMAT = "containergym-marl dagger dataset"
 CHECKPOINT_VERSION = 1
 #: The share of the budget that ``dagger_ppo_agents`` imitates before PPO takes over, unless ``imitation_share``.
-FINE_TUNE_IMITATION_SHARE = 0.2
+FINE_TUNE_IMITATION_SHARE = 0.5
 #: PPO settings a fine-tuning takes from the imitated model, not from ``ppo_<key>``.
 MODEL_SETTINGS = ("hidden", "action_mask")
 #: The record of the imitation phase in the run directory, rewritten after every iteration.
@@ -113,7 +117,7 @@ class DAggerArgs:
     hidden: tuple[int, ...] = (64, 64)  # hidden units of the policy and value networks (fast_shared_ppo's)
     futures: int = 16  # K of the labelling planner (planner_agents' default)
     horizon: int = 8  # H of the labelling planner (planner_agents' default)
-    imitation_share: float = 1.0  # share of the budget DAgger trains; dagger_ppo_agents: 0.2, PPO the rest
+    imitation_share: float = 1.0  # share of the budget DAgger trains; dagger_ppo_agents: 0.5, PPO the rest
     ppo: fast_ppo.PPOArgs | None = None  # the fine-tuning's settings (``ppo_<field>``); None: no fine-tuning
 
     @classmethod

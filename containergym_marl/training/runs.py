@@ -60,9 +60,10 @@ class TrainArgs:
     vec: str = option("native", choices=("native", "supersuit"),
                       help="shared_ppo's vectorisation: the package's batched env or the SuperSuit stack")
     num_cpus: int = option(0, type=int, help="SuperSuit worker processes (--vec supersuit only)")
-    reward_mode: str = option("individual", choices=REWARD_MODES,
-                              help="agent rewards of the decentralised algorithms: each container's own, or "
-                                   "the plant's for every agent")
+    reward_mode: str | None = option(None, choices=REWARD_MODES,
+                                     help="agent rewards of the decentralised algorithms: each container's own, "
+                                          "or the plant's for every agent (default: the algorithm's first mode, "
+                                          "team for dagger_ppo_agents, individual for the others)")
     arbitration: str = option("fullest", choices=tuple(ARBITRATION_RULES),
                               help="how free PUs are shared among the container agents' requests")
     checkpoint_every: int | None = option(None, type=positive_int,
@@ -82,6 +83,11 @@ class TrainArgs:
     overrides: dict[str, Any] = option(default_factory=dict, flag="--override", nargs="*", metavar="KEY=VALUE",
                                        convert=key_values,
                                        help="plant config overrides for training, e.g. episode_length_steps=600")
+
+    def __post_init__(self) -> None:
+        if self.reward_mode is None:  # the algorithm's default mode (an unknown algo is refused by validate)
+            modes = REGISTRY[self.algo].reward_modes if self.algo in REGISTRY else ()
+            self.reward_mode = modes[0] if modes else "individual"
 
     def run_dir(self) -> Path:
         if self.out:

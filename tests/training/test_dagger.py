@@ -147,10 +147,26 @@ def test_fine_tuning_continues_the_imitated_policy_in_the_same_run(tmp_path):
     assert {f for s, f in formats.items() if s > 2080} == {"containergym-marl ppo checkpoint"}
     assert torch.load(checkpoints(run)[0][1], weights_only=True)["hyperparams"]["minibatch_size"] == 64
     assert ActorCritic.load(run / "final_model.pt").meta["algo"] == "dagger_ppo_agents"
-    # the team reward names the method, as for fast_shared_ppo
-    team = train(TrainArgs(algo="dagger_ppo_agents", reward_mode="team", out=str(tmp_path / "t"), timesteps=400,
-                           **{**TINY, "hyperparams": hp}))
-    assert json.loads((team / "args.json").read_text())["reward_mode"] == "team"
+    # the plant's reward is its default; the individual reward names the method, as the team reward
+    # names fast_shared_ppo's
+    assert json.loads((run / "args.json").read_text())["reward_mode"] == "team"
+    own = train(TrainArgs(algo="dagger_ppo_agents", reward_mode="individual", out=str(tmp_path / "t"), timesteps=400,
+                          **{**TINY, "hyperparams": hp}))
+    assert json.loads((own / "args.json").read_text())["reward_mode"] == "individual"
+    assert cli_main(["evaluate", str(own), "--episodes", "1"]) == 0
+    assert json.loads((own / "evaluation_best.json").read_text())["policy"].startswith("dagger_ppo_agents_individual[s1,")
+
+
+def test_the_reward_mode_defaults_to_the_algorithms_first():
+    """Without --reward-mode, dagger_ppo_agents fine-tunes on the plant's reward and the other
+    decentralised algorithms on each container's own; an explicit mode is kept."""
+    from containergym_marl.options import parse
+
+    assert parse(TrainArgs, ["--algo", "dagger_ppo_agents"]).reward_mode == "team"
+    assert parse(TrainArgs, ["--algo", "fast_shared_ppo"]).reward_mode == "individual"
+    assert parse(TrainArgs, ["--algo", "fast_shared_ppo", "--reward-mode", "team"]).reward_mode == "team"
+    assert TrainArgs(algo="dagger_ppo_agents", reward_mode="individual").reward_mode == "individual"
+    assert TrainArgs(algo="shared_ppo").reward_mode == "individual"
 
 
 def test_same_seed_same_run(tmp_path):
@@ -186,17 +202,17 @@ def test_bad_settings_are_refused_before_anything_is_written(algo, hp, field, tm
 def test_settings_parse_from_strings():
     hp = DAggerArgs.from_hyperparams({"n_steps": "32", "greedy": "false", "hidden": "32,16", "ppo_clip_range": "0.1"},
                                      fine_tune=True)
-    assert (hp.n_steps, hp.greedy, hp.hidden, hp.ppo.clip_range, hp.imitation_share) == (32, False, (32, 16), 0.1, 0.2)
-    assert hp.imitation_budget(1000) == 200 and DAggerArgs().imitation_budget(1000) == 1000
+    assert (hp.n_steps, hp.greedy, hp.hidden, hp.ppo.clip_range, hp.imitation_share) == (32, False, (32, 16), 0.1, 0.5)
+    assert hp.imitation_budget(1000) == 500 and DAggerArgs().imitation_budget(1000) == 1000
 
 
 def test_annealed_step_size_falls_linearly_to_zero_over_the_imitation_budget(tmp_path):
     """The record's step size per iteration: learning_rate × (1 − samples before the iteration / budget),
-    the imitation budget of a fine-tuning run (a fifth of its budget), and constant by default."""
+    the imitation budget of a fine-tuning run (here a fifth of its budget), and constant by default."""
     assert DAggerArgs(anneal_lr=True).learning_rate_at(250, 1000) == pytest.approx(0.75e-3)
     assert DAggerArgs().learning_rate_at(250, 1000) == 1e-3
     run = train(TrainArgs(algo="dagger_ppo_agents", out=str(tmp_path / "r"), timesteps=50_000, n_envs=2, seed=1,
-                          progress_bar=False, hyperparams={"anneal_lr": "true", "n_steps": "50"}))
+                          progress_bar=False, hyperparams={"anneal_lr": "true", "n_steps": "50", "imitation_share": "0.2"}))
     rows = json.loads((run / "imitation.json").read_text())["iterations"]
     imitation = 10_000  # a fifth of 50k: 20 iterations of 2 simulations x 5 agents x 50 steps
     assert [r["learning_rate"] for r in rows] == pytest.approx(
