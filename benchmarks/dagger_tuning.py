@@ -75,15 +75,13 @@ VARIANTS: dict[str, Variant] = {
     "greedy_all_data_k32": Variant(("greedy=true", "dataset_size=6000000", "futures=32")),
     "greedy_anneal": Variant(("greedy=true", "anneal_lr=true")),
     "greedy_request_weight_4": Variant(("greedy=true", "request_weight=4")),
-    # the PPO fine-tuning of dagger_ppo_agents: its default (each agent its own container's reward),
-    # the plant's reward for every agent (the planner's objective), half the budget imitated instead of
-    # a fifth, and a smaller PPO step size
-    "ppo_default": Variant((), "dagger_ppo_agents"),
-    "ppo_team": Variant((), "dagger_ppo_agents", "team"),
-    "ppo_share_0.5": Variant(("imitation_share=0.5",), "dagger_ppo_agents"),
+    # the PPO fine-tuning of dagger_ppo_agents, every setting named so that a variant keeps its meaning when
+    # the defaults change: each agent its own container's reward or the plant's (the planner's objective),
+    # a fifth of the budget imitated or half (ppo_team_share_0.5 is dagger_ppo_agents' default)
+    "ppo_individual": Variant(("imitation_share=0.2",), "dagger_ppo_agents", "individual"),
+    "ppo_team": Variant(("imitation_share=0.2",), "dagger_ppo_agents", "team"),
+    "ppo_individual_share_0.5": Variant(("imitation_share=0.5",), "dagger_ppo_agents", "individual"),
     "ppo_team_share_0.5": Variant(("imitation_share=0.5",), "dagger_ppo_agents", "team"),
-    "ppo_lr_1e-4": Variant(("ppo_learning_rate=1e-4",), "dagger_ppo_agents"),
-    "ppo_team_lr_1e-4": Variant(("ppo_learning_rate=1e-4",), "dagger_ppo_agents", "team"),
 }
 ROWS = ("n11_m2_dt60", "n11_m2_dt120")
 

@@ -43,13 +43,13 @@ def test_a_run_stopped_by_the_deadline_is_evaluated_by_its_best_model(tmp_path):
 
 def test_a_fine_tuning_variant_trains_its_method_with_its_reward_mode(tmp_path):
     out, runs = tmp_path / "out", tmp_path / "runs"
-    subprocess.run([sys.executable, SCRIPT, "--variants", "ppo_team_lr_1e-4", "--rows", "n5_m2_dt120", "--seeds", "1",
+    subprocess.run([sys.executable, SCRIPT, "--variants", "ppo_team_share_0.5", "--rows", "n5_m2_dt120", "--seeds", "1",
                     "--episodes", "2", "--workers", "1", "--out", str(out), "--runs", str(runs), "--timesteps", "20000"],
                    capture_output=True, text=True, timeout=300, check=True)
-    run = runs / "ppo_team_lr_1e-4" / "dagger_ppo_agents_n5_m2_dt120_s1"
+    run = runs / "ppo_team_share_0.5" / "dagger_ppo_agents_n5_m2_dt120_s1"
     args = json.loads((run / "args.json").read_text())
     assert (args["algo"], args["reward_mode"]) == ("dagger_ppo_agents", "team")
-    assert args["hyperparams"] == {"ppo_learning_rate": 1e-4}
+    assert args["hyperparams"] == {"imitation_share": 0.5}
     assert (run / "imitation.json").is_file() and (run / "final_model.pt").is_file()
     md = (out / "tuning.md").read_text()
-    assert "| ppo_team_lr_1e-4 | dagger_ppo_agents --reward-mode team ppo_learning_rate=1e-4 | n5_m2_dt120 | 1 |" in md
+    assert "| ppo_team_share_0.5 | dagger_ppo_agents --reward-mode team imitation_share=0.5 | n5_m2_dt120 | 1 |" in md
