@@ -6,7 +6,7 @@
 
 Evaluates ``rule_based_agents``, ``planner_agents`` (default setting) and the learned shared
 container-agent policies of ``--learned`` (NAME=PATH of a tensor-only ``.pt`` model; by default the
-published best models of ``fast_shared_ppo`` and ``dagger_agents`` for the row, where they exist,
+published best models of ``fast_shared_ppo``, ``dagger_agents`` and ``dagger_ppo_agents`` for the row, where they exist,
 each checked against its folder's MANIFEST.sha256) with the paper's test protocol, keeps the
 episode records, and writes to ``--out`` (default docs/figures) the package's figures:
 emptying-volume ECDFs and the reward ECDF of all methods, and for the first test episode of each a
@@ -34,7 +34,7 @@ from containergym_marl.policies import PlannerAgents, RuleBasedAgents
 from containergym_marl.policies.actor_critic import ActorCritic, policy_for
 
 #: (method, published models folder): the learned policies shown by default, where published
-PUBLISHED = (("fast_shared_ppo", Path("results/paper_rows")), ("dagger_agents", Path("results/paper_rows")))
+PUBLISHED = tuple((name, Path("results/paper_rows")) for name in ("fast_shared_ppo", "dagger_agents", "dagger_ppo_agents"))
 
 
 def learned_policies(specs: list[str] | None, config: str) -> list[tuple]:
