@@ -15,9 +15,10 @@ labelling CPU seconds from run.json's ``"imitation"``, samples per second); and 
 of a learned policy per plant step at n = 11 on one thread (``SharedActorCriticPolicy.act``: one
 forward for all agents, over 600 steps).
 
-Cost (``results/dagger_rows/rows.md``, the published run of ``dagger_agents``: 45 runs, 1h17m on a
-2-core machine training two at a time): 129–142 s of one core per seed at n = 5 (2M samples) and
-236–285 s at n >= 11 (5M), of which the planner's labelling takes 104–191 CPU seconds; the learned
+Cost (``results/dagger_rows/rows.md``, the published runs on a 2-core machine training two at a
+time): ``dagger_agents`` 129–142 s of one core per seed at n = 5 (2M samples) and 236–285 s at
+n >= 11 (5M), of which the planner's labelling takes 104–191 CPU seconds (45 runs in 1h17m);
+``dagger_ppo_agents``, whose planner labels half the samples, 87–92 s and 180–210 s; the learned
 policy decides in a median 0.05 ms per plant step at n = 11 (the planner: 1–2 ms).
 """
 
