@@ -77,11 +77,13 @@ VARIANTS: dict[str, Variant] = {
     "greedy_request_weight_4": Variant(("greedy=true", "request_weight=4")),
     # the PPO fine-tuning of dagger_ppo_agents, every setting named so that a variant keeps its meaning when
     # the defaults change: each agent its own container's reward or the plant's (the planner's objective),
-    # a fifth of the budget imitated or half (ppo_team_share_0.5 is dagger_ppo_agents' default)
+    # a fifth of the budget imitated or half (ppo_team_share_0.5 is dagger_ppo_agents' default), PPO's step size
     "ppo_individual": Variant(("imitation_share=0.2",), "dagger_ppo_agents", "individual"),
     "ppo_team": Variant(("imitation_share=0.2",), "dagger_ppo_agents", "team"),
     "ppo_individual_share_0.5": Variant(("imitation_share=0.5",), "dagger_ppo_agents", "individual"),
     "ppo_team_share_0.5": Variant(("imitation_share=0.5",), "dagger_ppo_agents", "team"),
+    # the default with a third of PPO's step size: does a gentler fine-tuning keep more of the imitation?
+    "ppo_team_share_0.5_lr_1e-4": Variant(("imitation_share=0.5", "ppo_learning_rate=1e-4"), "dagger_ppo_agents", "team"),
 }
 ROWS = ("n11_m2_dt60", "n11_m2_dt120")
 
