@@ -466,6 +466,8 @@ PLANNER_CLAIMS = {
     "No fine-tuning tried scored as high as `dagger_agents` over the four rows together, nor overflowed as rarely: "
     "PPO from the imitated policy gains at most a point on `n11_m2_dt120` and loses on `n16_m2_dt120`.":
         fine_tuning_below_imitation,
+    "On the test episodes of the published rows neither method is ahead: their IQM intervals overlap on every row":
+        fine_tuning_changes_little,
     "fewer of its requests are denied per episode, though some still are, where the planner's never are.":
         imitation_behaviour,
     "its share of early emptyings before the last 20 steps is closer to shared PPO's than to the planner's, and "
