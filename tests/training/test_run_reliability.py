@@ -497,7 +497,8 @@ def test_kill_9_at_random_points_many_times(tmp_path):
     """Killed at random moments (while saving models, metrics, checkpoints…), rerun each time:
     the run always resumes, and ends consistent."""
     rng = np.random.default_rng(0)
-    out, budget, kills = tmp_path / "r", 8192, 0
+    # a budget that an idle machine does not finish within the first kills (8192 samples did, in two)
+    out, budget, kills = tmp_path / "r", 32768, 0
     for _ in range(10):
         proc = _start(out, budget, resume=(out / "args.json").exists())
         time.sleep(float(rng.uniform(2.0, 6.0)))
