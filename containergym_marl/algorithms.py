@@ -126,10 +126,16 @@ class AlgorithmSpec:
         """The file name of a run's ``which`` ("best" or "final") model."""
         return f"{which}_model{self.model_suffix}"
 
+    @property
+    def default_reward_mode(self) -> str:
+        """The agent reward mode it trains with unless told: its first; the environments' default
+        (``individual``) for a centralised algorithm, which trains on the plant reward anyway."""
+        return self.reward_modes[0] if self.reward_modes else REWARD_MODES[0]
+
     def method_name(self, reward_mode: str | None = None) -> str:
         """The name of this algorithm trained with ``reward_mode``: its own name for the default mode
         (or none), ``<name>_<mode>`` for another (compare's ``shared_ppo_team``)."""
-        if not self.reward_modes or reward_mode in (None, self.reward_modes[0]):
+        if not self.reward_modes or reward_mode in (None, self.default_reward_mode):
             return self.name  # a centralised algorithm trains on the plant reward, whatever the mode says
         return f"{self.name}_{reward_mode}"
 

@@ -62,8 +62,9 @@ class TrainArgs:
     num_cpus: int = option(0, type=int, help="SuperSuit worker processes (--vec supersuit only)")
     reward_mode: str | None = option(None, choices=REWARD_MODES,
                                      help="agent rewards of the decentralised algorithms: each container's own, "
-                                          "or the plant's for every agent (default: the algorithm's first mode, "
-                                          "team for dagger_ppo_agents, individual for the others)")
+                                          "or the plant's for every agent (default: " + ", ".join(
+                                              f"{name} {REGISTRY[name].default_reward_mode}" for name in ALGORITHMS
+                                              if REGISTRY[name].reward_modes) + ")")
     arbitration: str = option("fullest", choices=tuple(ARBITRATION_RULES),
                               help="how free PUs are shared among the container agents' requests")
     checkpoint_every: int | None = option(None, type=positive_int,
@@ -85,9 +86,8 @@ class TrainArgs:
                                        help="plant config overrides for training, e.g. episode_length_steps=600")
 
     def __post_init__(self) -> None:
-        if self.reward_mode is None:  # the algorithm's default mode (an unknown algo is refused by validate)
-            modes = REGISTRY[self.algo].reward_modes if self.algo in REGISTRY else ()
-            self.reward_mode = modes[0] if modes else "individual"
+        if self.reward_mode is None and self.algo in REGISTRY:  # an unknown algo is refused by validate
+            self.reward_mode = REGISTRY[self.algo].default_reward_mode
 
     def run_dir(self) -> Path:
         if self.out:
