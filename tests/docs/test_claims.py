@@ -107,8 +107,13 @@ def paper_ppo_and_planner():
     return near and few and reference
 
 
+def planner_agents_returns() -> dict[str, float]:
+    """Row -> planner_agents' mean test return (its default setting), the imitations' reference."""
+    return {c: planner()[(c, "planner_agents", "default")]["return_mean"] for c, _, _ in planner()}
+
+
 def imitation_near_planner():
-    reference = {c: planner()[(c, "planner_agents", "default")]["return_mean"] for c, _, _ in planner()}
+    reference = planner_agents_returns()
     share = {c: rows()[(c, "dagger_agents")]["iqm"] / reference[c] for c, m in rows() if m == "dagger_agents"}
     contended = {"n11_m2_dt60", "n11_m2_dt120", "n16_m2_dt120"}
     return (len(share) == 9 and all(share[c] >= 0.985 for c in share if c not in contended)
@@ -118,7 +123,7 @@ def imitation_near_planner():
 
 def fine_tuning_changes_little():
     table = rows()
-    reference = {c: planner()[(c, "planner_agents", "default")]["return_mean"] for c, _, _ in planner()}
+    reference = planner_agents_returns()
     both = [c for c, m in table if m == "dagger_ppo_agents"]
     overlap = len(both) == 9 and all(
         table[(c, "dagger_ppo_agents")]["iqm_low"] <= table[(c, "dagger_agents")]["iqm_high"]
