@@ -34,7 +34,7 @@ PAIRS = (("ppo", "fast_ppo"), ("shared_ppo", "fast_shared_ppo"))
 def rollout_samples(algo: str, n_containers: int) -> int:
     """Samples per rollout of ``algo`` at its defaults (SB3's paper settings, the native PPO's shape)."""
     spec = get_algorithm(algo)
-    slots = spec.num_slots(n_containers, spec.default_n_envs)
+    slots = spec.num_slots(n_containers, spec.default_sims(n_containers))
     n_steps = PPOArgs().n_steps if spec.native else rollout_steps(slots)
     return slots * n_steps
 

@@ -78,7 +78,8 @@ class AlgorithmSpec:
             "decentralised") is the algorithm's view. For a non-SB3 algorithm it also loads them
             (``policy_adapter.load_model(path)``).
         description: one line for help texts and the baseline script.
-        default_n_envs: simulations stepped together when the caller gives none.
+        default_n_envs: simulations stepped together when the caller gives none; None for the native
+            PPO, which steps as many as give its ``rollout_samples`` per update (:meth:`default_sims`).
         rollout: True for on-policy algorithms (``n_steps`` samples per update, see
             :func:`rollout_steps`); False for a replay buffer, which checkpoints then also save.
         minibatch: the minibatch size of a rollout algorithm (passed as ``batch_size``), or None.
@@ -99,7 +100,7 @@ class AlgorithmSpec:
     description: str
     native: bool = False
     phases: tuple[str, ...] = ("ppo",)
-    default_n_envs: int = 8
+    default_n_envs: int | None = 8
     rollout: bool = True
     minibatch: int | None = 64
     adam_eps: float | None = 1e-5
@@ -150,6 +151,21 @@ class AlgorithmSpec:
         require_training_extra(("stable_baselines3", *self.extra_modules))
         module, cls = self.class_path.split(":")
         return getattr(importlib.import_module(module), cls)
+
+    def default_sims(self, n_containers: int, hyperparams: dict[str, Any] | None = None) -> int:
+        """Simulations a run steps when the caller gives none: ``default_n_envs``, or for the native
+        PPO as many as make about its ``rollout_samples`` per update on a plant of ``n_containers``
+        (fewer simulations for more container agents: the same samples per update at every n)."""
+        if self.default_n_envs is not None:
+            return self.default_n_envs
+        from containergym_marl.training.fast_ppo import PPOArgs
+
+        return PPOArgs.from_hyperparams(hyperparams or {}).num_sims(self.num_slots(n_containers, 1))
+
+    @property
+    def default_sims_text(self) -> str:
+        """``default_sims`` in words, for help texts."""
+        return str(self.default_n_envs) if self.default_n_envs is not None else "rollout_samples / (n_steps x agents)"
 
     def num_slots(self, n_containers: int, num_sims: int) -> int:
         """Vectorised slots (samples per vector step): one per simulation, or one per container
@@ -202,13 +218,14 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       "decentralised PPO: one policy shared by every container agent",
                       reward_modes=REWARD_MODES),
         AlgorithmSpec("fast_ppo", None, CentralisedActorCriticPolicy,
-                      "centralised PPO, native trainer: SB3's network and loss on 64 simulations with "
-                      "minibatches of 1024", native=True, default_n_envs=64, minibatch=None, adam_eps=None,
+                      "centralised PPO, native trainer: SB3's network and loss, about 4096 samples per update "
+                      "in minibatches of 1024", native=True, default_n_envs=None, minibatch=None, adam_eps=None,
                       model_suffix=".pt"),
         AlgorithmSpec("fast_shared_ppo", None, SharedActorCriticPolicy,
                       "decentralised PPO, native trainer: one policy shared by every container agent, "
-                      "64 simulations, minibatches of 1024", native=True, default_n_envs=64, minibatch=None,
-                      adam_eps=None, reward_modes=REWARD_MODES, model_suffix=".pt"),
+                      "about 4096 samples per update whatever the plant's size, minibatches of 1024", native=True,
+                      default_n_envs=None, minibatch=None, adam_eps=None, reward_modes=REWARD_MODES,
+                      model_suffix=".pt"),
         AlgorithmSpec("dagger_agents", None, SharedActorCriticPolicy,
                       "decentralised imitation of planner_agents (DAgger): fast_shared_ppo's shared policy, "
                       "trained on the planner's decisions in the states it visits itself", native=True,

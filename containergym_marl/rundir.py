@@ -7,7 +7,8 @@ A run directory holds everything needed to inspect, resume and evaluate a run::
     RUN/
       args.json           the TrainArgs of the run (resolved)
       config.toml         the plant the run trains on (after overrides)
-      metrics.csv         one row per rollout: timesteps, plant return of training episodes…
+      metrics.csv         one row per rollout: timesteps, plant return of training episodes… (and,
+                          for the native trainers, the update's diagnostics: UPDATE_FIELDS)
       best_model.zip      the policy with the best training cumulative reward (paper, section 6.1);
                           absent when no training episode finished (run.json says so)
       final_model.zip     the policy at the end of the budget
@@ -250,19 +251,39 @@ def model_suffix(run: str | Path) -> str:
 # ---- metrics --------------------------------------------------------------------------------------
 METRIC_FIELDS = ("timesteps", "episodes", "train_return_mean100", "train_episode_length_mean100",
                  "best_train_return", "saved_best", "wall_time_s")
+#: The native trainers' diagnostics of each update, after METRIC_FIELDS in their rows: the policy's
+#: entropy (nats), approx-KL and clip fraction (means over the update's minibatches, as SB3 logs them),
+#: the critic's explained variance on the rollout, and the share of the last 100 training episodes
+#: that reached the time limit rather than overflowing. nan where a phase has none (imitation).
+UPDATE_FIELDS = ("entropy", "approx_kl", "clip_fraction", "explained_variance", "time_limit_share")
+#: The headers a metrics.csv may have: SB3 and MAPPO runs write the first, the native trainers the second.
+METRIC_HEADERS = (METRIC_FIELDS, METRIC_FIELDS + UPDATE_FIELDS)
 
 
 def append_metrics(run: Path, row: dict) -> None:
-    """Append one row to metrics.csv, flushed to disk before returning."""
+    """Append one row to metrics.csv, flushed to disk before returning. A new file with a row of the
+    update diagnostics (:data:`UPDATE_FIELDS`) gets the longer header; a file keeps the header it
+    has (a run begun before the diagnostics existed goes on without them, the rest is nan)."""
     path = Path(run) / "metrics.csv"
     new = not path.exists() or path.stat().st_size == 0
+    if new:
+        fields = METRIC_HEADERS[1] if UPDATE_FIELDS[0] in row else METRIC_HEADERS[0]
+    else:
+        with path.open("rb") as f:
+            fields = _header([f.readline().decode(errors="replace")])
     with path.open("a", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=METRIC_FIELDS)
+        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore", restval="nan")
         if new:
             w.writeheader()
         w.writerow(row)
         f.flush()
         os.fsync(f.fileno())
+
+
+def _header(lines: list[str]) -> tuple[str, ...]:
+    """The file's header if it is one of :data:`METRIC_HEADERS`, else the base one (rewritten)."""
+    first = tuple(lines[0].strip().split(",")) if lines else ()
+    return first if first in METRIC_HEADERS else METRIC_FIELDS
 
 
 def truncate_metrics(run: Path, max_timesteps: int) -> int:
@@ -272,9 +293,10 @@ def truncate_metrics(run: Path, max_timesteps: int) -> int:
     if not path.is_file():
         return 0
     lines = path.read_bytes().decode(errors="replace").splitlines(keepends=True)
-    kept, dropped = [",".join(METRIC_FIELDS) + "\r\n"], 0
+    fields = _header(lines)
+    kept, dropped = [",".join(fields) + "\r\n"], 0
     for line in lines[1:]:
-        if _row_steps(line) <= max_timesteps:
+        if _row_steps(line, len(fields)) <= max_timesteps:
             kept.append(line)
         else:
             dropped += 1
@@ -283,10 +305,10 @@ def truncate_metrics(run: Path, max_timesteps: int) -> int:
     return dropped
 
 
-def _row_steps(line: str) -> float:
+def _row_steps(line: str, columns: int) -> float:
     """The timesteps of a complete metrics line; inf for a partial or unreadable one."""
     cells = next(csv.reader([line]), [])
-    if not line.endswith("\n") or len(cells) != len(METRIC_FIELDS):
+    if not line.endswith("\n") or len(cells) != columns:
         return math.inf
     try:
         return float(cells[0])
@@ -295,21 +317,26 @@ def _row_steps(line: str) -> float:
 
 
 def read_metrics(run: str | Path, quiet: bool = False) -> list[dict[str, float]]:
-    """The rows of metrics.csv as floats. A row that cannot be read (a partial last row, cut by a
-    crash while it was written) is skipped with a :class:`RunWarning`."""
+    """The rows of metrics.csv as floats (:data:`METRIC_FIELDS`, and :data:`UPDATE_FIELDS` in a
+    native run's, nan where a phase has none). A row that cannot be read (a partial last row, cut by
+    a crash while it was written) is skipped with a :class:`RunWarning`."""
     path = Path(run) / "metrics.csv"
     if not path.exists():
         return []
     text = path.read_bytes().decode(errors="replace")
     lines = text.splitlines(keepends=True)
+    fields = _header(lines)
     rows = []
     for number, row in enumerate(csv.DictReader(lines), start=2):
         try:
-            if None in row or any(v is None or v == "" for v in row.values()) or set(row) != set(METRIC_FIELDS):
+            if None in row or any(v is None or v == "" for v in row.values()) or set(row) != set(fields):
                 raise ValueError("wrong number of fields")
             if number - 1 == len(lines) - 1 and not lines[-1].endswith("\n"):
                 raise ValueError("the row was cut short")
-            rows.append({k: float(row[k]) for k in METRIC_FIELDS})
+            values = {k: float(row[k]) for k in fields}
+            if any(math.isnan(values[k]) for k in METRIC_FIELDS):
+                raise ValueError("a number is missing")
+            rows.append(values)
         except (TypeError, ValueError) as exc:
             if not quiet:  # quiet: a reader of a run that is being written, where a last row may be partial
                 warnings.warn(f"{path}: row {number} is incomplete or unreadable ({exc}); ignored",

@@ -36,7 +36,8 @@ WINDOW = 100  # training episodes in the best-model criterion (as SB3's episode 
 @dataclass
 class TrainingProgress:
     """The state of the best-model tracker: training episodes finished so far, the returns and
-    lengths of the last :data:`WINDOW` of them, the best window mean and when it was reached."""
+    lengths of the last :data:`WINDOW` of them (and whether each reached the time limit rather than
+    overflowing, where the trainer tells), the best window mean and when it was reached."""
 
     episodes: int = 0
     returns: list[float] = field(default_factory=list)
@@ -44,11 +45,19 @@ class TrainingProgress:
     best_train_return: float = -math.inf
     best_timesteps: int | None = None
     wall_time_s: float = 0.0
+    truncated: list[bool] = field(default_factory=list)
 
-    def add_episode(self, ret: float, length: int) -> None:
+    def add_episode(self, ret: float, length: int, truncated: bool | None = None) -> None:
         self.episodes += 1
         self.returns = (self.returns + [float(ret)])[-WINDOW:]
         self.lengths = (self.lengths + [int(length)])[-WINDOW:]
+        if truncated is not None:
+            self.truncated = (self.truncated + [bool(truncated)])[-WINDOW:]
+
+    @property
+    def time_limit_share(self) -> float:
+        """The share of the windowed episodes that reached the time limit (nan if none is known)."""
+        return sum(self.truncated) / len(self.truncated) if self.truncated else math.nan
 
     def to_json(self) -> str:
         data = dataclasses.asdict(self)
@@ -62,7 +71,8 @@ class TrainingProgress:
         return cls(episodes=int(data["episodes"]), returns=[float(x) for x in data["returns"]][-WINDOW:],
                    lengths=[int(x) for x in data["lengths"]][-WINDOW:],
                    best_train_return=-math.inf if best is None else float(best),
-                   best_timesteps=data.get("best_timesteps"), wall_time_s=float(data.get("wall_time_s", 0.0)))
+                   best_timesteps=data.get("best_timesteps"), wall_time_s=float(data.get("wall_time_s", 0.0)),
+                   truncated=[bool(x) for x in data.get("truncated", [])][-WINDOW:])
 
 
 def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -> int:

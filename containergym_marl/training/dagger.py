@@ -343,13 +343,13 @@ class Episodes:
         self.ret, self.length = np.zeros(num_sims), np.zeros(num_sims, dtype=np.int64)
         self.expert = np.zeros(num_sims, dtype=bool)
 
-    def step(self, plant_reward: np.ndarray, done: np.ndarray, expert_acted: bool) -> None:
+    def step(self, plant_reward: np.ndarray, done: np.ndarray, truncated: np.ndarray, expert_acted: bool) -> None:
         self.ret += plant_reward
         self.length += 1
         self.expert |= expert_acted
         for b in np.flatnonzero(done).tolist():
             if not self.expert[b]:
-                self.progress.add_episode(float(self.ret[b]), int(self.length[b]))
+                self.progress.add_episode(float(self.ret[b]), int(self.length[b]), bool(truncated[b]))
             self.ret[b], self.length[b], self.expert[b] = 0.0, 0, False
 
 
@@ -387,7 +387,7 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
             buf["rewards"][t] = rewards
             episode_start = torch.from_numpy(dones.astype(np.float32))
             obs = torch.from_numpy(next_obs)
-            episodes.step(*env.last_plant_step(), expert_acts)
+            episodes.step(*env.last_plant_step(), env.simulator.last_outcome.truncated, expert_acts)
         last_value = model.value(obs)
     rollout = Rollout(obs_buf, label_buf, act_buf, buf["rewards"], buf["values"], buf["starts"], last_value,
                       episode_start)
@@ -446,7 +446,8 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
             greedy = model.logits(flat_obs).argmax(-1)
         requests = flat_labels == 1
         wall = round(wall0 + time.perf_counter() - t0, 2)
-        fast_ppo.log_rollout(run, run / "best_model.pt", model, progress, steps, wall)
+        saved_best = fast_ppo.save_if_best(run / "best_model.pt", model, progress, steps)
+        fast_ppo.log_rollout(run, progress, steps, wall, saved_best)
         if on_samples is not None:
             on_samples(steps, progress)
 

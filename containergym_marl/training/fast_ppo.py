@@ -12,15 +12,21 @@ What is SB3's, unchanged: separate [64, 64] tanh policy and value networks with 
 initialisation; the clipped surrogate (0.2) plus 0.5 × the value MSE, no entropy bonus; advantages
 normalised per minibatch; GAE (λ 0.95, γ 0.99); Adam (3e-4, eps 1e-5) with the gradient norm
 clipped at 0.5; 10 epochs per rollout; a time-limit cut bootstrapped with the value of the last
-observation (``TimeLimit.truncated``), an overflow not. What differs is only the batch shape
-(:class:`PPOArgs`): SB3's paper runs step 8 simulations for 6144 samples per rollout and take
-minibatches of 64 (960 gradient steps per rollout, 0.156 per sample); here 64 simulations × 64
-steps and minibatches of 1024 take 16× fewer gradient steps per sample, each on a batch wide
-enough for the CPU's vector units. The shape was chosen on validation episodes
-(``benchmarks/fast_ppo_defaults.py``: minibatches of 4096 left the centralised controller
-overflowing on n11_m2_dt120, half the epochs or twice the rollout length lost return, 512 gained
-nothing for 25 % more compute). ``--n-envs 8 --hp n_steps=768 minibatch_size=64`` is SB3's
-centralised shape exactly (``benchmarks/fast_ppo_validation.py paper-shape`` runs it).
+observation (``TimeLimit.truncated``), an overflow not. What differs is the batch shape
+(:class:`PPOArgs`): SB3's paper runs step 8 simulations for about 6144 samples per rollout and take
+minibatches of 64; here a rollout is 64 steps of as many simulations as make about
+``rollout_samples`` (4096) samples, whatever the plant's size (64 simulations for the controller; 13,
+6 and 4 for the container agents of 5, 11 and 16 containers, one sample per agent), and minibatches
+of 1024 take 16× fewer gradient steps per sample, each on a batch wide enough for the CPU's vector
+units. A shape that grew with n (64 simulations for every plant) gave the shared policy 3-7× fewer
+updates than SB3's on the same budget, and its policy collapsed before it had learned.
+``--n-envs 8 --hp n_steps=768 minibatch_size=64`` is SB3's centralised shape exactly
+(``benchmarks/fast_ppo_validation.py paper-shape`` runs it). ``benchmarks/native_ppo_tuning.py``
+searches the settings on validation episodes (``results/ppo_tuning/``).
+
+After every update, the run's metrics.csv row carries the update's diagnostics, as SB3 logs them:
+entropy, approx-KL, clip fraction, the critic's explained variance, and the share of the last 100
+training episodes that reached the time limit rather than overflowing.
 
 Optional: ``--hp action_mask=true`` masks the emptying actions while no PU is free (in training and
 in evaluation, the model file records it).
@@ -49,7 +55,7 @@ import numpy as np
 import torch
 
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors
-from containergym_marl.rundir import append_metrics
+from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
 
 CHECKPOINT_FORMAT = "containergym-marl ppo checkpoint"
@@ -60,15 +66,19 @@ CHECKPOINT_VERSION = 1
 class PPOArgs:
     """The native PPO's settings (``--hp KEY=VALUE``); SB3's defaults except the batch shape.
 
-    The number of simulations is ``--n-envs`` (default 64). One rollout is ``n_steps`` steps of
-    every slot: n_envs × n_steps samples for ``fast_ppo``, n_envs × n × n_steps for
-    ``fast_shared_ppo`` (one per container agent).
+    One rollout is ``n_steps`` steps of every slot: n_envs × n_steps samples for ``fast_ppo``,
+    n_envs × n × n_steps for ``fast_shared_ppo`` (one per container agent). The number of
+    simulations is ``--n-envs`` if given, else :meth:`num_sims`: as many as make about
+    ``rollout_samples`` samples per update, so the shared policy gets as many updates on a
+    16-container plant as on a 5-container one.
     """
 
+    rollout_samples: int = 4096  # samples per update the number of simulations is chosen for (unless --n-envs)
     n_steps: int = 64  # steps of every simulation per rollout (SB3 paper runs: 768 with 8 simulations)
     minibatch_size: int = 1024  # samples per gradient step (SB3: 64); the last one of an epoch may be smaller
     n_epochs: int = 10  # passes over each rollout (SB3: 10)
-    learning_rate: float = 3e-4  # Adam's step size (SB3: 3e-4), constant
+    learning_rate: float = 3e-4  # Adam's step size (SB3: 3e-4)
+    anneal_lr: bool = False  # the step size decays linearly to 0 at the budget (CleanRL's anneal_lr)
     adam_eps: float = 1e-5  # Adam's eps (SB3's actor-critic policies: 1e-5)
     clip_range: float = 0.2  # PPO's ratio clip (SB3: 0.2)
     gae_lambda: float = 0.95  # GAE's λ (SB3: 0.95)
@@ -94,8 +104,13 @@ class PPOArgs:
         args.validate()
         return args
 
+    def num_sims(self, agents_per_sim: int) -> int:
+        """Simulations that give about ``rollout_samples`` samples per update with ``agents_per_sim``
+        samples per simulation step (1 for the centralised controller, n for the container agents)."""
+        return max(1, round(self.rollout_samples / (self.n_steps * agents_per_sim)))
+
     def validate(self) -> None:
-        for name in ("n_steps", "minibatch_size", "n_epochs"):
+        for name in ("rollout_samples", "n_steps", "minibatch_size", "n_epochs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"hp: {name} must be >= 1, got {getattr(self, name)}")
         positive = ("learning_rate", "adam_eps", "clip_range", "max_grad_norm")
@@ -204,9 +219,10 @@ def load_checkpoint(path: str | Path, hp: PPOArgs) -> TrainingState:
 def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: PPOArgs,
           progress: TrainingProgress, interval: int, on_samples=None) -> None:
     """Train ``state`` on ``env`` (a native SB3-style VecEnv of the package) until ``budget``
-    samples, discounting by ``gamma``: rollouts, GAE, clipped-loss updates; a metrics row (and the best model when the
-    100-episode training return improved) after every rollout, a checkpoint after the update of
-    every rollout that crosses ``interval`` samples since the last one."""
+    samples, discounting by ``gamma``: rollouts, GAE, clipped-loss updates; after every update a
+    metrics row with its diagnostics (and the best model, the policy that collected the rollout, when
+    the 100-episode training return improved), a checkpoint after the update of every rollout that
+    crosses ``interval`` samples since the last one."""
     model, optimizer, generator = state.model, state.optimizer, state.generator
     slots, n_steps = env.num_envs, hp.n_steps
     obs_size, n_actions = model.observation_size, model.n_actions
@@ -260,22 +276,30 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
                 plant_reward, sim_done = env.last_plant_step()
                 episode_return += plant_reward
                 episode_length += 1
-                for b in np.flatnonzero(sim_done).tolist():
-                    progress.add_episode(float(episode_return[b]), int(episode_length[b]))
-                    episode_return[b], episode_length[b] = 0.0, 0
+                if sim_done.any():
+                    truncated = env.simulator.last_outcome.truncated
+                    for b in np.flatnonzero(sim_done).tolist():
+                        progress.add_episode(float(episode_return[b]), int(episode_length[b]), bool(truncated[b]))
+                        episode_return[b], episode_length[b] = 0.0, 0
             last_value = model.value(obs)
 
             compute_gae(rew_buf, val_buf, start_buf, last_value, episode_start, gamma, hp.gae_lambda, out=adv_buf)
             ret_buf = adv_buf + val_buf
 
         steps = state.num_timesteps
+        saved_best = save_if_best(best_file, model, progress, steps)
+        if hp.anneal_lr:
+            # the step size of this update: linear from learning_rate at 0 samples to 0 at the budget
+            for group in optimizer.param_groups:
+                group["lr"] = hp.learning_rate * max(1.0 - (steps - slots * n_steps) / budget, 0.0)
+        diagnostics = update(model, optimizer, hp, generator, obs_buf.view(-1, obs_size), act_buf.view(-1),
+                             logp_buf.view(-1), adv_buf.view(-1), ret_buf.view(-1),
+                             mask_buf.view(-1, n_actions) if mask_buf is not None else None)
+        diagnostics["explained_variance"] = explained_variance(val_buf.view(-1), ret_buf.view(-1))
         wall = round(wall0 + time.perf_counter() - t0, 2)
-        log_rollout(run, best_file, model, progress, steps, wall)
+        log_rollout(run, progress, steps, wall, saved_best, diagnostics)
         if on_samples is not None:
             on_samples(steps, progress)
-
-        update(model, optimizer, hp, generator, obs_buf.view(-1, obs_size), act_buf.view(-1), logp_buf.view(-1),
-               adv_buf.view(-1), ret_buf.view(-1), mask_buf.view(-1, n_actions) if mask_buf is not None else None)
 
         progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
         if steps - last_checkpoint >= interval and steps < budget:
@@ -303,12 +327,25 @@ def compute_gae(rewards, values, starts, last_value, last_start, gamma: float, l
     return out
 
 
+def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float:
+    """1 - Var(returns - values) / Var(returns), as SB3 logs it: 1 for a perfect critic, 0 for one
+    no better than a constant; nan when the returns do not vary."""
+    var = float(returns.var())
+    return float("nan") if var == 0 else 1.0 - float((returns - values).var()) / var
+
+
 def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, old_logp, advantages, returns,
-           masks=None) -> None:
+           masks=None) -> dict[str, float]:
     """``hp.n_epochs`` passes over one rollout's samples (flattened) in shuffled minibatches of
     ``hp.minibatch_size``: SB3's clipped surrogate + ``vf_coef`` × value MSE − ``ent_coef`` × entropy,
-    advantages normalised per minibatch, gradient norm clipped, one Adam step per minibatch."""
+    advantages normalised per minibatch, gradient norm clipped, one Adam step per minibatch.
+
+    Returns the update's diagnostics, as SB3 logs them (means over its minibatches): the policy's
+    ``entropy`` (nats), ``approx_kl`` (the estimator E[(r - 1) - log r] of the ratio r) and the
+    ``clip_fraction`` (share of samples whose ratio left the clip range)."""
     total = obs.shape[0]
+    sums = torch.zeros(3)  # entropy, approx_kl, clip_fraction, summed over minibatches
+    count = 0
     for _ in range(hp.n_epochs):
         order = torch.randperm(total, generator=generator)
         for lo in range(0, total, hp.minibatch_size):
@@ -318,39 +355,58 @@ def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, 
             adv = advantages[idx]
             if hp.normalize_advantage and len(idx) > 1:
                 adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-            ratio = torch.exp(new_logp - old_logp[idx])
+            log_ratio = new_logp - old_logp[idx]
+            ratio = torch.exp(log_ratio)
             policy_loss = -torch.min(adv * ratio, adv * torch.clamp(ratio, 1 - hp.clip_range, 1 + hp.clip_range)).mean()
             value_loss = torch.nn.functional.mse_loss(returns[idx], model.value(obs[idx]))
+            # masked actions have probability 0: p log p is 0 there, not nan
+            entropy = -(log_probs.exp() * log_probs.clamp_min(torch.finfo(log_probs.dtype).min)).sum(-1).mean()
             loss = policy_loss + hp.vf_coef * value_loss
             if hp.ent_coef:
-                entropy = -(log_probs.exp() * log_probs).sum(-1).mean()
                 loss = loss - hp.ent_coef * entropy
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.net.parameters(), hp.max_grad_norm)
             optimizer.step()
+            with torch.no_grad():
+                sums += torch.stack([entropy, ((ratio - 1) - log_ratio).mean(),
+                                     ((ratio - 1).abs() > hp.clip_range).float().mean()])
+            count += 1
+    entropy, approx_kl, clip_fraction = (sums / count).tolist()
+    return {"entropy": entropy, "approx_kl": approx_kl, "clip_fraction": clip_fraction}
 
 
-def log_rollout(run: Path, best_file: Path, model: ActorCritic, progress: TrainingProgress, steps: int,
-                wall: float) -> None:
-    """A metrics row, and the best model (the policy that collected this rollout) when the
-    100-episode mean training return improved; nothing before the first training episode ends."""
+def save_if_best(best_file: Path, model: ActorCritic, progress: TrainingProgress, steps: int) -> bool:
+    """Save the model as the best one when the 100-episode mean training return improved (before
+    the update: the best model is the policy that played those episodes); whether it did."""
+    if not progress.returns:
+        return False
+    recent = float(np.mean(progress.returns))
+    if recent <= progress.best_train_return:
+        return False
+    progress.best_train_return, progress.best_timesteps = recent, steps
+    model.meta["timesteps"] = steps
+    model.save(best_file)
+    return True
+
+
+def log_rollout(run: Path, progress: TrainingProgress, steps: int, wall: float, saved_best: bool,
+                diagnostics: dict[str, float] | None = None) -> None:
+    """A metrics row, with the update's diagnostics (:data:`~containergym_marl.rundir.UPDATE_FIELDS`;
+    nan where there was no PPO update, as in an imitation phase); nothing before the first training
+    episode ends."""
     if not progress.returns:
         return
-    recent = float(np.mean(progress.returns))
-    improved = recent > progress.best_train_return
-    if improved:
-        progress.best_train_return, progress.best_timesteps = recent, steps
-        model.meta["timesteps"] = steps
-        model.save(best_file)
     append_metrics(run, {
         "timesteps": steps,
         "episodes": progress.episodes,
-        "train_return_mean100": recent,
+        "train_return_mean100": float(np.mean(progress.returns)),
         "train_episode_length_mean100": float(np.mean(progress.lengths)),
         "best_train_return": progress.best_train_return,
-        "saved_best": int(improved),
+        "saved_best": int(saved_best),
         "wall_time_s": wall,
+        **{name: (diagnostics or {}).get(name, math.nan) for name in UPDATE_FIELDS if name != "time_limit_share"},
+        "time_limit_share": progress.time_limit_share,
     })
 
 
@@ -359,5 +415,5 @@ def save_final(state: TrainingState, path: Path) -> None:
     state.model.save(path)
 
 
-__all__ = ["PPOArgs", "TrainingState", "coerce_setting", "compute_gae", "learn", "load_checkpoint", "log_rollout",
-           "new_state", "save_final", "state_from_model", "update"]
+__all__ = ["PPOArgs", "TrainingState", "coerce_setting", "compute_gae", "explained_variance", "learn",
+           "load_checkpoint", "log_rollout", "new_state", "save_final", "save_if_best", "state_from_model", "update"]

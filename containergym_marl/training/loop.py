@@ -278,7 +278,7 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
         args = dataclasses.replace(args, timesteps=paper_budget(plant.n_containers))
     if args.resume and (args.run_dir() / "args.json").is_file():
         args = dataclasses.replace(args, n_envs=run_args(args.run_dir()).get("n_envs"))  # the model's shape
-    n_envs = spec.default_n_envs if args.n_envs is None else int(args.n_envs)
+    n_envs = spec.default_sims(plant.n_containers, args.hyperparams) if args.n_envs is None else int(args.n_envs)
     interval = checkpoint_interval(args.timesteps, spec.num_slots(plant.n_containers, n_envs), args.checkpoint_every)
     args = dataclasses.replace(args, n_envs=n_envs, checkpoint_every=interval)
     torch.set_num_threads(max(int(args.torch_threads), 1))

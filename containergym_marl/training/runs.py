@@ -56,7 +56,7 @@ class TrainArgs:
     resume: bool = option(False, action="store_true",
                           help="continue the run in --out from its newest intact checkpoint")
     n_envs: int | None = option(None, type=positive_int, help="parallel simulations, >= 1 (default: " + ", ".join(
-                                 f"{name} {REGISTRY[name].default_n_envs}" for name in ALGORITHMS) + ")")
+                                 f"{name} {REGISTRY[name].default_sims_text}" for name in ALGORITHMS) + ")")
     vec: str = option("native", choices=("native", "supersuit"),
                       help="shared_ppo's vectorisation: the package's batched env or the SuperSuit stack")
     num_cpus: int = option(0, type=int, help="SuperSuit worker processes (--vec supersuit only)")

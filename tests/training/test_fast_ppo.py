@@ -15,8 +15,8 @@ from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.runs import evaluate_run, policy_from_run
 from containergym_marl.policies.actor_critic import ActorCritic
 from containergym_marl.training import TrainArgs, train
-from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, load_checkpoint, update
-from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
+from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, explained_variance, learn, load_checkpoint, update
+from containergym_marl.rundir import UPDATE_FIELDS, checkpoints, read_metrics, read_run_summary, run_args
 from containergym_marl.training.checkpoints import read_progress
 from tests.helpers import train_until_killed
 
@@ -72,9 +72,16 @@ def test_gae_and_one_update_equal_sb3_ppo(view, tmp_path):
 
     hp = PPOArgs(minibatch_size=total, n_epochs=1)
     optimizer = torch.optim.Adam(ours.net.parameters(), lr=3e-4, eps=1e-5)
-    update(ours, optimizer, hp, torch.Generator().manual_seed(0), t(buf.observations).reshape(total, -1),
-           torch.as_tensor(buf.actions.reshape(-1), dtype=torch.long), t(buf.log_probs).reshape(-1),
-           t(buf.advantages).reshape(-1), t(buf.returns).reshape(-1))
+    diagnostics = update(ours, optimizer, hp, torch.Generator().manual_seed(0), t(buf.observations).reshape(total, -1),
+                         torch.as_tensor(buf.actions.reshape(-1), dtype=torch.long), t(buf.log_probs).reshape(-1),
+                         t(buf.advantages).reshape(-1), t(buf.returns).reshape(-1))
+    # the update's diagnostics are those SB3 logs for the same update
+    logged = sb3.logger.name_to_value
+    assert diagnostics["entropy"] == pytest.approx(-logged["train/entropy_loss"], rel=1e-5)
+    assert diagnostics["approx_kl"] == pytest.approx(logged["train/approx_kl"], abs=1e-7)
+    assert diagnostics["clip_fraction"] == pytest.approx(logged["train/clip_fraction"], abs=1e-7)
+    assert explained_variance(t(buf.values).reshape(-1), t(buf.returns).reshape(-1)) == pytest.approx(
+        logged["train/explained_variance"], rel=1e-4, abs=1e-6)
     expected = ActorCritic(view, ours.observation_size, ours.n_actions)
     _copy_sb3_weights(sb3.policy, expected)
     changed = False
@@ -100,6 +107,116 @@ def test_gae_by_hand():
     d0 = 1.0 + 0.9 * 1.0 - 0.5
     a0 = d0 + 0.9 * 0.8 * a1
     assert adv == pytest.approx([a0, a1, a2])
+
+
+def test_update_diagnostics_by_hand():
+    """Two epochs over one minibatch of a two-action policy: the first pass starts at the policy that
+    collected the samples (ratio 1: approx-KL 0, nothing clipped), so the means over both passes are
+    half the second pass's; the entropy is that of the softmax, computed here apart."""
+    torch.manual_seed(0)
+    model = ActorCritic("decentralised", 3, 2, generator=torch.Generator().manual_seed(1))
+    obs = torch.randn(8, 3)
+    actions = torch.tensor([0, 1, 1, 0, 1, 0, 0, 1])
+    with torch.no_grad():
+        before = torch.log_softmax(model.logits(obs), -1)
+    old_logp = before.gather(-1, actions[:, None]).squeeze(-1)
+    advantages = torch.linspace(-1, 1, 8)
+    hp = PPOArgs(minibatch_size=8, n_epochs=2, learning_rate=0.05, clip_range=0.01)
+    optimizer = torch.optim.Adam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps)
+    snapshot = ActorCritic.from_dict(model.to_dict(), "test")
+    got = update(model, optimizer, hp, torch.Generator().manual_seed(0), obs, actions, old_logp, advantages,
+                 torch.zeros(8))
+    # replay: the second pass's policy is the one after the first Adam step, found by stepping a copy
+    replay_opt = torch.optim.Adam(snapshot.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps)
+    update(snapshot, replay_opt, PPOArgs(minibatch_size=8, n_epochs=1, learning_rate=0.05, clip_range=0.01),
+           torch.Generator().manual_seed(0), obs, actions, old_logp, advantages, torch.zeros(8))
+    with torch.no_grad():
+        mid = torch.log_softmax(snapshot.logits(obs), -1)
+    log_ratio = mid.gather(-1, actions[:, None]).squeeze(-1) - old_logp
+    kl2 = float(((log_ratio.exp() - 1) - log_ratio).mean())
+    clipped2 = float(((log_ratio.exp() - 1).abs() > 0.01).float().mean())
+    entropy = lambda lp: float(-(lp.exp() * lp).sum(-1).mean())  # noqa: E731
+    assert got["approx_kl"] == pytest.approx(kl2 / 2, rel=1e-5) and kl2 > 0
+    assert got["clip_fraction"] == pytest.approx(clipped2 / 2) and clipped2 > 0
+    assert got["entropy"] == pytest.approx((entropy(before) + entropy(mid)) / 2, rel=1e-5)
+
+
+def test_explained_variance_by_hand():
+    returns = torch.tensor([1.0, 2.0, 3.0, 4.0])
+    assert explained_variance(returns, returns) == 1.0
+    assert explained_variance(torch.full((4,), 2.5), returns) == pytest.approx(0.0)
+    # residuals [0.5, -0.5, 0.5, -0.5]: variance 1/3 against the returns' 5/3
+    assert explained_variance(returns - torch.tensor([0.5, -0.5, 0.5, -0.5]), returns) == pytest.approx(1 - 0.2)
+    assert np.isnan(explained_variance(torch.zeros(3), torch.ones(3)))
+
+
+# ---- the batch shape ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("algo, config, sims", [("fast_shared_ppo", "n5_m2_dt120", 13),
+                                                ("fast_shared_ppo", "n11_m2_dt120", 6),
+                                                ("fast_shared_ppo", "n16_m2_dt120", 4),
+                                                ("fast_ppo", "n16_m2_dt120", 64)])
+def test_samples_per_update_do_not_grow_with_the_plant(algo, config, sims, tmp_path):
+    """By default a run steps as many simulations as make about 4096 samples per 64-step rollout:
+    4096 / (64 x n) for the container agents (n = 5: 12.8 -> 13, n = 11: 5.8 -> 6, n = 16: 4), 64 for
+    the controller; the metrics rows are one rollout apart."""
+    run = train(TrainArgs(algo=algo, config=config, out=str(tmp_path / "r"), timesteps=1, progress_bar=False,
+                          overrides={"episode_length_steps": 20}))
+    assert run_args(run)["n_envs"] == sims
+    n = int(config.split("_")[0][1:]) if algo == "fast_shared_ppo" else 1
+    assert [int(r["timesteps"]) for r in read_metrics(run)] == [64 * sims * n]
+    assert abs(64 * sims * n - 4096) <= 64 * n / 2
+
+
+def test_rollout_samples_and_n_steps_set_the_simulations(tmp_path):
+    hp = PPOArgs.from_hyperparams({"rollout_samples": 8192, "n_steps": 128})
+    assert hp.num_sims(11) == round(8192 / (128 * 11)) == 6 and hp.num_sims(1) == 64
+    assert PPOArgs(rollout_samples=10, n_steps=64).num_sims(16) == 1  # at least one simulation
+    run = train(TrainArgs(algo="fast_shared_ppo", config="n5_m2_dt120", out=str(tmp_path / "r"), timesteps=1,
+                          n_envs=3, progress_bar=False, overrides={"episode_length_steps": 20}))
+    assert run_args(run)["n_envs"] == 3  # --n-envs wins
+
+
+# ---- diagnostics in metrics.csv ----------------------------------------------------------------------
+def test_metrics_rows_carry_the_update_diagnostics(tmp_path):
+    """Every row of a native run has the diagnostics, in range: a fresh two-action policy's entropy
+    (nearly uniform, then 50 small Adam steps in the first update) is close to ln 2 and never above
+    it; KL >= 0; the clip fraction a share; episodes of T = 20 steps all reach the time limit."""
+    run = train(TrainArgs(algo="fast_shared_ppo", out=str(tmp_path / "r"), timesteps=4000, seed=2, **TINY))
+    rows = read_metrics(run)
+    assert rows and all(set(UPDATE_FIELDS) <= set(r) for r in rows)
+    assert (run / "metrics.csv").read_text().splitlines()[0].endswith(",".join(UPDATE_FIELDS))
+    assert 0.55 < rows[0]["entropy"] <= np.log(2)
+    assert all(0 <= r["entropy"] <= np.log(2) + 1e-6 and r["approx_kl"] >= 0 and 0 <= r["clip_fraction"] <= 1
+               and r["explained_variance"] <= 1 for r in rows)
+    assert all(r["time_limit_share"] == 1.0 for r in rows)
+
+
+def test_time_limit_share_counts_overflows_apart():
+    from containergym_marl.training.checkpoints import TrainingProgress
+
+    p = TrainingProgress()
+    assert np.isnan(p.time_limit_share)
+    for k in range(120):
+        p.add_episode(1.0, 10, truncated=k % 4 != 0)  # every fourth ends in an overflow
+    assert p.time_limit_share == pytest.approx(0.75) and len(p.truncated) == 100
+    assert TrainingProgress.from_json(p.to_json()).truncated == p.truncated
+
+
+def test_annealed_step_size_falls_linearly_to_zero(tmp_path):
+    """With anneal_lr the update after k rollouts of S samples steps with lr x (1 - k S / budget)."""
+    from containergym_marl.envs.vector import ContainerAgentsVecEnv
+    from containergym_marl.training.checkpoints import TrainingProgress
+    from containergym_marl.training.fast_ppo import new_state
+
+    env = ContainerAgentsVecEnv("n5_m2_dt120", 2, episode_length_steps=20)
+    hp = PPOArgs(n_steps=10, minibatch_size=100, learning_rate=1e-3, anneal_lr=True)
+    state = new_state(env, hp, "decentralised", 0, {})
+    budget = 400  # four rollouts of 100 samples
+    seen = []
+    step = state.optimizer.step
+    state.optimizer.step = lambda *a, **k: (seen.append(state.optimizer.param_groups[0]["lr"]), step(*a, **k))[1]
+    learn(tmp_path, state, env, budget, 0.99, hp, TrainingProgress(), interval=10**9)
+    assert sorted(set(seen), reverse=True) == pytest.approx([1e-3, 0.75e-3, 0.5e-3, 0.25e-3])
 
 
 # ---- runs: determinism, files, resume --------------------------------------------------------------

@@ -213,6 +213,33 @@ def test_read_metrics_ignores_a_partial_last_row(run_copy):
         assert len(read_metrics(run_copy)) == 4
 
 
+def test_metrics_files_of_both_headers_read_and_truncate(tmp_path):
+    """A native run's rows carry the update diagnostics (nan where a phase has none); an older file
+    without them keeps its header when rows are appended, and both kinds truncate row by row."""
+    from containergym_marl.rundir import METRIC_FIELDS, UPDATE_FIELDS, append_metrics, truncate_metrics
+
+    base = dict(episodes=1, train_return_mean100=2.0, train_episode_length_mean100=3.0, best_train_return=2.0,
+                saved_best=0, wall_time_s=1.0)
+    new = tmp_path / "new"
+    new.mkdir()
+    for steps in (100, 200, 300):
+        append_metrics(new, {"timesteps": steps, **base, **dict.fromkeys(UPDATE_FIELDS, float("nan")),
+                             "entropy": 0.5 if steps > 100 else float("nan")})
+    rows = read_metrics(new)
+    assert [r["entropy"] for r in rows][1:] == [0.5, 0.5] and np.isnan(rows[0]["entropy"])
+    assert truncate_metrics(new, 200) == 1 and [r["timesteps"] for r in read_metrics(new)] == [100, 200]
+    old = tmp_path / "old"
+    old.mkdir()
+    append_metrics(old, {"timesteps": 100, **base})
+    append_metrics(old, {"timesteps": 200, **base, **dict.fromkeys(UPDATE_FIELDS, 0.1)})  # a resumed run
+    assert (old / "metrics.csv").read_text().splitlines()[0] == ",".join(METRIC_FIELDS)
+    assert [set(r) for r in read_metrics(old)] == [set(METRIC_FIELDS)] * 2
+    assert truncate_metrics(old, 100) == 1 and len(read_metrics(old)) == 1
+    (new / "metrics.csv").write_text((new / "metrics.csv").read_text().replace("100,1,2.0", "100,1,nan"))
+    with pytest.warns(RunWarning, match="missing"):  # a base column may not be nan
+        assert [r["timesteps"] for r in read_metrics(new)] == [200]
+
+
 # ---- crash-safe writes ----------------------------------------------------------------------------
 def test_atomic_write_keeps_the_old_file_when_the_writer_dies(tmp_path):
     path = tmp_path / "args.json"

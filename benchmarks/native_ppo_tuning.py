@@ -1,0 +1,329 @@
+"""Choosing the native PPO's settings on validation episodes: a recorded Optuna search (issue 34).
+
+    python benchmarks/native_ppo_tuning.py --method fast_shared_ppo --trials 40 --workers 2
+    python benchmarks/native_ppo_tuning.py --method fast_shared_ppo --report      # the tables only
+    python benchmarks/native_ppo_tuning.py --method fast_ppo --smoke --out /tmp/t  # 2 tiny trials
+
+**What a trial is.** Optuna's TPE sampler proposes one setting of :class:`~containergym_marl.training.fast_ppo.PPOArgs`
+(:data:`SPACE`: samples per update, rollout length, minibatch, epochs, step size and its annealing,
+entropy bonus, clip range). The trial trains ``--method`` with it at the paper's budget on every
+search row (:data:`ROWS`: the four n = 5 rows and n11_m11_dt60) with every search seed
+(:data:`SEEDS`, 101-105: no published run uses them), one run after another in the worker's
+process (one torch thread), and evaluates each run's best model (the paper's choice: best 100-episode
+training return) on the *validation* episodes (δ = 120 s, T = 600, seeds 20000-20029; never the
+test seeds 10000-10014 or the fresh ones). A run's score is its validation return as a share of
+``rule_based_agents``' on the same episodes; the trial's value is the IQM of its 25 scores.
+
+**Pruning.** Runs go seed by seed (all rows of seed 101, then of 102, …). After each run the trial
+reports the mean score so far; from the fourth run on (every n = 5 row seen once) Optuna's median
+pruner stops a trial whose mean is below the median of earlier trials at the same run, so a weak
+setting costs four n = 5 runs rather than 25.
+
+**What is recorded.** Every trial, its settings, state, each run's validation return, overflowing
+validation episodes, the validation return of the checkpoint nearest half the budget, and its
+CPU seconds, in Optuna's journal (``--out``/<method>/journal.log, append-only, committed) and
+in tables generated from it (trials.md, trials.json). The first trial is the package's default
+setting (:data:`DEFAULT_TRIAL`), so every other trial is compared with it on the same runs.
+
+**Resumable.** Runs live under ``--runs``/<method>/<settings hash>/; a run a kill interrupted
+resumes from its checkpoint, a finished one is reused with its cached validation. A trial a kill
+left running is marked failed when the search starts again and its setting is queued anew; its
+finished runs are reused, from the journal where their folders are gone (another machine). One search per method at a time (a lock on its folder); the ``--workers``
+processes share the journal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import multiprocessing
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from containergym_marl.core.params import PlantParams
+from containergym_marl.evaluation import evaluate
+from containergym_marl.evaluation.protocol import VALIDATION
+from containergym_marl.evaluation.stats import iqm
+from containergym_marl.files import atomic_write_text
+from containergym_marl.methods import get_method
+from containergym_marl.policies import RuleBasedAgents
+from containergym_marl.rundir import RunLock, checkpoints, read_run_summary, run_status
+
+#: The rows every trial trains on: where the native PPO fell furthest below SB3's (issue 34).
+ROWS = ("n5_m2_dt60", "n5_m2_dt120", "n5_m5_dt60", "n5_m5_dt120", "n11_m11_dt60")
+#: Training seeds of the search; the published runs use 1-15.
+SEEDS = (101, 102, 103, 104, 105)
+#: Runs before the pruner may stop a trial: every n = 5 row of the first seed.
+WARMUP_RUNS = 4
+#: The searched settings: a list of choices, or (low, high) for a log-uniform float.
+SPACE: dict[str, Any] = {
+    "rollout_samples": [2048, 4096, 8192, 16384],
+    "n_steps": [32, 64, 128, 256],
+    "minibatch_size": [256, 512, 1024, 2048],
+    "n_epochs": [3, 5, 10, 20],
+    "learning_rate": (5e-5, 2e-3),
+    "anneal_lr": [False, True],
+    "ent_coef": [0.0, 1e-4, 1e-3, 3e-3, 1e-2],
+    "clip_range": [0.1, 0.2, 0.3],
+}
+#: The first trial of every search: the package's defaults (PPOArgs), stated in full.
+DEFAULT_TRIAL = {"rollout_samples": 4096, "n_steps": 64, "minibatch_size": 1024, "n_epochs": 10,
+                 "learning_rate": 3e-4, "anneal_lr": False, "ent_coef": 0.0, "clip_range": 0.2}
+
+
+def require_optuna():
+    try:
+        import optuna
+    except ImportError as exc:
+        raise SystemExit("the search needs Optuna: pip install -e '.[tune]' -c constraints.txt") from exc
+    return optuna
+
+
+def suggest(trial) -> dict[str, Any]:
+    """The trial's settings, drawn from :data:`SPACE`."""
+    hp = {}
+    for name, space in SPACE.items():
+        if isinstance(space, tuple):
+            hp[name] = trial.suggest_float(name, *space, log=True)
+        else:
+            hp[name] = trial.suggest_categorical(name, space)
+    return hp
+
+
+def settings_key(hp: dict[str, Any]) -> str:
+    """A short name for a setting (its runs' folder): the same setting always gets the same one."""
+    return hashlib.sha256(json.dumps(hp, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def rule_returns(rows, cache: Path) -> dict[str, float]:
+    """``rule_based_agents``' mean validation return per row (the scores' unit), cached in ``cache``."""
+    known = json.loads(cache.read_text()) if cache.is_file() else {}
+    for row in rows:
+        if row not in known:
+            policy = RuleBasedAgents(PlantParams.from_config(VALIDATION.plant(row)))
+            known[row] = float(evaluate(policy, row, VALIDATION, keep_records=False).returns.mean())
+            atomic_write_text(cache, json.dumps(known, indent=1, sort_keys=True) + "\n")
+    return known
+
+
+def _validation(policy, row: str) -> tuple[float, int]:
+    result = evaluate(policy, row, VALIDATION, keep_records=False)
+    return float(result.returns.mean()), int(sum(e.overflow for e in result.episodes))
+
+
+def recorded_runs(study) -> dict[tuple[str, str, int], dict[str, Any]]:
+    """Every run the journal records, by (settings key, row, seed): a trial queued again on another
+    machine (where the runs' folders are gone) takes them from there instead of training again."""
+    known = {}
+    for t in study.get_trials(deepcopy=False):
+        folder = t.user_attrs.get("folder")
+        for name, entry in t.user_attrs.items():
+            if folder and name.startswith("run_"):
+                known[(folder, entry["row"], entry["seed"])] = entry
+    return known
+
+
+def train_and_validate(method: str, row: str, seed: int, hp: dict[str, Any], run: Path,
+                       timesteps: int | None) -> dict[str, Any]:
+    """Train (or resume, or reuse) one run and evaluate its best model, and the checkpoint nearest
+    half its budget, on the validation episodes; cached in ``run``/validation.json."""
+    from containergym_marl.evaluation.runs import policy_from_run
+    from containergym_marl.policies.actor_critic import policy_for
+    from containergym_marl.training import TrainArgs, train
+    from containergym_marl.training.fast_ppo import PPOArgs, load_checkpoint
+
+    cached = run / "validation.json"
+    if cached.is_file():
+        return json.loads(cached.read_text())
+    spec = get_method(method)
+    cpu_file = run / "cpu_time_s.txt"  # CPU seconds of earlier, interrupted attempts
+    cpu = float(cpu_file.read_text()) if cpu_file.is_file() else 0.0
+    status = run_status(run)
+    if status != "finished":
+        start = time.process_time()
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # a resume's notes
+                train(TrainArgs(algo=spec.algo, config=row, seed=seed, out=str(run), timesteps=timesteps,
+                                resume=status == "interrupted", hyperparams=dict(hp), progress_bar=False,
+                                **spec.train_settings()))
+        finally:
+            cpu += time.process_time() - start
+            atomic_write_text(cpu_file, f"{cpu:.1f}\n")
+    summary = read_run_summary(run)
+    val_return, overflows = _validation(policy_from_run(run), row)
+    half = summary["budget"] / 2
+    steps, path = min(checkpoints(run), key=lambda c: abs(c[0] - half), default=(None, None))
+    half_return = math.nan
+    if path is not None:
+        half_return, _ = _validation(policy_for(load_checkpoint(path, PPOArgs.from_hyperparams(hp)).model), row)
+    entry = {"row": row, "seed": seed, "validation_return": val_return, "overflowing_episodes": overflows,
+             "half_budget_samples": steps, "half_budget_return": half_return, "samples": summary["timesteps"],
+             "cpu_s": round(cpu, 1), "wall_time_s": summary["wall_time_s"]}
+    atomic_write_text(cached, json.dumps(entry) + "\n")
+    return entry
+
+
+class Objective:
+    def __init__(self, method: str, runs: Path, rows, seeds, rule: dict[str, float], timesteps: int | None,
+                 known: dict[tuple[str, str, int], dict[str, Any]]):
+        self.method, self.runs, self.rows, self.seeds = method, runs, tuple(rows), tuple(seeds)
+        self.rule, self.timesteps, self.known = rule, timesteps, known
+
+    def __call__(self, trial) -> float:
+        optuna = require_optuna()
+        hp = suggest(trial)
+        folder = self.runs / settings_key(hp)
+        trial.set_user_attr("folder", folder.name)
+        scores = []
+        for k, (seed, row) in enumerate((s, r) for s in self.seeds for r in self.rows):
+            entry = self.known.get((folder.name, row, seed)) or train_and_validate(
+                self.method, row, seed, hp, folder / f"{row}_s{seed}", self.timesteps)
+            entry["score"] = entry["validation_return"] / self.rule[row]
+            entry["half_budget_score"] = entry["half_budget_return"] / self.rule[row]
+            trial.set_user_attr(f"run_{k:02d}", entry)
+            scores.append(entry["score"])
+            trial.report(float(np.mean(scores)), k)
+            if k + 1 >= WARMUP_RUNS and k + 1 < len(self.rows) * len(self.seeds) and trial.should_prune():
+                raise optuna.TrialPruned()
+        return iqm(scores)
+
+
+def open_study(method: str, journal: Path, sampler_seed: int):
+    optuna = require_optuna()
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storage = JournalStorage(JournalFileBackend(str(journal)))
+    sampler = optuna.samplers.TPESampler(seed=sampler_seed, n_startup_trials=8)
+    pruner = optuna.pruners.MedianPruner(n_startup_trials=3, n_warmup_steps=WARMUP_RUNS - 1)
+    return optuna.create_study(study_name=method, storage=storage, sampler=sampler, pruner=pruner,
+                               direction="maximize", load_if_exists=True)
+
+
+def _worker(method: str, journal: str, runs: str, rows, seeds, rule, timesteps, total: int, index: int) -> None:
+    optuna = require_optuna()
+    study = open_study(method, Path(journal), sampler_seed=index)
+    done = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+    study.optimize(Objective(method, Path(runs), rows, seeds, rule, timesteps, recorded_runs(study)),
+                   callbacks=[optuna.study.MaxTrialsCallback(total, states=done)])
+
+
+def requeue_interrupted(study) -> int:
+    """Trials a kill left running: failed, and their settings queued again (their runs are reused)."""
+    optuna = require_optuna()
+    stale = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.RUNNING]
+    for t in stale:
+        study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)
+        study.enqueue_trial(t.params, user_attrs={"requeued_from": t.number})
+    return len(stale)
+
+
+# ---- the tables -------------------------------------------------------------------------------------
+def trial_rows(study) -> list[dict[str, Any]]:
+    """One dict per trial: number, state, settings, value, the runs' entries and their totals."""
+    out = []
+    for t in study.get_trials(deepcopy=False):
+        runs = [v for k, v in sorted(t.user_attrs.items()) if k.startswith("run_")]
+        out.append({"number": t.number, "state": t.state.name, "params": t.params, "value": t.value,
+                    "runs": runs, "mean_score": float(np.mean([r["score"] for r in runs])) if runs else None,
+                    "overflowing_episodes": sum(r["overflowing_episodes"] for r in runs),
+                    "half_budget_score": _nanmean([r["half_budget_score"] for r in runs]),
+                    "cpu_s": sum(r["cpu_s"] for r in runs)})
+    return out
+
+
+def _nanmean(values) -> float | None:
+    values = [v for v in values if not math.isnan(v)]
+    return float(np.mean(values)) if values else None
+
+
+def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
+    rows = trial_rows(study)
+    cpu_h = sum(r["cpu_s"] for r in rows) / 3600
+    data = {"method": method, "rows": list(ROWS), "seeds": list(SEEDS), "validation_seeds": VALIDATION.seeds,
+            "rule_based_agents_validation_return": rule, "space": {k: list(v) for k, v in SPACE.items()},
+            "core_hours": round(cpu_h, 2), "trials": rows}
+    atomic_write_text(out / "trials.json", json.dumps(data, indent=1) + "\n")
+    names = list(SPACE)
+    lines = [f"# `{method}`: the native PPO's settings searched on validation episodes", "",
+             f"Generated by `python benchmarks/native_ppo_tuning.py --method {method} --report` from the Optuna "
+             f"journal beside it. Each trial trains on {', '.join(ROWS)} with seeds {SEEDS[0]}-{SEEDS[-1]} at the "
+             f"paper's budget and scores each run's best model on validation episodes {VALIDATION.first_seed}-"
+             f"{VALIDATION.seeds[-1]} (δ = 120 s, T = 600) as a share of rule_based_agents' return there; the "
+             f"value is the IQM of the shares (pruned trials: the mean of the runs done). Half budget: the "
+             f"same share for the checkpoint nearest half the budget. Compute so far: {cpu_h:.1f} core-hours "
+             f"(CPU time of the training runs, one core each).", "",
+             "| trial | state | " + " | ".join(names) + " | runs | value | mean share | half budget "
+             "| overflowing episodes | CPU h |",
+             "|" + "---|" * (len(names) + 8)]
+    ranked = sorted(rows, key=lambda r: (r["state"] != "COMPLETE", -(r["value"] if r["value"] is not None else -1e9)))
+    for r in ranked:
+        cells = [_cell(r["params"].get(n)) for n in names]
+        fmt = lambda x: "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.3f}"  # noqa: E731
+        lines.append(f"| {r['number']} | {r['state'].lower()} | " + " | ".join(cells) +
+                     f" | {len(r['runs'])} | {fmt(r['value'])} | {fmt(r['mean_score'])} | "
+                     f"{fmt(r['half_budget_score'])} | {r['overflowing_episodes']} | {r['cpu_s'] / 3600:.2f} |")
+    text = "\n".join(lines) + "\n"
+    atomic_write_text(out / "trials.md", text)
+    return text
+
+
+def _cell(value) -> str:
+    if isinstance(value, float) and value not in (0.0,) and (abs(value) < 1e-2 or abs(value) >= 1e4):
+        return f"{value:.2g}"
+    return str(value).lower() if isinstance(value, bool) else str(value)
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--method", default="fast_shared_ppo",
+                   choices=["fast_ppo", "fast_shared_ppo", "fast_shared_ppo_team"])
+    p.add_argument("--trials", type=int, default=None,
+                   help="finished (complete or pruned) trials to reach (default 40; 2 with --smoke)")
+    p.add_argument("--workers", type=int, default=2, help="processes, one core each")
+    p.add_argument("--out", default="results/ppo_tuning", help="the journal and tables, in <out>/<method>/")
+    p.add_argument("--runs", default="runs/ppo_tuning", help="the trials' runs, in <runs>/<method>/")
+    p.add_argument("--report", action="store_true", help="train nothing: write the tables of the journal")
+    p.add_argument("--smoke", action="store_true", help="trials of 1 row x 1 seed at 8192 samples (a test)")
+    ns = p.parse_args(argv)
+    optuna = require_optuna()
+    out, runs = Path(ns.out) / ns.method, Path(ns.runs) / ns.method
+    out.mkdir(parents=True, exist_ok=True)
+    rows, seeds, timesteps, total = ROWS, SEEDS, None, ns.trials or 40
+    if ns.smoke:  # two rollouts of about 4096 samples: a checkpoint after the first, at half the budget
+        rows, seeds, timesteps, total = ROWS[1:2], SEEDS[:1], 8192, ns.trials or 2
+    rule = rule_returns(rows, out / "rule_based_agents_validation.json")
+    journal = out / "journal.log"
+    with RunLock(out):  # one search of a method at a time (an OS lock, released however the search ends)
+        study = open_study(ns.method, journal, sampler_seed=0)
+        if not ns.report:
+            requeued = requeue_interrupted(study)
+            if requeued:
+                print(f"{requeued} interrupted trial(s) queued again")
+            if not study.get_trials(deepcopy=False):
+                study.enqueue_trial(DEFAULT_TRIAL, user_attrs={"default": True})
+            done = sum(t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+                       for t in study.get_trials(deepcopy=False))
+            if done < total:
+                args = (ns.method, str(journal), str(runs), rows, seeds, rule, timesteps, total)
+                ctx = multiprocessing.get_context("spawn")
+                procs = [ctx.Process(target=_worker, args=(*args, k)) for k in range(max(ns.workers, 1))]
+                for proc in procs:
+                    proc.start()
+                    time.sleep(1)  # the first takes the queued trial before the next asks
+                for proc in procs:
+                    proc.join()
+            study = open_study(ns.method, journal, sampler_seed=0)
+        print(report(ns.method, study, out, rule))
+
+
+if __name__ == "__main__":
+    main()

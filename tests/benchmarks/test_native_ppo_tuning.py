@@ -1,0 +1,87 @@
+"""benchmarks/native_ppo_tuning.py at its smoke size: the default setting is the first trial, every
+trial's runs are scored on validation episodes and recorded in the journal, the tables are generated
+from it, and a trial a kill left running is run again with the same setting."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+optuna = pytest.importorskip("optuna")
+
+REPO = Path(__file__).resolve().parents[2]
+SCRIPT = str(REPO / "benchmarks" / "native_ppo_tuning.py")
+DEFAULT_TRIAL = {"rollout_samples": 4096, "n_steps": 64, "minibatch_size": 1024, "n_epochs": 10,
+                 "learning_rate": 3e-4, "anneal_lr": False, "ent_coef": 0.0, "clip_range": 0.2}
+
+
+def _search(out: Path, runs: Path, *extra: str) -> None:
+    subprocess.run([sys.executable, SCRIPT, "--method", "fast_shared_ppo", "--smoke", "--workers", "1",
+                    "--out", str(out), "--runs", str(runs), *extra],
+                   capture_output=True, text=True, timeout=600, check=True)
+
+
+def _study(out: Path):
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    storage = JournalStorage(JournalFileBackend(str(out / "fast_shared_ppo" / "journal.log")))
+    return optuna.load_study(study_name="fast_shared_ppo", storage=storage)
+
+
+def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_path):
+    out, runs = tmp_path / "out", tmp_path / "runs"
+    _search(out, runs)
+    saved = json.loads((out / "fast_shared_ppo" / "trials.json").read_text())
+    trials = saved["trials"]
+    assert len(trials) == 2 and trials[0]["params"] == DEFAULT_TRIAL
+    assert all(t["state"] == "COMPLETE" and len(t["runs"]) == 1 for t in trials)
+    rule = saved["rule_based_agents_validation_return"]["n5_m2_dt120"]
+    for t in trials:
+        [entry] = t["runs"]
+        assert entry["row"] == "n5_m2_dt120" and entry["seed"] == 101 and entry["samples"] >= 8192
+        assert entry["score"] == pytest.approx(entry["validation_return"] / rule)
+    # the default: 13 simulations x 64 steps x 5 agents per rollout, a checkpoint after the first of two
+    assert (trials[0]["runs"][0]["samples"], trials[0]["runs"][0]["half_budget_samples"]) == (8320, 4160)
+    folders = sorted(p.name for p in (runs / "fast_shared_ppo").iterdir())
+    assert len(folders) == 2
+    for folder in folders:
+        args = json.loads((runs / "fast_shared_ppo" / folder / "n5_m2_dt120_s101" / "args.json").read_text())
+        assert args["hyperparams"] in [t["params"] for t in trials] and args["seed"] == 101
+    assert "| 0 | complete | 4096 | 64 | 1024 | 10 | 0.0003 | false | 0.0 | 0.2 | 1 |" in \
+        (out / "fast_shared_ppo" / "trials.md").read_text()
+
+    # a trial that a kill left running: failed, and its setting run again (reusing its finished run)
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("native_ppo_tuning", SCRIPT)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    study = _study(out)
+    study.enqueue_trial(DEFAULT_TRIAL)
+    stale = study.ask()
+    assert script.suggest(stale) == DEFAULT_TRIAL
+    _search(out, runs, "--trials", "3")
+    trials = {t.number: t for t in _study(out).get_trials()}
+    assert trials[stale.number].state == optuna.trial.TrialState.FAIL
+    [again] = [t for t in trials.values() if t.user_attrs.get("requeued_from") == stale.number]
+    assert again.state == optuna.trial.TrialState.COMPLETE and again.params == DEFAULT_TRIAL
+    assert again.value == trials[0].value  # the same runs, reused
+    assert len(list((runs / "fast_shared_ppo").iterdir())) == 2
+
+    # on another machine (no run folders) a requeued trial takes its runs from the journal
+    import shutil
+
+    shutil.rmtree(runs)
+    study = _study(out)
+    study.enqueue_trial(DEFAULT_TRIAL)
+    stale = study.ask()
+    script.suggest(stale)
+    _search(out, runs, "--trials", "4")
+    [again] = [t for t in _study(out).get_trials() if t.user_attrs.get("requeued_from") == stale.number]
+    assert again.value == trials[0].value
+    assert not (runs / "fast_shared_ppo" / again.user_attrs["folder"]).exists()  # nothing trained again
