@@ -194,6 +194,11 @@ class _ActorCriticPolicy:
                 return logits.argmax(-1).tolist()
             return torch.distributions.Categorical(logits=logits).sample().tolist()
 
+    def act_batch(self, observations: np.ndarray, masks: np.ndarray | None) -> np.ndarray:
+        """The actions for a batch of observations (N, F) -> (N,); ``masks`` (N, actions) are applied
+        when the model was trained with them, as :meth:`act` does."""
+        return np.asarray(self._actions(observations, masks if self.model.action_mask else None), dtype=np.int64)
+
 
 class CentralisedActorCriticPolicy(_ActorCriticPolicy):
     """A native-PPO controller acting on the centralised Gymnasium view."""

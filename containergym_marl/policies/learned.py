@@ -28,6 +28,12 @@ class CentralisedModelPolicy:
             action, _ = self.model.predict(observation, deterministic=self.deterministic)
         return int(action)
 
+    def act_batch(self, observations: np.ndarray, masks: np.ndarray) -> np.ndarray:
+        """The actions of B controllers at once (B, F) -> (B,), masks (B, n + 1) for MaskablePPO."""
+        extra = {"action_masks": masks} if self._masked else {}
+        actions, _ = self.model.predict(observations, deterministic=self.deterministic, **extra)
+        return np.asarray(actions, dtype=np.int64).reshape(-1)
+
 
 class SharedModelPolicy:
     """One SB3 policy shared by all container agents: every agent's observation goes through a
@@ -44,3 +50,8 @@ class SharedModelPolicy:
         actions, _ = self.model.predict(np.stack([observations[a] for a in agents]),
                                         deterministic=self.deterministic)
         return {a: int(x) for a, x in zip(agents, actions)}
+
+    def act_batch(self, observations: np.ndarray, masks: np.ndarray | None = None) -> np.ndarray:
+        """The actions of any number of agents at once (N, F) -> (N,); its models take no masks."""
+        actions, _ = self.model.predict(observations, deterministic=self.deterministic)
+        return np.asarray(actions, dtype=np.int64).reshape(-1)

@@ -152,3 +152,12 @@ class SharedActorPolicy:
         else:
             actions = torch.distributions.Categorical(logits=logits).sample()
         return {a: int(x) for a, x in zip(agents, actions.tolist())}
+
+    def act_batch(self, observations: np.ndarray, masks: np.ndarray) -> np.ndarray:
+        """The actions of any number of agents at once (N, F) -> (N,); ``masks[:, 1]``: a PU is free."""
+        if not self.deterministic:
+            raise ValueError("act_batch: deterministic policies only")
+        torch = _torch()
+        logits = self.model.logits(observations)
+        logits[~torch.as_tensor(masks[:, 1]), 1] = -torch.inf
+        return logits.argmax(-1).numpy().astype(np.int64)

@@ -1,0 +1,62 @@
+"""The batched evaluation gives, episode by episode, what the one-environment evaluation gives for
+the same policy, plant and protocol: checked on published models of every learned adapter (native
+controller and shared policy, SB3 controller and shared policy, MAPPO's actor), on a contended row
+where some episodes overflow."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from containergym_marl.evaluation import EvalProtocol, evaluate
+from containergym_marl.evaluation.batched import evaluate_batched
+from containergym_marl.evaluation.runs import policy_from_run
+
+REPO = Path(__file__).resolve().parents[2]
+RUNS = REPO / "results" / "paper_rows" / "runs"
+# fresh-range episodes of the test protocol, enough for overflows of the weaker models
+EPISODES = EvalProtocol(episodes=12, first_seed=30_000)
+
+
+@pytest.mark.parametrize("run", ["fast_shared_ppo_n11_m2_dt120_s3", "fast_ppo_n11_m2_dt120_s2",
+                                 "ppo_n11_m2_dt120_s1", "shared_ppo_n11_m2_dt120_s2", "mappo_n11_m2_dt120_s2",
+                                 "fast_shared_ppo_team_n5_m2_dt60_s1"])
+def test_batched_evaluation_equals_the_one_environment_evaluation(run):
+    policy = policy_from_run(RUNS / run)
+    config = json.loads((RUNS / run / "args.json").read_text())["config"]
+    one = evaluate(policy, config, EPISODES, keep_records=False)
+    batched = evaluate_batched(policy, config, EPISODES)
+    assert [e.seed for e in batched.episodes] == EPISODES.seeds
+    for a, b in zip(one.episodes, batched.episodes):
+        for field in dataclasses.fields(a):
+            x, y = getattr(a, field.name), getattr(b, field.name)
+            if isinstance(x, float) and np.isnan(x):
+                assert np.isnan(y), (run, a.seed, field.name)
+            else:
+                assert y == pytest.approx(x, rel=1e-9, abs=1e-9), (run, a.seed, field.name)
+    assert batched.summary() == pytest.approx(one.summary(), nan_ok=True)
+
+
+def test_some_of_those_episodes_overflow_and_some_do_not():
+    """The comparison above covers both ends of an episode: an overflow and the time limit."""
+    result = evaluate_batched(policy_from_run(RUNS / "fast_shared_ppo_team_n5_m2_dt60_s1"), "n5_m2_dt60", EPISODES)
+    ends = {e.overflow for e in result.episodes}
+    assert ends == {True, False}, [e.steps for e in result.episodes]
+
+
+def test_stochastic_policies_and_policies_without_a_batched_act_are_refused():
+    from containergym_marl.core.params import PlantParams
+    from containergym_marl.policies import RuleBasedAgents
+
+    policy = policy_from_run(RUNS / "fast_ppo_n11_m2_dt120_s2")
+    with pytest.raises(ValueError, match="deterministic"):
+        evaluate_batched(policy, "n11_m2_dt120", dataclasses.replace(EPISODES, deterministic=False))
+    rule = RuleBasedAgents(PlantParams.from_config(EPISODES.plant("n5_m2_dt120")))
+    with pytest.raises(ValueError, match="batched act"):
+        evaluate_batched(rule, "n5_m2_dt120", EPISODES)
+    with pytest.raises(ValueError, match="different number of containers"):
+        evaluate_batched(policy, "n5_m2_dt120", EPISODES)
