@@ -75,7 +75,7 @@ class PPOArgs:
 
     rollout_samples: int = 4096  # samples per update the number of simulations is chosen for (unless --n-envs)
     n_steps: int = 64  # steps of every simulation per rollout (SB3 paper runs: 768 with 8 simulations)
-    minibatch_size: int = 1024  # samples per gradient step (SB3: 64); the last one of an epoch may be smaller
+    minibatch_size: int = 1024  # samples per gradient step (SB3: 64): a rollout is split into equal minibatches of about this
     n_epochs: int = 10  # passes over each rollout (SB3: 10)
     learning_rate: float = 3e-4  # Adam's step size (SB3: 3e-4)
     anneal_lr: bool = False  # the step size decays linearly to 0 at the budget (CleanRL's anneal_lr)
@@ -336,20 +336,23 @@ def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float:
 
 def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, old_logp, advantages, returns,
            masks=None) -> dict[str, float]:
-    """``hp.n_epochs`` passes over one rollout's samples (flattened) in shuffled minibatches of
-    ``hp.minibatch_size``: SB3's clipped surrogate + ``vf_coef`` × value MSE − ``ent_coef`` × entropy,
-    advantages normalised per minibatch, gradient norm clipped, one Adam step per minibatch.
+    """``hp.n_epochs`` passes over one rollout's samples (flattened) in shuffled minibatches of about
+    ``hp.minibatch_size`` (the rollout split into equal parts): SB3's clipped surrogate + ``vf_coef`` ×
+    value MSE − ``ent_coef`` × entropy, advantages normalised per minibatch, gradient norm clipped, one
+    Adam step per minibatch.
 
     Returns the update's diagnostics, as SB3 logs them (means over its minibatches): the policy's
     ``entropy`` (nats), ``approx_kl`` (the estimator E[(r - 1) - log r] of the ratio r) and the
     ``clip_fraction`` (share of samples whose ratio left the clip range)."""
     total = obs.shape[0]
+    # equal minibatches of about minibatch_size: a rollout of 4160 samples is 4 of 1040, not 4 of 1024
+    # and a last one of 64 whose normalised advantages and Adam step would rest on a handful of samples
+    minibatches = max(1, round(total / hp.minibatch_size))
     sums = torch.zeros(3)  # entropy, approx_kl, clip_fraction, summed over minibatches
     count = 0
     for _ in range(hp.n_epochs):
         order = torch.randperm(total, generator=generator)
-        for lo in range(0, total, hp.minibatch_size):
-            idx = order[lo: lo + hp.minibatch_size]
+        for idx in torch.tensor_split(order, minibatches):
             log_probs = torch.log_softmax(model.logits(obs[idx], None if masks is None else masks[idx]), -1)
             new_logp = log_probs.gather(-1, actions[idx, None]).squeeze(-1)
             adv = advantages[idx]
