@@ -37,6 +37,7 @@ Functions
 - :func:`stratified_bootstrap_samples`: the bootstrap replicates themselves (for inspection).
 - :func:`stratified_bootstrap_ci`: ``(point, low, high)`` for any aggregate.
 - :func:`probability_of_improvement` and :func:`probability_of_improvement_ci`.
+- :func:`performance_profile` and :func:`performance_profile_ci`: rliable's run-score distribution.
 - :func:`summarise` and :func:`format_ci` for tables.
 """
 
@@ -55,6 +56,8 @@ __all__ = [
     "iqm",
     "mean",
     "median",
+    "performance_profile",
+    "performance_profile_ci",
     "probability_of_improvement",
     "probability_of_improvement_ci",
     "stratified_bootstrap_ci",
@@ -300,6 +303,36 @@ def probability_of_improvement_ci(
         [_poi_batch(_resample(xa, size, gen), _resample(ya, size, gen)) for size in _chunk_sizes(reps, per_rep)]
     )
     return _percentile_interval(point, values, confidence)
+
+
+# --------------------------------------------------------------------------- performance profiles
+
+
+def _profile_batch(batch: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """The share of runs above each τ, averaged over tasks, for replicates ``[b, run, task]`` -> ``[b, τ]``."""
+    return (batch[:, :, :, None] > taus).mean(axis=1).mean(axis=1)
+
+
+def performance_profile(scores: Any, taus: Any) -> np.ndarray:
+    """rliable's performance profile (run-score distribution): for each threshold τ, the share of
+    runs whose score exceeds τ, on each task, averaged over tasks (every task weighs the same,
+    whatever its number of runs)."""
+    arr, grid = _as_scores(scores), np.asarray(taus, dtype=np.float64).reshape(-1)
+    return _profile_batch(arr[None], grid)[0]
+
+
+def performance_profile_ci(scores: Any, taus: Any, reps: int = 2000, confidence: float = 0.95,
+                           rng: RngLike = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(point, low, high)`` arrays over ``taus`` for :func:`performance_profile`, from stratified
+    bootstrap replicates (runs resampled within each task) and percentile intervals."""
+    arr, grid = _as_scores(scores), np.asarray(taus, dtype=np.float64).reshape(-1)
+    _check_bootstrap_args(reps, confidence)
+    gen = _as_generator(rng)
+    values = np.concatenate([_profile_batch(_resample(arr, size, gen), grid)
+                             for size in _chunk_sizes(reps, arr.size * grid.size)])
+    alpha = 1.0 - confidence
+    low, high = np.percentile(values, [100.0 * alpha / 2.0, 100.0 * (1.0 - alpha / 2.0)], axis=0)
+    return _profile_batch(arr[None], grid)[0], low, high
 
 
 # --------------------------------------------------------------------------- tables

@@ -333,3 +333,31 @@ def test_format_ci():
     assert format_ci((12.345, 10.06, 14.0)) == "12.3 [10.1, 14.0]"
     assert format_ci(Interval(0.5, 0.254, 0.876), digits=2) == "0.50 [0.25, 0.88]"
     assert format_ci(Interval(-1.0, -2.4, 0.0), digits=0) == "-1 [-2, 0]"
+
+
+# --------------------------------------------------------------------------- performance profiles
+
+
+def test_performance_profile_by_hand():
+    """Task 0 runs [1, 2, 3, 4], task 1 runs [10, 20, 30, 40]: above τ = 2.5, half of task 0's runs
+    and all of task 1's, so 0.75; above 25, none of task 0's and half of task 1's: 0.25."""
+    from containergym_marl.evaluation.stats import performance_profile
+
+    scores = np.array([[1, 10], [2, 20], [3, 30], [4, 40]], dtype=float)
+    assert performance_profile(scores, [0.0, 2.5, 25.0, 100.0]).tolist() == [1.0, 0.75, 0.25, 0.0]
+    # a task weighs the same whatever its spread: one task's profile is its runs' survival function
+    assert performance_profile([3.0, 1.0, 2.0], [1.5]).tolist() == [pytest.approx(2 / 3)]
+
+
+def test_performance_profile_interval_brackets_the_point_and_narrows_with_more_runs():
+    from containergym_marl.evaluation.stats import performance_profile_ci
+
+    rng = np.random.default_rng(3)
+    taus = np.linspace(0, 1, 11)
+    few = rng.uniform(size=(5, 2))
+    point, low, high = performance_profile_ci(few, taus, reps=500, rng=0)
+    assert np.all(low <= point + 1e-12) and np.all(point <= high + 1e-12)
+    assert point[0] == low[0] == high[0] == 1.0 and point[-1] == low[-1] == high[-1] == 0.0
+    many = rng.uniform(size=(200, 2))
+    _, low_many, high_many = performance_profile_ci(many, taus, reps=500, rng=0)
+    assert (high_many - low_many)[3:8].mean() < (high - low)[3:8].mean()
