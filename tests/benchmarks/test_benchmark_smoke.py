@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "benchmarks" / "throughput.py"
 
@@ -137,3 +139,19 @@ def test_trainer_throughput_smoke_prints_both_ratios(tmp_path):
     assert set(summary["algorithms"]) == {"ppo", "fast_ppo", "shared_ppo", "fast_shared_ppo"}
     assert all(v["samples_per_cpu_s"] > 0 for v in summary["algorithms"].values())
     assert not any(tmp_path.glob("runs"))  # bursts train in a temporary folder
+
+
+def test_trainer_profile_smoke_accounts_for_the_whole_run(tmp_path):
+    """benchmarks/trainer_profile.py end to end at one rollout: every phase of the native trainer is
+    timed at its default shape (6 simulations of 11 agents x 64 steps), and the phases and the rest add
+    up to the whole run (structure, not speed)."""
+    out_json = tmp_path / "profile.json"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "trainer_profile.py"), "--smoke",
+                           "--json", str(out_json)], capture_output=True, text=True, timeout=300, check=True,
+                          cwd=tmp_path)
+    result = json.loads(out_json.read_text())
+    assert (result["simulations"], result["samples_per_update"], result["minibatches"]) == (6, 4224, 4)
+    phases = result["us_per_sample"]
+    assert {"env step", "GAE", "update: backward", "update: Adam"} <= set(phases)
+    assert sum(phases.values()) == pytest.approx(result["whole_us_per_sample"])
+    assert "| **whole run** |" in proc.stdout
