@@ -31,6 +31,10 @@ process that trains the run removes it (:func:`remove_stale_temporaries`). Reade
 treat an unreadable model file as broken and say so; --resume falls back to the newest intact
 checkpoint.
 
+No symbolic link inside a run directory is ever followed (a run folder may come from someone else):
+taking the lock refuses a run directory that holds one, naming it, before anything is written, and
+the lock file and metrics.csv are opened with ``O_NOFOLLOW`` (the rule of :mod:`containergym_marl.files`).
+
 Budgets are SB3 timesteps, i.e. samples: one per environment step for the centralised algorithms
 and one per *agent* step for shared PPO (a simulation step of an n-container plant gives n samples).
 
@@ -56,7 +60,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from containergym_marl.algorithms import get_algorithm
-from containergym_marl.files import atomic_write, temporary_target
+from containergym_marl.files import atomic_write, open_file, refuse_links, refuse_links_in, temporary_target
 
 try:
     import fcntl
@@ -108,6 +112,11 @@ class RunLock:
     at once with a :class:`RunError` naming the holder's pid and host (written into the lock file).
     A holder hands the lock to ``train(args, held_lock=...)`` rather than taking it twice. Platforms
     without ``fcntl`` (Windows) get no lock.
+
+    Taking the lock also checks the run directory: a symbolic link anywhere in it (the lock file
+    included, which is opened with ``O_NOFOLLOW``) is an :class:`~containergym_marl.files.UnsafePathError`
+    naming it, raised before anything is written. So no writer of a run, all of which take its lock,
+    follows a link out of it.
     """
 
     def __init__(self, run: str | Path):
@@ -116,18 +125,22 @@ class RunLock:
 
     def acquire(self) -> "RunLock":
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        f = open(self.path, "a+")
-        if fcntl is not None:
-            try:
-                fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                f.seek(0)
-                holder = f.read().strip() or "unknown process"
-                f.close()
-                raise RunError(
-                    f"run directory {str(self.path.parent)!r} is in use by another writer ({holder}); "
-                    f"wait for it to finish or stop it, or choose another directory"
-                ) from None
+        f = open_file(self.path, "a+")
+        try:
+            if fcntl is not None:
+                try:
+                    fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:
+                    f.seek(0)
+                    holder = f.read().strip() or "unknown process"
+                    raise RunError(
+                        f"run directory {str(self.path.parent)!r} is in use by another writer ({holder}); "
+                        f"wait for it to finish or stop it, or choose another directory"
+                    ) from None
+            refuse_links_in(self.path.parent)  # under the lock: no writer adds one meanwhile
+        except BaseException:
+            f.close()
+            raise
         f.seek(0)
         f.truncate()
         f.write(f"pid {os.getpid()} on host {socket.gethostname()}, since {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
@@ -264,14 +277,14 @@ def append_metrics(run: Path, row: dict) -> None:
     """Append one row to metrics.csv, flushed to disk before returning. A new file with a row of the
     update diagnostics (:data:`UPDATE_FIELDS`) gets the longer header; a file keeps the header it
     has (a run begun before the diagnostics existed goes on without them, the rest is nan)."""
-    path = Path(run) / "metrics.csv"
-    new = not path.exists() or path.stat().st_size == 0
-    if new:
-        fields = METRIC_HEADERS[1] if UPDATE_FIELDS[0] in row else METRIC_HEADERS[0]
-    else:
-        with path.open("rb") as f:
-            fields = _header([f.readline().decode(errors="replace")])
-    with path.open("a", newline="") as f:
+    with open_file(Path(run) / "metrics.csv", "a+", within=run, newline="", encoding="utf-8", errors="replace") as f:
+        new = os.fstat(f.fileno()).st_size == 0
+        if new:
+            fields = METRIC_HEADERS[1] if UPDATE_FIELDS[0] in row else METRIC_HEADERS[0]
+        else:
+            f.seek(0)
+            fields = _header([f.readline()])
+            f.seek(0, os.SEEK_END)
         w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore", restval="nan")
         if new:
             w.writeheader()
@@ -453,10 +466,10 @@ def write_files(run: str | Path, files: dict[str, bytes]) -> int:
     run = Path(run)
     written = 0
     for rel, data in files.items():
-        path = run / rel
+        path = refuse_links(run / rel, run)  # before reading what is there
         if path.is_file() and path.read_bytes() == data:
             continue
-        atomic_write(path, lambda tmp, data=data: tmp.write_bytes(data))
+        atomic_write(path, lambda tmp, data=data: tmp.write_bytes(data), within=run)
         written += 1
     return written
 

@@ -30,21 +30,30 @@ rewrites only the README's table and the results page from what ``--to`` holds n
 
 ``--restore`` goes the other way before a sweep is rerun on a fresh machine: runs of ``<to>/runs``
 that RUNS lacks or holds less far trained are copied there, evaluations OUT lacks are copied to
-OUT, so that ``compare`` reuses the finished runs and evaluations and resumes the rest.
+OUT, so that ``compare`` reuses the finished runs and evaluations and resumes the rest. It checks
+a published run before it reads it: only the files the manifest lists are copied (any other file,
+hidden ones aside, is refused), each a regular file of the listed size, then of the listed sha256
+(read in blocks).
+
+A results folder may come from someone else: neither direction follows a symbolic link in RUNS,
+OUT or the results folder (:mod:`containergym_marl.files`' rule; a link is an error naming it,
+raised before anything is written), and each copy into a run folder holds that run's lock
+(:class:`~containergym_marl.rundir.RunLock`: a run that a process trains is an error naming it, and
+the lock is held until the run's last file is copied).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 from containergym_marl.evaluation import table as tables
-from containergym_marl.files import atomic_write, atomic_write_text
-from containergym_marl.manifest import check as manifest_check
-from containergym_marl.manifest import read_manifest, write_manifest
+from containergym_marl.files import atomic_write, atomic_write_text, open_file, refuse_links, refuse_links_in
+from containergym_marl.manifest import check_file, is_covered, read_manifest, write_manifest
 from containergym_marl.methods import PAIRS
 from containergym_marl.options import option
 from containergym_marl.rundir import (
@@ -64,8 +73,15 @@ from containergym_marl.rundir import (
 SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
 
 
-def _copy(src: Path, dst: Path) -> None:
-    atomic_write(dst, lambda tmp: shutil.copyfile(src, tmp))
+def _copy(src: Path, dst: Path, within: Path) -> None:
+    """Copy the regular file ``src`` (not a link) to ``dst`` crash-safe, in blocks; no component of
+    ``dst`` below ``within`` (the folder written) may be a link."""
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as out:
+            shutil.copyfileobj(f, out)
+
+    with open_file(src, "rb") as f:
+        atomic_write(dst, write, within)
 
 
 def _trained_samples(run: Path) -> int:
@@ -76,40 +92,48 @@ def _trained_samples(run: Path) -> int:
     return found[0][0] if found else 0
 
 
-def _copy_run(run: Path, dst: Path) -> None:
-    """The run's small files and policies; for an unfinished run, its newest intact checkpoint only
-    (SB3 runs: a MAPPO run's BenchMARL folder, checkpoints included, stays behind)."""
-    for name in SMALL_FILES + (model_file(run, "best"), model_file(run, "final")):
-        if (run / name).is_file():
-            _copy(run / name, dst / name)
-    keep = set()
-    if run_status(run) != "finished" and (steps := latest_intact_checkpoint(run)) is not None:
-        for path in checkpoint_files(run, steps, model_suffix(run)).values():
-            if path.is_file():
-                _copy(path, dst / "checkpoints" / path.name)
-                keep.add(path.name)
-    for old in (dst / "checkpoints").glob("*") if (dst / "checkpoints").is_dir() else []:
-        if old.name not in keep:  # an older checkpoint, or any once the run has finished
-            old.unlink()
-    if (dst / "checkpoints").is_dir() and not keep:
-        (dst / "checkpoints").rmdir()
+def _copy_run(run: Path, to: Path) -> bool:
+    """Copy the run to ``<to>/runs/<run>`` under that folder's lock: its small files and policies;
+    for an unfinished run, its newest intact checkpoint only (SB3 runs: a MAPPO run's BenchMARL
+    folder, checkpoints included, stays behind), and only when it got at least as far as the copy
+    there. Returns whether it copied."""
+    dst = refuse_links(to / "runs" / run.name, to)
+    with RunLock(dst):  # a RunError naming the holder when a process trains there
+        finished = run_status(run) == "finished"
+        if not finished and _trained_samples(run) < _trained_samples(dst):
+            return False
+        for name in SMALL_FILES + (model_file(run, "best"), model_file(run, "final")):
+            if (run / name).is_file():
+                _copy(run / name, dst / name, to)
+        keep = set()
+        if not finished and (steps := latest_intact_checkpoint(run)) is not None:
+            for path in checkpoint_files(run, steps, model_suffix(run)).values():
+                if path.is_file():
+                    _copy(path, dst / "checkpoints" / path.name, to)
+                    keep.add(path.name)
+        for old in (dst / "checkpoints").glob("*") if (dst / "checkpoints").is_dir() else []:
+            if old.name not in keep:  # an older checkpoint, or any once the run has finished
+                old.unlink()
+        if (dst / "checkpoints").is_dir() and not keep:
+            (dst / "checkpoints").rmdir()
+    return True
 
 
 def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_checkpoints: bool = False,
             readme: Path | None = None, pages: tuple[Path, ...] = ()) -> dict:
+    for folder in (runs, compare_out, to):  # before anything is written: no link followed in any
+        refuse_links_in(folder)
     done = {"runs": [], "interrupted": [], "evaluations": 0, "models": []}
     for run in sorted(p for p in runs.iterdir() if p.is_dir() and not p.name.startswith(".")):
         status = run_status(run)
         if status == "finished":
-            _copy_run(run, to / "runs" / run.name)
+            _copy_run(run, to)
             done["runs"].append(run.name)
         elif status == "interrupted" and with_checkpoints and latest_intact_checkpoint(run) is not None:
-            dst = to / "runs" / run.name
-            if _trained_samples(run) >= (_trained_samples(dst) if dst.is_dir() else 0):
-                _copy_run(run, dst)
+            if _copy_run(run, to):
                 done["interrupted"].append(run.name)
     for path in sorted((compare_out / "evaluations").glob("*/*.json")):
-        _copy(path, to / "evaluations" / path.parent.name / path.name)
+        _copy(path, to / "evaluations" / path.parent.name / path.name, to)
         done["evaluations"] += 1
     if not any((to / "evaluations").glob("*/*.json")):
         write_manifest(to)
@@ -129,13 +153,13 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
             if not model.is_file():  # no training episode finished: the evaluation used the final model
                 model = runs_of[i] / model_file(runs_of[i], "final")
             files[which] = f"{group.method}_{which}{model.suffix}"
-            _copy(model, folder / files[which])
+            _copy(model, folder / files[which], to)
         atomic_write_text(folder / f"{group.method}.json", json.dumps({
             "config": group.config, "method": group.method, "view": group.view,
             "best_seed": group.seeds[picked["best"]], "median_seed": group.seeds[picked["median"]],
             "seed_mean_returns": {str(s): float(m) for s, m in zip(group.seeds, means)},
             "files": files,
-        }, indent=2) + "\n")
+        }, indent=2) + "\n", within=to)
         done["models"].append(f"{group.config}/{group.method}")
     done["fresh"] = evaluate_fresh(to, min_seeds)
     table = tables.build_table(tables.load_evaluations(to / "evaluations"), PAIRS)
@@ -172,7 +196,7 @@ def evaluate_fresh(to: Path, min_seeds: int = 3) -> list[str]:
                 continue
             data = json.loads(evaluate_run(run, protocol=FRESH, write=False).to_json())
             data["model_sha256"] = model_sha
-            atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+            atomic_write_text(path, json.dumps(data, indent=2) + "\n", within=to)
             done.append(f"{group.config}/{tables.evaluation_key(group.method, seed)}")
     return done
 
@@ -354,27 +378,45 @@ def show_table_in_readme(readme: Path, table_md: str, source: Path) -> None:
     atomic_write_text(readme, "".join(lines[:starts[0]] + block + lines[ends[0]:]))
 
 
+def _published_files(to: Path, src: Path, manifest: dict) -> list[str]:
+    """The files of the published run ``src`` (relative to it) that restore copies, each checked
+    against the manifest of ``to`` before anything reads it: listed, then its size, then its sha256.
+    Hidden files (the run's lock, temporary files) are left behind; any other unlisted one is a
+    ManifestError."""
+    names = []
+    for directory, _folders, files in os.walk(src):  # the caller refused links in ``to``
+        for name in files:
+            path = Path(directory) / name
+            if is_covered(path.relative_to(to).as_posix()):
+                check_file(to, path.relative_to(to).as_posix(), manifest)
+                names.append(path.relative_to(src).as_posix())
+    return sorted(names)
+
+
 def restore(to: Path, runs: Path, compare_out: Path) -> dict:
     """Copy published runs into ``runs`` where they are absent or further trained than there, and
-    published evaluations into ``compare_out`` where absent."""
-    done = {"runs": [], "evaluations": 0}
+    published evaluations into ``compare_out`` where absent. Every published run is checked
+    (:func:`_published_files`) before any is read; each run is decided on, cleared and copied while
+    holding its lock in ``runs``."""
+    for folder in (to, runs, compare_out):  # before anything is read or written: no link followed in any
+        refuse_links_in(folder)
     manifest = read_manifest(to)
-    todo = [src for src in sorted(p for p in (to / "runs").glob("*") if p.is_dir())
-            if not ((runs / src.name).is_dir() and _trained_samples(runs / src.name) >= _trained_samples(src))]
-    for src in todo:  # every model and checkpoint checked before anything is copied
-        for path in (p for p in src.rglob("*") if p.is_file()):
-            manifest_check(to, path.relative_to(to).as_posix(), path.read_bytes(), manifest)
-    for src in todo:
+    published = sorted(p for p in (to / "runs").iterdir() if p.is_dir()) if (to / "runs").is_dir() else []
+    checked = {src: _published_files(to, src, manifest) for src in published}
+    done = {"runs": [], "evaluations": 0}
+    for src, names in checked.items():
         dst = runs / src.name
-        if dst.is_dir():
-            with RunLock(dst):  # never under a process training it (RunError naming the holder)
-                clear_run(dst)
-        shutil.copytree(src, dst, dirs_exist_ok=True)
+        with RunLock(dst):  # a RunError naming the holder when a process trains there
+            if run_status(dst) != "absent" and _trained_samples(dst) >= _trained_samples(src):
+                continue
+            clear_run(dst)
+            for name in names:
+                _copy(src / name, dst / name, runs)
         done["runs"].append(src.name)
     for path in sorted((to / "evaluations").glob("*/*.json")):
         dst = compare_out / "evaluations" / path.parent.name / path.name
         if not dst.is_file():
-            _copy(path, dst)
+            _copy(path, dst, compare_out)
             done["evaluations"] += 1
     return done
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from containergym_marl.files import open_file
 from containergym_marl.manifest import sha256_bytes
 from containergym_marl.rundir import (
     RunLock,
@@ -167,10 +168,12 @@ def train_run(spec: RunSpec, events=None) -> dict[str, Any]:
 
 
 def _train_locked(spec: RunSpec, run: Path, events, train, lock: RunLock) -> dict[str, Any]:
-    state, start = prepare_run(spec, lock)
-    host = socket.gethostname()
-    action = {"finished": "finished already", "resume": f"resume from {start} samples", "new": "start"}[state]
-    with (spec.sweep_dir / f"{spec.name}.log").open("a") as log:
+    # Opened first, in the runs folder where no link is followed (containergym_marl.files): a log
+    # linked elsewhere is refused before the run is touched.
+    with open_file(spec.sweep_dir / f"{spec.name}.log", "a", within=run.parent) as log:
+        state, start = prepare_run(spec, lock)
+        host = socket.gethostname()
+        action = {"finished": "finished already", "resume": f"resume from {start} samples", "new": "start"}[state]
         log.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {host} pid {os.getpid()}: {action}\n")
     _emit(events, ("start", spec.name, host, os.getpid(), state, start))
     t0 = time.perf_counter()
