@@ -11,9 +11,13 @@ folder or one config's folder. Regenerating from committed files needs no traini
 Ray; it takes seconds.
 
 Output, per (config, method), in the paper's Table 1 shape: the best and the median policy over
-training seeds (ranked by mean test return; the lower median for an even count), each as mean ± std
-over the test episodes; the interquartile mean (IQM) of the per-seed mean returns with a 95 %
-stratified-bootstrap interval; the best policy's overflow rate, emptyings, share of emptyings with
+training seeds, each as mean ± std over the test episodes. They are ranked by mean return on the
+validation episodes (``<folder>/validation/<config>/<method>_s<seed>.json``, seeds 20000+) where every
+seed has one, else by mean test return, as the paper's Table 1 does (the lower median for an even
+count; the table says which). Then the interquartile mean (IQM) of the per-seed mean returns with a 95 %
+stratified-bootstrap interval, and where every seed was evaluated on the fresh episodes
+(``<folder>/fresh/<config>/<method>_s<seed>.json``, seeds 30000+, used for nothing else) the same IQM
+there and the share of all those fresh episodes that overflowed; the best policy's overflow rate, emptyings, share of emptyings with
 reward >= 0.75, denied requests and PU utilisation; the training budget per run (in samples, one per
 decision of the trained policy: plant steps for centralised methods, agent steps for decentralised
 ones such as shared PPO and MAPPO). The paper's own PPO/TRPO/DQN rows follow each config. Below
@@ -64,11 +68,16 @@ TABLE_SEED = 0
 #: Columns of table.csv (and keys of the rows in table.json), in order.
 COLUMNS = ("config", "method", "view", "seeds", "best_mean", "best_std", "median_mean", "median_std",
            "best_fresh_mean", "best_fresh_std", "median_fresh_mean", "median_fresh_std", "iqm",
-           "iqm_low", "iqm_high", "overflow_rate", "emptyings", "good_share", "denied", "pu_utilisation",
-           "best_seed", "samples")
-#: Where a published folder keeps the evaluations of its best and median policies on fresh episodes
-#: (``<folder>/fresh/<config>/<method>_s<seed>.json``; containergym-marl publish writes them).
+           "iqm_low", "iqm_high", "fresh_iqm", "fresh_iqm_low", "fresh_iqm_high", "fresh_overflow_rate",
+           "fresh_episodes", "overflow_rate", "emptyings", "good_share", "denied", "pu_utilisation",
+           "best_seed", "selected_on", "samples")
+#: Where a published folder keeps the evaluations of its policies on fresh episodes
+#: (``<folder>/fresh/<config>/<method>_s<seed>.json``, or ``<method>.json`` for a policy without
+#: training seeds; containergym-marl publish writes them).
 FRESH_FOLDER = "fresh"
+#: Where a published folder keeps the evaluations on validation episodes on which the best and the
+#: median seed are picked (``<folder>/validation/<config>/<method>_s<seed>.json``).
+VALIDATION_FOLDER = "validation"
 
 _FILE = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")
 _CONFIG = re.compile(r"^n(\d+)_m(\d+)_dt(\d+)")
@@ -91,28 +100,63 @@ class MethodEvaluations:
     method: str
     seeds: list[int]
     evaluations: list[dict] = field(repr=False)
-    #: evaluations on fresh episodes (disjoint from the test seeds) by training seed, where published
-    fresh: dict[int, dict] = field(default_factory=dict, repr=False)
+    #: evaluations on fresh episodes (disjoint from the test seeds) by training seed (None: the
+    #: policy without training seeds), where published
+    fresh: dict[int | None, dict] = field(default_factory=dict, repr=False)
+    #: evaluations on the validation episodes the best and median seeds are picked on, by training seed
+    validation: dict[int, dict] = field(default_factory=dict, repr=False)
 
     def fresh_returns(self, i: int) -> np.ndarray | None:
         """Returns of seed index ``i``'s policy on the fresh episodes, or None when not evaluated there."""
-        data = self.fresh.get(self.seeds[i]) if self.seeds else None
-        return None if data is None else np.array([e["cumulative_reward"] for e in data["episodes"]], dtype=float)
+        data = self.fresh.get(self.seeds[i] if self.seeds else None)
+        return None if data is None else _episode_returns(data)
+
+    @property
+    def fresh_complete(self) -> bool:
+        """Every seed's policy (or the seedless policy) was evaluated on fresh episodes."""
+        return all(self.fresh_returns(i) is not None for i in range(len(self.evaluations)))
+
+    @property
+    def fresh_seed_means(self) -> np.ndarray | None:
+        if not self.fresh_complete:
+            return None
+        return np.array([self.fresh_returns(i).mean() for i in range(len(self.evaluations))])
+
+    def fresh_overflow_rates(self) -> np.ndarray | None:
+        """Per seed, the share of its fresh episodes that overflowed (None unless every seed has some)."""
+        if not self.fresh_complete:
+            return None
+        keys = self.seeds or [None]
+        return np.array([np.mean([e["overflow"] for e in self.fresh[k]["episodes"]]) for k in keys])
+
+    @property
+    def selected_on(self) -> str:
+        """"validation" when every seed has a validation evaluation (the best and median are picked
+        there), else "test" (picked on the test episodes they are reported on)."""
+        return "validation" if self.seeds and all(s in self.validation for s in self.seeds) else "test"
+
+    @property
+    def selection_means(self) -> np.ndarray:
+        """The per-seed means the best and median seeds are ranked by."""
+        if self.selected_on == "validation":
+            return np.array([_episode_returns(self.validation[s]).mean() for s in self.seeds])
+        return self.seed_means
 
     @property
     def view(self) -> str:
         return self.evaluations[0].get("view") or "centralised"
 
     def returns(self, i: int) -> np.ndarray:
-        return np.array([e["cumulative_reward"] for e in self.evaluations[i]["episodes"]], dtype=float)
+        return _episode_returns(self.evaluations[i])
 
     @property
     def seed_means(self) -> np.ndarray:
         return np.array([self.returns(i).mean() for i in range(len(self.evaluations))])
 
     def ranked(self) -> list[int]:
-        """Indices of the evaluations from the best to the worst mean test return (stable)."""
-        return [int(i) for i in np.argsort(-self.seed_means, kind="stable")]
+        """Indices of the evaluations from the best to the worst mean return on the episodes they are
+        picked on (:attr:`selected_on`; stable)."""
+        return [int(i) for i in np.argsort(-self.selection_means, kind="stable")]
 
     @property
     def best(self) -> int:
@@ -131,6 +175,10 @@ class MethodEvaluations:
     @property
     def unit(self) -> str:
         return "training seeds" if self.seeds else "test episodes"
+
+
+def _episode_returns(evaluation: dict) -> np.ndarray:
+    return np.array([e["cumulative_reward"] for e in evaluation["episodes"]], dtype=float)
 
 
 def config_sort_key(name: str) -> tuple:
@@ -187,21 +235,23 @@ def load_evaluations(path: str | Path) -> list[MethodEvaluations]:
                 raise ValueError(f"{directory}: {method} has both per-seed files and a seedless {method}.json")
             if not seeded and len(found) != 1:
                 raise ValueError(f"{directory}: more than one evaluation file for {method}")
+            fresh = _other_evaluations(root, FRESH_FOLDER, directory.name, method)
             if seeded:
-                fresh = _fresh_evaluations(root, directory.name, method) if root is not None else {}
-                groups.append(MethodEvaluations(directory.name, method, [s for s, _ in seeded],
-                                                [d for _, d in seeded], fresh))
+                groups.append(MethodEvaluations(directory.name, method, [s for s, _ in seeded], [d for _, d in seeded],
+                              fresh, _other_evaluations(root, VALIDATION_FOLDER, directory.name, method)))
             else:
-                groups.append(MethodEvaluations(directory.name, method, [], [found[0][1]]))
+                groups.append(MethodEvaluations(directory.name, method, [], [found[0][1]], fresh))
     return sort_groups(groups)
 
 
-def _fresh_evaluations(root: Path, config: str, method: str) -> dict[int, dict]:
+def _other_evaluations(root: Path | None, folder: str, config: str, method: str) -> dict[int | None, dict]:
+    """A method's evaluations on other episodes (``<root>/<folder>/<config>/``) by training seed (None:
+    a policy without seeds); none when the table is read from an evaluations folder alone."""
     found = {}
-    for file, data in _evaluation_files(root / FRESH_FOLDER / config):
+    for file, data in _evaluation_files(root / folder / config) if root is not None else []:
         m = _FILE.match(file.stem)
-        if m["method"] == method and m["seed"] is not None:
-            found[int(m["seed"])] = data
+        if m["method"] == method:
+            found[int(m["seed"]) if m["seed"] is not None else None] = data
     return found
 
 
@@ -236,6 +286,11 @@ def table_rows(groups: Sequence[MethodEvaluations], reps: int = 2000) -> list[di
                                                       rng=bootstrap_rng("iqm", g.config, g.method))
         e = g.evaluations[best]
         fb, fm = g.fresh_returns(best), g.fresh_returns(median)
+        fresh_means, fresh_overflows = g.fresh_seed_means, g.fresh_overflow_rates()
+        fresh = (None, None, None) if fresh_means is None else (
+            st.stratified_bootstrap_ci(fresh_means[:, None], st.iqm, reps=reps,
+                                       rng=bootstrap_rng("fresh_iqm", g.config, g.method)) if g.seeds
+            else (float(g.fresh_returns(0).mean()),) * 3)
         rows.append({
             "config": g.config, "method": g.method, "view": g.view, "seeds": len(g.seeds),
             "best_mean": float(b.mean()), "best_std": float(b.std()),
@@ -245,10 +300,14 @@ def table_rows(groups: Sequence[MethodEvaluations], reps: int = 2000) -> list[di
             "median_fresh_mean": None if fm is None else float(fm.mean()),
             "median_fresh_std": None if fm is None else float(fm.std()),
             "iqm": point, "iqm_low": low, "iqm_high": high,
+            "fresh_iqm": fresh[0], "fresh_iqm_low": fresh[1], "fresh_iqm_high": fresh[2],
+            "fresh_overflow_rate": None if fresh_overflows is None else float(fresh_overflows.mean()),
+            "fresh_episodes": None if fb is None else len(fb),
             "overflow_rate": _summary_value(e, "overflow_rate"), "emptyings": _summary_value(e, "emptyings_mean"),
             "good_share": _summary_value(e, "good_emptying_share"),
             "denied": _summary_value(e, "denied_requests_mean"), "pu_utilisation": _summary_value(e, "pu_utilisation"),
-            "best_seed": g.seeds[best] if g.seeds else None, "samples": _budget(g),
+            "best_seed": g.seeds[best] if g.seeds else None,
+            "selected_on": g.selected_on if g.seeds else None, "samples": _budget(g),
         })
     return rows
 
@@ -299,8 +358,25 @@ def _fresh_text(groups: Sequence[MethodEvaluations]) -> str:
     seeds = sorted({e["seed"] for g in groups for data in g.fresh.values() for e in data["episodes"]})
     if not seeds:
         return ""
-    return (f" Fresh: the same best and median policies on {len(seeds)} fresh episodes (seeds {seeds[0]}–{seeds[-1]}, "
-            f"disjoint from the test seeds), where they were picked without seeing them.")
+    return (f" Fresh: the same policies on {len(seeds)} fresh episodes (seeds {seeds[0]}–{seeds[-1]}, used for "
+            f"nothing else), where they were picked without seeing them; IQM, fresh: the IQM of the seeds' mean "
+            f"fresh returns [95 % CI]; overflow, fresh: the share of all those episodes that overflowed.")
+
+
+def _selection_text(groups: Sequence[MethodEvaluations]) -> str:
+    seeded = [g for g in groups if g.seeds]
+    on = {g.selected_on for g in seeded}
+    if on == {"validation"}:
+        seeds = sorted({e["seed"] for g in seeded for data in g.validation.values() for e in data["episodes"]})
+        return f", picked on {len(seeds)} validation episodes (seeds {seeds[0]}–{seeds[-1]})"
+    return ", picked on the test episodes" if on == {"test"} else (
+        ", picked on validation episodes where every seed has them, else on the test episodes")
+
+
+def _fresh_iqm_cell(row: dict) -> str:
+    if row["fresh_iqm"] is None:
+        return "–"
+    return f"{row['fresh_iqm']:.2f} [{row['fresh_iqm_low']:.2f}, {row['fresh_iqm_high']:.2f}]"
 
 
 def _fresh_cell(mean: float | None, std: float | None) -> str:
@@ -311,14 +387,16 @@ def markdown(rows: Sequence[dict], imps: Sequence[dict], groups: Sequence[Method
     """The Markdown table (one block for all configs) and the probabilities of improvement."""
     lines = [
         f"Test cumulative reward ({_protocol_text(groups)}). Best / median: the best and the median policy "
-        "over training seeds, mean ± std over test episodes." + _fresh_text(groups) + " IQM: interquartile mean "
+        f"over training seeds{_selection_text(groups)}, mean ± std over test episodes." + _fresh_text(groups)
+        + " IQM: interquartile mean "
         "of the per-seed mean returns [95 % stratified-bootstrap CI]. Overflow rate … PU busy: of the best policy. "
         "Samples: training budget per run, one sample per decision of the trained policy (a plant step "
         "for a centralised method, an agent step for a decentralised one: n per plant step).",
         "",
         "| config | method | view | seeds | best | best, fresh | median | median, fresh | IQM [95 % CI] | "
-        "overflow rate | emptyings | r ≥ 0.75 | denied req. | PU busy | samples |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "IQM, fresh [95 % CI] | overflow, fresh | overflow rate | emptyings | r ≥ 0.75 | denied req. | PU busy | "
+        "samples |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     configs = list(dict.fromkeys(r["config"] for r in rows))
     for config in configs:
@@ -328,13 +406,14 @@ def markdown(rows: Sequence[dict], imps: Sequence[dict], groups: Sequence[Method
                 f"{r['best_mean']:.2f} ± {r['best_std']:.2f} | {_fresh_cell(r['best_fresh_mean'], r['best_fresh_std'])} | "
                 f"{r['median_mean']:.2f} ± {r['median_std']:.2f} | "
                 f"{_fresh_cell(r['median_fresh_mean'], r['median_fresh_std'])} | "
-                f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}] | {_num(r['overflow_rate'])} | "
+                f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}] | {_fresh_iqm_cell(r)} | "
+                f"{_num(r['fresh_overflow_rate'])} | {_num(r['overflow_rate'])} | "
                 f"{_num(r['emptyings'], '.1f')} | {_num(r['good_share'])} | {_num(r['denied'], '.1f')} | "
                 f"{_num(r['pu_utilisation'])} | {_samples(r['samples'])} |")
         for algo, (best, median) in PAPER_TABLE_1.get(config, {}).items():
             lines.append(f"| {config} | paper {algo.upper()} (15 seeds) | centralised | 15 | "
                          f"{best[0]:.2f} ± {best[1]:.2f} | – | {median[0]:.2f} ± {median[1]:.2f} | – | – | – | – | – | – | "
-                         f"– | {'2M' if config.startswith('n5_') else '5M'} |")
+                         f"– | – | – | {'2M' if config.startswith('n5_') else '5M'} |")
     if imps:
         lines += ["", "Probability of improvement (decentralised over centralised) [95 % bootstrap CI]:", ""]
         for i in imps:

@@ -13,10 +13,12 @@ with ``--with-checkpoints``, every interrupted SB3 run too, with only its newest
 so that a later session on another machine resumes it (``--restore``; an interrupted MAPPO run,
 ~15 minutes of training, is not published). Every evaluation file of OUT goes to
 ``<to>/evaluations/<config>/``; for each (config, method) with at least ``--min-seeds`` evaluated
-seeds, the best model of its best and of its median seed by mean test return (the table's rule) to
+seeds, every seed's policy is evaluated on 100 validation episodes (``<to>/validation/``), and the best
+model of its best and of its median seed by mean validation return (the table's rule) goes to
 ``<to>/models/<config>/<method>_{best,median}.zip`` (``.pt`` for MAPPO) with
 ``<method>.json`` naming the seeds and their returns (git stores each of these once: they are the
-runs' own files). Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
+runs' own files). Every seed's policy and every rule-based controller is then evaluated on 200 fresh
+episodes (``<to>/fresh/``, seeds 30000-30199, used for nothing else). Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
 (``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same), ``<to>/compute.md``
 sums the finished runs' training wall times per row. With ``--readme README.md`` the README shows a
 compact table of IQMs (rows × methods) between its results-table markers, and with
@@ -138,10 +140,19 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
     if not any((to / "evaluations").glob("*/*.json")):
         write_manifest(to)
         return done  # runs only (a sweep still training): no table yet
-    for group in tables.load_evaluations(to / "evaluations"):
+    return {**done, **republish(to, min_seeds, readme, pages)}
+
+
+def republish(to: Path, min_seeds: int = 3, readme: Path | None = None, pages: tuple[Path, ...] = ()) -> dict:
+    """What ``publish`` does once the runs and evaluations are in ``to``: every published policy on
+    the validation episodes (where missing or its model changed), the best and median models picked
+    there, every policy on the fresh episodes, the table, the compute note, the manifest and the pages."""
+    refuse_links_in(to)
+    done = {"models": [], "validation": evaluate_selection(to, min_seeds)}  # where best and median are picked
+    for group in tables.load_evaluations(to):
         if len(group.seeds) < min_seeds:
             continue  # a rule-based controller (nothing to ship), or a row still training
-        runs_of = [runs / run_name(group.method, group.config, seed) for seed in group.seeds]
+        runs_of = [to / "runs" / run_name(group.method, group.config, seed) for seed in group.seeds]
         if not all(run_status(r) == "finished" for r in runs_of):
             continue
         means = group.seed_means
@@ -158,11 +169,12 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
             "config": group.config, "method": group.method, "view": group.view,
             "best_seed": group.seeds[picked["best"]], "median_seed": group.seeds[picked["median"]],
             "seed_mean_returns": {str(s): float(m) for s, m in zip(group.seeds, means)},
+            "picked_on": group.selected_on,
             "files": files,
         }, indent=2) + "\n", within=to)
         done["models"].append(f"{group.config}/{group.method}")
     done["fresh"] = evaluate_fresh(to, min_seeds)
-    table = tables.build_table(tables.load_evaluations(to / "evaluations"), PAIRS)
+    table = tables.build_table(tables.load_evaluations(to), PAIRS)
     table.write(to, {"source": "containergym-marl publish"})
     atomic_write_text(to / "compute.md", training_compute(to / "runs"))
     write_manifest(to)
@@ -171,34 +183,86 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
     return done
 
 
-def evaluate_fresh(to: Path, min_seeds: int = 3) -> list[str]:
-    """Evaluate the best and the median policy of every (row, method) with at least ``min_seeds``
-    published seeds on fresh episodes (:data:`~containergym_marl.evaluation.protocol.FRESH`: 30
-    episodes, seeds 30000-30029, none of them a test episode), from the published run in
-    ``<to>/runs``; written to ``<to>/fresh/<config>/<method>_s<seed>.json`` with the sha256 of the
-    model evaluated, and evaluated again only when that model changes. Returns what was evaluated."""
-    from containergym_marl.evaluation.protocol import FRESH
-    from containergym_marl.evaluation.runs import evaluate_run, evaluated_files, evaluated_model
-    from containergym_marl.manifest import sha256_bytes
-
-    done = []
+def _published_policies(to: Path, min_seeds: int):
+    """(group, seed, run or None) of every published policy: each finished run of a (row, method)
+    with at least ``min_seeds`` seeds, and each policy without training seeds (run None)."""
     for group in tables.load_evaluations(to / "evaluations"):
+        if not group.seeds:
+            yield group, None, None
+            continue
         if len(group.seeds) < min_seeds:
             continue
-        for i in dict.fromkeys((group.best, group.median)):
-            seed = group.seeds[i]
+        for seed in group.seeds:
             run = to / "runs" / run_name(group.method, group.config, seed)
-            if run_status(run) != "finished":
+            if run_status(run) == "finished":
+                yield group, seed, run
+
+
+def _evaluate_into(to: Path, folder: str, protocol, min_seeds: int, runs_only: bool) -> list[str]:
+    """Every published policy on ``protocol``'s episodes, into ``<to>/<folder>/<config>/<key>.json``
+    with the sha256 of the model evaluated (a rule: its name), evaluated again only when that model
+    or the protocol changes. Learned policies are evaluated all episodes at once
+    (:func:`~containergym_marl.evaluation.batched.evaluate_batched`, one torch thread), rules one
+    episode after another. Returns what was evaluated."""
+    from dataclasses import asdict
+
+    from containergym_marl.core.params import PlantParams
+    from containergym_marl.evaluation import evaluate
+    from containergym_marl.evaluation.batched import evaluate_batched
+    from containergym_marl.evaluation.runs import evaluated_files, evaluated_model, policy_from_run
+    from containergym_marl.manifest import sha256_bytes
+    from containergym_marl.methods import CONTROLLERS
+
+    done = []
+    for group, seed, run in _published_policies(to, min_seeds):
+        if run is None and (runs_only or group.method not in CONTROLLERS):
+            continue
+        path = to / folder / group.config / f"{tables.evaluation_key(group.method, seed)}.json"
+        if run is not None:
+            key = sha256_bytes(evaluated_model({name: (run / name).read_bytes() for name in evaluated_files(run)}))
+        else:
+            key = group.method
+        if path.is_file():
+            old = json.loads(path.read_text())
+            if old.get("model_sha256") == key and old.get("protocol") == asdict(protocol):
                 continue
-            model_sha = sha256_bytes(evaluated_model({name: (run / name).read_bytes() for name in evaluated_files(run)}))
-            path = to / tables.FRESH_FOLDER / group.config / f"{tables.evaluation_key(group.method, seed)}.json"
-            if path.is_file() and json.loads(path.read_text()).get("model_sha256") == model_sha:
-                continue
-            data = json.loads(evaluate_run(run, protocol=FRESH, write=False).to_json())
-            data["model_sha256"] = model_sha
-            atomic_write_text(path, json.dumps(data, indent=2) + "\n", within=to)
-            done.append(f"{group.config}/{tables.evaluation_key(group.method, seed)}")
+        if run is not None:
+            import torch
+
+            threads = torch.get_num_threads()
+            torch.set_num_threads(1)  # small networks: one thread is fastest, and fair to a busy machine
+            try:
+                saved = run_args(run)
+                result = evaluate_batched(policy_from_run(run), group.config, protocol,
+                                          arbitration=saved.get("arbitration", "fullest"))
+            finally:
+                torch.set_num_threads(threads)
+        else:
+            controller = CONTROLLERS[group.method](PlantParams.from_config(protocol.plant(group.config)))
+            result = evaluate(controller, group.config, protocol, keep_records=False)
+        data = json.loads(result.to_json())
+        data["model_sha256"] = key
+        atomic_write_text(path, json.dumps(data, indent=2) + "\n", within=to)
+        done.append(f"{group.config}/{tables.evaluation_key(group.method, seed)}")
     return done
+
+
+def evaluate_selection(to: Path, min_seeds: int = 3) -> list[str]:
+    """Every published seed's policy on the validation episodes its (row, method)'s best and median
+    seed are picked on (:data:`~containergym_marl.evaluation.protocol.SELECTION`: 100 episodes, seeds
+    20000-20099), into ``<to>/validation/``."""
+    from containergym_marl.evaluation.protocol import SELECTION
+
+    return _evaluate_into(to, tables.VALIDATION_FOLDER, SELECTION, min_seeds, runs_only=True)
+
+
+def evaluate_fresh(to: Path, min_seeds: int = 3) -> list[str]:
+    """Every published seed's policy, and every rule-based controller, on the fresh episodes
+    (:data:`~containergym_marl.evaluation.protocol.FRESH`: 200 episodes, seeds 30000-30199, used for
+    nothing else), into ``<to>/fresh/``."""
+    from containergym_marl.evaluation.protocol import FRESH
+
+    return _evaluate_into(to, tables.FRESH_FOLDER, FRESH, min_seeds, runs_only=False)
 
 
 def training_compute(runs: Path) -> str:
@@ -438,6 +502,9 @@ class PublishArgs:
                               help="also fill the generated blocks of these documentation pages (docs/results.md)")
     pages_only: bool = option(False, action="store_true",
                               help="only rewrite the README's table and the --docs pages from what --to holds now")
+    republish: bool = option(False, action="store_true",
+                             help="evaluate what --to holds where needed (validation and fresh episodes), pick its "
+                                  "best and median models, rebuild its table (and the pages); no --runs or --compare")
     restore: bool = option(False, action="store_true",
                            help="copy published runs and evaluations back into --runs and --compare instead")
 
@@ -447,6 +514,11 @@ def run(a: PublishArgs) -> int:
     if a.pages_only:
         write_pages(a.to, ([a.readme] if a.readme else []) + list(a.docs))
         print(f"wrote the generated blocks of {', '.join(str(p) for p in [a.readme, *a.docs] if p)} from {a.to}/")
+        return 0
+    if a.republish:
+        done = republish(a.to, a.min_seeds, a.readme, tuple(a.docs))
+        print(f"evaluated {len(done['validation'])} polic(ies) on validation and {len(done['fresh'])} on fresh "
+              f"episodes; models of {len(done['models'])} (row, method) pair(s) in {a.to}/")
         return 0
     if a.runs is None or a.compare is None:
         raise ValueError("--runs and --compare are required (unless --pages-only)")

@@ -38,24 +38,35 @@ def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(t
     for s in (1, 2, 3):
         copied = sorted(p.name for p in (to / "runs" / f"ppo_{config}_s{s}").iterdir())
         assert "metrics.csv" in copied and "args.json" in copied and "checkpoints" not in copied
-    ranked = sorted(means, key=lambda s: -means[s])  # best first; the median of three is the middle one
+    # every seed on 100 validation episodes; best first by those, the median of three is the middle one
+    validation = {s: json.loads((to / "validation" / config / f"ppo_s{s}.json").read_text()) for s in (1, 2, 3)}
+    assert all([e["seed"] for e in v["episodes"]] == list(range(20_000, 20_100)) for v in validation.values())
+    val_means = {s: np.mean([e["cumulative_reward"] for e in v["episodes"]]) for s, v in validation.items()}
+    ranked = sorted(val_means, key=lambda s: -val_means[s])
     meta = json.loads((to / "models" / config / "ppo.json").read_text())
-    assert (meta["best_seed"], meta["median_seed"]) == (ranked[0], ranked[1])
+    assert (meta["best_seed"], meta["median_seed"], meta["picked_on"]) == (ranked[0], ranked[1], "validation")
     for which, seed in (("best", ranked[0]), ("median", ranked[1])):
         shipped = (to / "models" / config / f"ppo_{which}.zip").read_bytes()
         assert shipped == (runs / f"ppo_{config}_s{seed}" / "best_model.zip").read_bytes()
     table = (to / "table.md").read_text()
     assert "| n5_m2_dt120 | ppo |" in table
-    # the best and the median policy again on 30 fresh episodes, shown beside their test numbers
-    assert sorted(done["fresh"]) == sorted(f"{config}/ppo_s{s}" for s in ranked[:2])
+    # every seed's policy again on 200 fresh episodes: the best and median beside their test numbers,
+    # the IQM over seeds and the share of overflowing episodes
+    assert sorted(done["fresh"]) == sorted(f"{config}/ppo_s{s}" for s in (1, 2, 3))
     row = json.loads((to / "table.json").read_text())["rows"][0]
+    fresh = {s: json.loads((to / "fresh" / config / f"ppo_s{s}.json").read_text()) for s in (1, 2, 3)}
+    assert all([e["seed"] for e in f["episodes"]] == list(range(30_000, 30_200)) for f in fresh.values())
     for which, seed in (("best", ranked[0]), ("median", ranked[1])):
-        fresh = json.loads((to / "fresh" / config / f"ppo_s{seed}.json").read_text())
-        assert [e["seed"] for e in fresh["episodes"]] == list(range(30_000, 30_030))
-        returns = [e["cumulative_reward"] for e in fresh["episodes"]]
+        returns = [e["cumulative_reward"] for e in fresh[seed]["episodes"]]
         assert row[f"{which}_fresh_mean"] == np.mean(returns)
         assert f"{np.mean(returns):.2f} ± {np.std(returns):.2f}" in table
-    assert publish_results.publish(runs, out, to)["fresh"] == []  # the same models: nothing evaluated again
+    fresh_means = sorted(np.mean([e["cumulative_reward"] for e in f["episodes"]]) for f in fresh.values())
+    assert row["fresh_iqm"] == pytest.approx(np.mean(fresh_means))  # three seeds: the IQM cuts nothing
+    assert row["fresh_overflow_rate"] == pytest.approx(np.mean([e["overflow"] for f in fresh.values()
+                                                                for e in f["episodes"]]))
+    assert row["selected_on"] == "validation" and "picked on 100 validation episodes (seeds 20000–20099)" in table
+    again = publish_results.publish(runs, out, to)
+    assert again["fresh"] == again["validation"] == []  # the same models: nothing evaluated again
 
     # every published model is listed with its sha256; a file changed afterwards is refused, named
     from containergym_marl.orchestration import CompareArgs
