@@ -13,8 +13,11 @@ import contextlib
 import logging
 import os
 import signal
+import stat
 import subprocess
 import threading
+import warnings
+from pathlib import Path
 from typing import Any
 
 from containergym_marl.orchestration import ray_reaper
@@ -31,6 +34,35 @@ def ray_missing_message() -> str:
     return ("containergym-marl compare runs its training and evaluation on Ray, which is not installed: "
             f"{INSTALL['sweep']} (./run setup installs it)")
 
+
+
+#: Where Ray keeps the token that its servers ask of every client (token authentication, on by default
+#: for a local instance since Ray 2.59); the servers listen on every interface, so this file is what
+#: keeps other users of the machine, and other machines, out of a local sweep.
+RAY_TOKEN_FILE = Path("~/.ray/auth_token")
+
+
+class RayTokenWarning(UserWarning):
+    """Ray's token file can be read by other users: they could join the local instance and run code."""
+
+
+def token_exposure(path: Path | None = None) -> str | None:
+    """Why Ray's token file (default :data:`RAY_TOKEN_FILE`) can be read by users other than its owner,
+    or None: the file readable by its group or by others, inside a folder they can enter."""
+    path = (path or RAY_TOKEN_FILE).expanduser()
+    try:
+        file_mode, folder_mode = path.stat().st_mode, path.parent.stat().st_mode
+    except OSError:
+        return None
+    readers = [who for who, read, enter in (("its group", stat.S_IRGRP, stat.S_IXGRP),
+                                             ("other users", stat.S_IROTH, stat.S_IXOTH))
+               if file_mode & read and folder_mode & enter]
+    if not readers:
+        return None
+    return (f"Ray's token file {str(path)!r} can be read by {' and '.join(readers)} (file {stat.filemode(file_mode)}, "
+            f"folder {stat.filemode(folder_mode)}): anyone who reads it can connect to this sweep's Ray servers, "
+            f"which listen on every interface, and run code as you; run `chmod 600 {path}` and "
+            f"`chmod 700 {path.parent}`")
 
 
 #: Custom Ray resource of a local instance: evaluations running beside the trainings (one per core).
@@ -101,6 +133,9 @@ class Cluster:
         ray.init(address="local", num_cpus=cpus, resources={EVALUATION_SLOTS: cpus}, **opts)
         # the processes this ray.init started, stopped by the reaper if this driver is killed
         self._reaper = ray_reaper.watch(sorted(ray_reaper.child_pids() - before))
+        exposed = token_exposure()  # Ray writes the file 0644 in a 0755 folder: readable on a shared machine
+        if exposed:
+            warnings.warn(exposed, RayTokenWarning, stacklevel=2)
 
     def cpus(self) -> int:
         return int(self.ray().cluster_resources().get("CPU", 1))
