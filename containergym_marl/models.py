@@ -18,13 +18,17 @@ its blob says. The weights (``policy.pth`` and the others) are read by SB3 with
 * anything else (last observations, episode buffers, buffer classes): None, which SB3 rebuilds.
 
 Entries that cannot be rebuilt this way are refused with a ValueError naming them; nothing is
-ever unpickled.
+ever unpickled. What the file declares is bounded before SB3 allocates anything from it
+(:mod:`containergym_marl.config.bounds`): its members unpack to no more than the file holds, the
+network that ``policy_kwargs.net_arch`` and the spaces describe, ``n_steps``, ``n_envs``,
+``batch_size``, ``buffer_size`` and the memory of its buffers.
 """
 
 from __future__ import annotations
 
 import ast
 import json
+import math
 import re
 import zipfile
 from pathlib import Path
@@ -33,6 +37,20 @@ from typing import Any
 import numpy as np
 
 from containergym_marl.algorithms import get_algorithm
+from containergym_marl.config.bounds import (
+    MAX_EPOCHS,
+    MAX_HIDDEN_LAYERS,
+    MAX_HIDDEN_WIDTH,
+    MAX_MINIBATCH,
+    MAX_N_STEPS,
+    MAX_NETWORK_PARAMETERS,
+    MAX_REPLAY_BUFFER,
+    MAX_ROLLOUT_SAMPLES,
+    MAX_SIMS,
+    check_count,
+    check_memory,
+)
+from containergym_marl.policies.actor_critic import ZIP_ERRORS, check_unpacked_size, mlp_parameters
 from containergym_marl.rundir import check_model_file
 
 SERIALIZED = ":serialized:"
@@ -56,21 +74,26 @@ def _numbers(text: Any, what: str) -> np.ndarray:
 def _space(entry: dict, key: str):
     from gymnasium import spaces
 
-    kind = entry.get(":type:", "")
+    kind = str(entry.get(":type:", ""))
     if kind.endswith("spaces.discrete.Discrete'>"):
         try:
             n, start = int(entry["n"]), int(entry.get("start", 0))
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f"{key}: a Discrete space without a readable n") from None
-        return spaces.Discrete(n, start=start)
+            if not 1 <= n <= MAX_NETWORK_PARAMETERS:  # its actions are the outputs of a network
+                raise ValueError(n)
+            return spaces.Discrete(n, start=start)
+        except (KeyError, TypeError, ValueError, OverflowError):
+            raise ValueError(f"{key}: a Discrete space without a readable n in [1, {MAX_NETWORK_PARAMETERS}]") from None
     if kind.endswith("spaces.box.Box'>"):
         shape = entry.get("_shape")
-        if not (isinstance(shape, list) and all(isinstance(d, int) and d >= 0 for d in shape)):
+        if not (isinstance(shape, list) and all(type(d) is int and d >= 0 for d in shape)):
             raise ValueError(f"{key}: a Box space without a readable shape")
-        dtype = np.dtype(entry.get("dtype", "float32"))
+        try:
+            dtype = np.dtype(entry.get("dtype", "float32"))
+        except TypeError:
+            raise ValueError(f"{key}: a Box space of an unknown dtype {entry.get('dtype')!r}") from None
         if dtype.kind != "f":
             raise ValueError(f"{key}: a Box space of {dtype}; this package's models observe floats")
-        size = int(np.prod(shape))
+        size = math.prod(shape)
         low, high = _numbers(entry.get("low"), f"{key}.low"), _numbers(entry.get("high"), f"{key}.high")
         if low.size != size or high.size != size:
             raise ValueError(f"{key}: bounds of {low.size} and {high.size} numbers for a shape {shape}")
@@ -117,15 +140,22 @@ def _train_freq(hyperparams: dict[str, Any]):
 def safe_custom_objects(path: str | Path, algorithm_class, hyperparams: dict[str, Any] | None = None) -> dict[str, Any]:
     """``custom_objects`` for ``algorithm_class.load(path, ...)`` that replace every serialized entry
     of the file's ``data`` (see the module docstring); a ValueError naming an entry that cannot be
-    rebuilt, or a file whose ``data`` is not a JSON object. ``hyperparams``: the run's SB3 settings,
-    which rebuild an off-policy algorithm's ``train_freq`` for a resumed run."""
+    rebuilt, a file whose ``data`` is not a JSON object, or sizes beyond the bounds (:func:`check_sizes`).
+    ``hyperparams``: the run's SB3 settings, which rebuild an off-policy algorithm's ``train_freq``
+    for a resumed run."""
+    source = f"model file {str(path)!r}"
     try:
         with zipfile.ZipFile(path) as z:
+            check_unpacked_size(z, Path(path).stat().st_size, source)
+            for info in z.infolist():  # the weights: torch files that SB3 reads whole
+                if info.filename.endswith(".pth"):
+                    with z.open(info) as member, zipfile.ZipFile(member) as weights:
+                        check_unpacked_size(weights, info.file_size, f"{source}, member {info.filename!r}")
             data = json.loads(z.read("data"))
-    except (OSError, KeyError, zipfile.BadZipFile, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"cannot read the data of model file {str(path)!r}: {exc}") from exc
+    except (*ZIP_ERRORS, KeyError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"cannot read the data of {source}: {exc}") from exc
     if not isinstance(data, dict):
-        raise ValueError(f"model file {str(path)!r}: its data is not a JSON object")
+        raise ValueError(f"{source}: its data is not a JSON object")
     objects: dict[str, Any] = {}
     for key, value in data.items():
         if not (isinstance(value, dict) and SERIALIZED in value):
@@ -143,8 +173,56 @@ def safe_custom_objects(path: str | Path, algorithm_class, hyperparams: dict[str
             objects[key] = None
     missing = [key for key in ("policy_class", "observation_space", "action_space") if key not in objects]
     if missing:
-        raise ValueError(f"model file {str(path)!r}: no {', '.join(missing)}")
+        raise ValueError(f"{source}: no {', '.join(missing)}")
+    check_sizes(data, objects["observation_space"], objects["action_space"], source)
     return objects
+
+
+def sb3_networks(policy_kwargs: Any, where: str) -> list[list[int]]:
+    """The hidden widths of each network an SB3 policy builds from ``policy_kwargs``: its ``net_arch``,
+    a list of widths for every network (the policy and value networks, or DQN's network and its
+    target) or ``{"pi": [...], "vf": [...]}``; SB3's default [64, 64]. A ValueError naming ``where``
+    when they are not widths within the bounds."""
+    if not isinstance(policy_kwargs, dict):
+        raise ValueError(f"{where} must be a mapping, got {type(policy_kwargs).__name__}")
+    arch = policy_kwargs.get("net_arch", [64, 64])
+    parts = {part: arch.get(part, []) for part in ("pi", "vf", "qf")} if isinstance(arch, dict) else {"": arch}
+    for part, widths in parts.items():
+        if not (isinstance(widths, list) and len(widths) <= MAX_HIDDEN_LAYERS
+                and all(type(h) is int and 1 <= h <= MAX_HIDDEN_WIDTH for h in widths)):
+            shown = widths if len(repr(widths)) < 200 else type(widths).__name__
+            raise ValueError(f"{where}.net_arch{'.' * bool(part)}{part} must list at most {MAX_HIDDEN_LAYERS} layer "
+                             f"widths in [1, {MAX_HIDDEN_WIDTH}], got {shown}")
+    return list(parts.values()) if isinstance(arch, dict) else [arch, arch]
+
+
+def check_sizes(data: dict[str, Any], observation_space, action_space, source: str) -> None:
+    """The sizes an SB3 model's ``data`` declares, within the bounds of
+    :mod:`containergym_marl.config.bounds`, before SB3 builds the model from them: ``n_steps``,
+    ``n_envs``, ``batch_size``, ``n_epochs``, ``buffer_size``, the networks of ``policy_kwargs.net_arch``
+    (a list of widths, or ``{"pi": [...], "vf": [...]}``; SB3's default [64, 64]) on these spaces, and
+    the memory of its buffers and networks. A ValueError naming ``source`` and the entry otherwise."""
+    for key, hi in (("n_steps", MAX_N_STEPS), ("n_envs", MAX_SIMS), ("batch_size", MAX_MINIBATCH),
+                    ("n_epochs", MAX_EPOCHS), ("buffer_size", MAX_REPLAY_BUFFER)):
+        if key in data:
+            check_count(data[key], 1, hi, f"{source}: {key}")
+    nets = sb3_networks(data.get("policy_kwargs") or {}, f"{source}: policy_kwargs")
+    inputs = math.prod(observation_space.shape)
+    outputs = int(getattr(action_space, "n", 0)) or math.prod(action_space.shape)
+    parameters = sum(mlp_parameters([inputs, *widths, outputs]) for widths in nets)
+    if parameters > MAX_NETWORK_PARAMETERS:
+        raise ValueError(f"{source}: policy_kwargs.net_arch={nets} on {inputs} inputs and {outputs} actions makes "
+                         f"networks of {parameters} parameters, more than {MAX_NETWORK_PARAMETERS}")
+    estimate = {"policy_kwargs.net_arch": parameters * 4 * 4}  # weights, gradients, Adam's two moments
+    if "n_steps" in data:
+        samples = data["n_steps"] * data.get("n_envs", 1)
+        if samples > MAX_ROLLOUT_SAMPLES:
+            raise ValueError(f"{source}: n_steps × n_envs = {samples} samples per rollout, more than "
+                             f"{MAX_ROLLOUT_SAMPLES}")
+        estimate["n_steps"] = samples * (inputs + 8) * 4 * 2  # SB3's rollout buffer and its flattened copy
+    if "buffer_size" in data:
+        estimate["buffer_size"] = data["buffer_size"] * (2 * inputs + 5) * 4  # observations, next ones, the rest
+    check_memory(estimate, source)
 
 
 def load_model(path: str | Path, algo: str, env=None, hyperparams: dict[str, Any] | None = None):
@@ -162,5 +240,7 @@ def load_model(path: str | Path, algo: str, env=None, hyperparams: dict[str, Any
     objects = safe_custom_objects(path, cls, hyperparams)  # every pickled entry replaced: nothing from the file runs
     try:
         return cls.load(path, env=env, device="cpu", custom_objects=objects)
-    except (zipfile.BadZipFile, KeyError, ValueError, RuntimeError, EOFError, OSError, AssertionError) as exc:
+    except MemoryError:  # the sizes were bounded above: not the file's doing
+        raise
+    except Exception as exc:  # noqa: BLE001 - SB3 raises many kinds for settings a crafted file declares
         raise ValueError(f"cannot read model file {str(path)!r} as a {algo} model: {exc}") from exc

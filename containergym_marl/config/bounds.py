@@ -22,7 +22,7 @@ fill_noise_per_sqrt_s (σ)   0 ≤ σ ≤ 1e12 per √second                    
 pu_offset_s (β)             0 < β ≤ 1e9 s                                         MAX_PU_DURATION_S
 pu_time_per_product_s (λ)   0 < λ ≤ 1e9 s                                         MAX_PU_DURATION_S
 longest PU time             β + λ·⌊v_max / b⌋ ≤ 1e12 s (named as λ's error)        MAX_PU_TIME_S
-reward_peaks (v*_k)         0 < v*_k ≤ v_max, at least one                        –
+reward_peaks (v*_k)         0 < v*_k ≤ v_max, 1 to 16 of them                     MAX_REWARD_PEAKS
 reward_heights (h_k)        0 < h_k ≤ 1                                           –
 reward_widths (w_k)         1e-3 ≤ w_k ≤ 1e12                                     MIN/MAX_VOLUME
 simulations B (num_sims)   integer, 1 ≤ B ≤ 2**24 (checked by PlantSimulator     MAX_SIMS
@@ -36,12 +36,50 @@ non-integral ones (``600.5``). Why these limits: with tiny widths 2w² underflow
 still count down by δ ≥ 1e-3 s (float64 resolves 1.2e-4 s at 1e12); volumes, rates and durations
 within these limits keep volumes and the float32 observation bounds finite; r_min ≥ -1e6 keeps
 sums of n penalties finite; m, n and B bound memory.
+
+**Training settings and files handed over.** A run's settings (``--hp``, ``--n-envs``) and what a
+model file, checkpoint, replay buffer or DAgger data set declares are checked against these bounds
+before anything is allocated or a run directory is written (a ValueError naming the setting or the
+file, its field and the rule); each leaves room far beyond the paper's runs ([64, 64] networks,
+budgets of 5M samples) and the package's own searches (rollout_samples ≤ 16384, n_steps ≤ 256,
+DAgger data sets of up to 6M samples).
+
+===========================  ===================================================  ======================
+what                         bound                                                constant
+===========================  ===================================================  ======================
+hidden (width of a layer)    integer, 1 ≤ width ≤ 4096 (paper: 64)                MAX_HIDDEN_WIDTH
+hidden (number of layers)    1 ≤ layers ≤ 16 (paper: 2)                           MAX_HIDDEN_LAYERS
+network parameters           ≤ 2**26 (268 MB of float32), policy and value        MAX_NETWORK_PARAMETERS
+                             networks together (paper: ~10**4)
+n_steps                      1 ≤ n_steps ≤ 2**16 per simulation and rollout       MAX_N_STEPS
+rollout_samples              1 ≤ rollout_samples ≤ 2**20 samples per update       MAX_ROLLOUT_SAMPLES
+                             (also n_steps × n_envs of an SB3 model file)
+minibatch_size, batch_size   1 ≤ size ≤ 2**20 samples                             MAX_MINIBATCH
+n_epochs                     1 ≤ n_epochs ≤ 1000                                  MAX_EPOCHS
+dataset_size (DAgger)        1 ≤ size ≤ 2**26 samples                             MAX_DATASET_SIZE
+buffer_size (SB3 replay)     1 ≤ size ≤ 2**24 samples (SB3's default: 10**6)      MAX_REPLAY_BUFFER
+futures, horizon             1 ≤ K ≤ 1024, 1 ≤ H ≤ 1024 (DAgger's labelling       MAX_PLANNER_FUTURES,
+                             planner; defaults 16, 8)                             MAX_PLANNER_HORIZON
+memory of a run              its estimate (``training.runs.memory_estimate``:     machine_memory()
+                             buffers, data set, networks, simulations) ≤ the
+                             machine's physical memory
+config file                  ≤ 1,000,000 bytes                                    MAX_CONFIG_BYTES
+config nesting               lists and tables ≤ 16 levels, a dotted key or table  MAX_CONFIG_DEPTH
+                             name ≤ 16 parts (TOML's parser needs memory that
+                             grows with the square of a key's parts)
+tensor files, SB3 zips       members unpack to at most the file's own size        –
+                             (torch.save and SB3 store them uncompressed)
+replay buffer (.npz)         each array's header (shape, dtype) and declared      –
+                             size are the buffer's; 0 ≤ pos < buffer_size,
+                             actions within the action space
+===========================  ===================================================  ======================
 """
 
 from __future__ import annotations
 
 import math
 import operator
+import os
 import re
 from typing import Any
 
@@ -63,6 +101,23 @@ MAX_PU_DURATION_S = 1e9
 MAX_PU_TIME_S = 1e12
 #: largest number of simulations B (num_sims) of a simulator or vector env (checked there, not in the config)
 MAX_SIMS = 2**24
+
+# ---- training settings and files (the second table) ----------------------------------------------
+MAX_HIDDEN_WIDTH = 4096
+MAX_HIDDEN_LAYERS = 16
+MAX_NETWORK_PARAMETERS = 2**26
+MAX_N_STEPS = 2**16
+MAX_ROLLOUT_SAMPLES = 2**20
+MAX_MINIBATCH = 2**20
+MAX_EPOCHS = 1000
+MAX_DATASET_SIZE = 2**26
+MAX_REPLAY_BUFFER = 2**24
+MAX_PLANNER_FUTURES = 1024
+MAX_PLANNER_HORIZON = 1024
+#: Largest config file read (the built-in ones are ~3 kB; a 16-container plant ~6 kB).
+MAX_CONFIG_BYTES = 1_000_000
+#: Deepest nesting of lists and tables in a config file, and most parts of a dotted key (ours: 3).
+MAX_CONFIG_DEPTH = 16
 
 
 class ConfigError(ValueError):
@@ -146,6 +201,30 @@ def _check_range(value: float, lo: float, hi: float, where: str, what: str = "",
     if not ok:
         left = "(" if lo_open else "["
         raise ConfigError(f"{where} must lie in {left}{lo!r}, {hi!r}]{what}, got {value!r}")
+
+
+# ---- checks of a training setting and of a run's memory ---------------------------------------
+def check_count(value: Any, lo: int, hi: int, where: str) -> None:
+    """``value`` is an integer (not a bool) with lo ≤ value ≤ hi, else a ValueError naming ``where``
+    and the bound (a training setting or a size a file declares)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ValueError(f"{where} must be an integer in [{lo}, {hi}], got {value!r}")
+
+
+def machine_memory() -> int:
+    """This machine's physical memory in bytes, what :func:`check_memory` compares with."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_memory(estimate: dict[str, int], what: str) -> None:
+    """Refuse ``what`` (a ValueError) when the bytes of ``estimate``, one entry per setting that sizes
+    them (``"dataset_size=1000000"``), add up to more than the machine's memory; the error names the
+    setting of the largest entry."""
+    total, available = sum(estimate.values()), machine_memory()
+    if total > available:
+        setting, largest = max(estimate.items(), key=lambda item: item[1])
+        raise ValueError(f"{setting}: {what} needs about {total / 2**30:.1f} GiB of memory ({largest / 2**30:.1f} "
+                         f"GiB for {setting}), more than this machine's {available / 2**30:.1f} GiB")
 
 
 #: Plant and container names: they name agents, files and figures, so no path separators, no

@@ -14,7 +14,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
-from containergym_marl.config.bounds import ConfigError
+from containergym_marl.config.bounds import MAX_CONFIG_BYTES, MAX_CONFIG_DEPTH, ConfigError
 from containergym_marl.config.reference_format import config_from_reference_json
 from containergym_marl.config.schema import PlantConfig, config_from_dict
 
@@ -31,12 +31,6 @@ def _builtin_dir():
 def list_configs() -> list[str]:
     """Names of the built-in configurations (the paper's eight rows and the 16-container plant)."""
     return sorted(p.name[: -len(".toml")] for p in _builtin_dir().iterdir() if p.name.endswith(".toml"))
-
-
-#: Largest config file read (the built-in ones are ~3 kB; a 16-container plant ~6 kB).
-MAX_CONFIG_BYTES = 1_000_000
-#: Deepest nesting of lists and tables in a config file (ours: 3).
-MAX_CONFIG_DEPTH = 16
 
 
 class _HugeInteger:
@@ -62,28 +56,77 @@ def _reject_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return dict(pairs)
 
 
-def _nesting_depth(text: str) -> int:
-    """The deepest bracket nesting of a JSON or TOML text, outside strings (a cheap upper bound, read
-    before the parser recurses)."""
-    depth = deepest = 0
-    quote = None
-    escaped = False
-    for ch in text:
-        if quote:
-            if escaped:
-                escaped = False
-            elif ch == "\\":
-                escaped = True
-            elif ch == quote:
-                quote = None
-        elif ch in "\"'":
-            quote = ch
-        elif ch in "[{":
+def _nesting_depth(text: str, toml: bool = False) -> int:
+    """The deepest nesting of a JSON or TOML text, outside strings (and TOML's comments): brackets,
+    plus, for TOML, the dots of a dotted key or table name (``a.b.c = 1`` nests two tables). A cheap
+    upper bound, read before the parser runs: json recurses per bracket, and tomllib needs memory that
+    grows with the square of a key's parts (100,000 of them took 24 GB)."""
+    depth = deepest = dots = 0
+    i, size = 0, len(text)
+    while i < size:
+        ch = text[i]
+        if ch == '"' or ch == "'":
+            i = _string_end(text, i, toml)
+            continue
+        if ch == "#" and toml:
+            i = text.find("\n", i)
+            if i < 0:
+                break
+            continue
+        if ch in "[{":
             depth += 1
-            deepest = max(deepest, depth)
+            dots = 0
         elif ch in "]}":
             depth -= 1
+            dots = 0
+        elif ch in ",=\n":  # a key ends: a value, the next key or the next line follows
+            dots = 0
+        elif ch == "." and toml:  # a key of dots + 1 parts (a float's or a time's one dot: a slight overestimate)
+            dots += 1
+            deepest = max(deepest, depth + dots + 1)
+        deepest = max(deepest, depth)
+        i += 1
     return deepest
+
+
+def _string_end(text: str, start: int, toml: bool) -> int:
+    """The index after the string that starts at ``start``, as the parser reads it: TOML's multi-line
+    strings (three quotes; up to two more quotes belong to the content) and literal strings (no
+    escapes); a one-line string ends at the line's end at the latest (the parser refuses it there)."""
+    quote = text[start]
+    if toml and text.startswith(quote * 3, start):
+        i = start + 3
+        while True:
+            i = text.find(quote * 3, i)
+            if i < 0:
+                return len(text)
+            if quote == '"' and _escaped(text, i):
+                i += 1
+                continue
+            end = i + 3
+            while end < min(i + 5, len(text)) and text[end] == quote:
+                end += 1
+            return end
+    i = start + 1
+    while i < len(text):
+        ch = text[i]
+        if ch == "\n":
+            return i
+        if ch == "\\" and quote == '"':
+            i += 2
+            continue
+        if ch == quote:
+            return i + 1
+        i += 1
+    return i
+
+
+def _escaped(text: str, i: int) -> bool:
+    """The character at ``i`` follows an odd number of backslashes."""
+    j = i
+    while j > 0 and text[j - 1] == "\\":
+        j -= 1
+    return (i - j) % 2 == 1
 
 
 def _read_file(path: Path) -> PlantConfig:
@@ -103,8 +146,9 @@ def _read_file(path: Path) -> PlantConfig:
         raise ConfigError(
             f"config file {str(path)!r} is not UTF-8 text (byte {exc.start}: {exc.reason})"
         ) from exc
-    if _nesting_depth(text) > MAX_CONFIG_DEPTH:
-        raise ConfigError(f"config file {str(path)!r}: lists or tables nested deeper than {MAX_CONFIG_DEPTH} levels")
+    if _nesting_depth(text, toml=path.suffix == ".toml") > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"config file {str(path)!r}: lists, tables or dotted keys nested deeper than "
+                          f"{MAX_CONFIG_DEPTH} levels")
     try:
         if path.suffix == ".toml":
             data = tomllib.loads(text)  # TOML itself refuses a key defined twice

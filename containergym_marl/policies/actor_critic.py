@@ -31,11 +31,15 @@ container are masked while no PU is free, as in training; then the mode of the d
 from __future__ import annotations
 
 import math
+import operator
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from containergym_marl.config.bounds import MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_NETWORK_PARAMETERS
 from containergym_marl.extras import missing_extra
 
 FORMAT = "containergym-marl actor-critic"
@@ -89,12 +93,8 @@ class ActorCritic:
         torch = _torch()
         if view not in VIEWS:
             raise ValueError(f"view: expected one of {VIEWS}, got {view!r}")
-        if int(observation_size) < 1 or int(n_actions) < 2 or not hidden or any(int(h) < 1 for h in hidden):
-            raise ValueError(f"bad network shape: observation_size={observation_size!r}, n_actions={n_actions!r}, "
-                             f"hidden={list(hidden)!r}")
         self.view, self.action_mask = view, bool(action_mask)
-        self.observation_size, self.n_actions = int(observation_size), int(n_actions)
-        self.hidden = [int(h) for h in hidden]
+        self.observation_size, self.n_actions, self.hidden = check_network(observation_size, n_actions, hidden)
         self.meta = dict(meta or {})
         net = torch.nn.Module()
         net.actor = _mlp(torch, [self.observation_size, *self.hidden, self.n_actions], generator)
@@ -127,11 +127,18 @@ class ActorCritic:
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "model") -> "ActorCritic":
+        """The actor-critic of :meth:`to_dict`'s output. Its sizes are checked against the bounds and
+        its weights against its sizes before the network is built (a ValueError naming ``source``)."""
         check_header(data, FORMAT, VERSION, source, "actor-critic")
+        missing = [key for key in ("view", "observation_size", "n_actions", "hidden", "action_mask", "state_dict")
+                   if key not in data]
+        if missing:
+            raise ValueError(f"{source}: no {', '.join(missing)}")
+        sizes = check_network(data["observation_size"], data["n_actions"], data["hidden"], source)
+        check_state_dict(data["state_dict"], _shapes(*sizes), source)
         try:
-            return cls(data["view"], data["observation_size"], data["n_actions"], data["hidden"],
-                       data["action_mask"], data["state_dict"], data.get("meta"))
-        except (KeyError, TypeError, RuntimeError, ValueError) as exc:
+            return cls(data["view"], *sizes, data["action_mask"], data["state_dict"], data.get("meta"))
+        except (TypeError, RuntimeError, ValueError) as exc:
             raise ValueError(f"{source}: its shape and weights do not match ({type(exc).__name__}: {exc})") from exc
 
     def save(self, path: str | Path) -> Path:
@@ -148,15 +155,95 @@ class ActorCritic:
         return cls.from_dict(load_tensors(path), f"model file {str(path)!r}")
 
 
+#: What reading a broken zip archive raises besides BadZipFile: an encrypted member, an unknown
+#: compression method, a corrupt compressed stream, a cut file.
+ZIP_ERRORS = (zipfile.BadZipFile, OSError, EOFError, RuntimeError, NotImplementedError, zlib.error)
+
+
 def load_tensors(path: str | Path, otherwise: str = "holds more than tensors") -> Any:
     """``torch.load(path, weights_only=True)``: plain containers and tensors, never pickled code;
-    a ValueError naming the file when it is broken or ``otherwise`` (what else it may be)."""
+    a ValueError naming the file when it is broken or ``otherwise`` (what else it may be), or when
+    its members would unpack to more than the file holds (see :func:`check_unpacked_size`)."""
     torch = _torch()
+    path = Path(path)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            check_unpacked_size(archive, path.stat().st_size, f"model file {str(path)!r}")
+    except ZIP_ERRORS as exc:
+        raise ValueError(f"cannot read model file {str(path)!r}: the file is broken or {otherwise} (not the zip "
+                         f"archive torch.save writes: {exc})") from exc
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises many kinds for a cut, foreign or unsafe file
         raise ValueError(f"cannot read model file {str(path)!r}: the file is broken or {otherwise} "
                          f"({type(exc).__name__}: {exc})") from exc
+
+
+def check_unpacked_size(archive: zipfile.ZipFile, size: int, source: str) -> None:
+    """Refuse (a ValueError naming ``source``) a zip archive whose members declare more bytes than
+    the ``size`` bytes that hold it. torch.save and SB3 store members uncompressed, so theirs never
+    do; a compressed or overlapping member could unpack to gigabytes from a small file, and torch
+    and SB3 read every member whole."""
+    unpacked = sum(info.file_size for info in archive.infolist())
+    if unpacked > size:
+        raise ValueError(f"{source}: its members unpack to {unpacked} bytes, more than the {size} bytes of the "
+                         f"archive (members are stored uncompressed)")
+
+
+def check_network(observation_size: Any, n_actions: Any, hidden: Any, where: str = "model") -> tuple[int, int, list[int]]:
+    """The sizes of a policy and a value network (input, actions, hidden widths) as ints, within the
+    bounds of :mod:`containergym_marl.config.bounds` (a ValueError naming ``where`` and the rule
+    otherwise); nothing is allocated."""
+    try:
+        obs, actions = operator.index(observation_size), operator.index(n_actions)
+        widths = [operator.index(h) for h in hidden]
+    except TypeError:
+        raise ValueError(f"{where}: observation_size, n_actions and hidden must be integers, got "
+                         f"{observation_size!r}, {n_actions!r}, {hidden!r}") from None
+    if any(isinstance(x, bool) for x in (observation_size, n_actions, *hidden)) or obs < 1 or actions < 2:
+        raise ValueError(f"{where}: bad network shape observation_size={observation_size!r}, n_actions={n_actions!r}")
+    if not 1 <= len(widths) <= MAX_HIDDEN_LAYERS or not all(1 <= h <= MAX_HIDDEN_WIDTH for h in widths):
+        raise ValueError(f"{where}: hidden={widths if len(widths) <= 32 else '[...]'} must list 1 to "
+                         f"{MAX_HIDDEN_LAYERS} layer widths in [1, {MAX_HIDDEN_WIDTH}]")
+    parameters = network_parameters(obs, actions, widths)
+    if parameters > MAX_NETWORK_PARAMETERS:
+        raise ValueError(f"{where}: a network of {obs} inputs, {actions} actions and hidden={widths} has {parameters} "
+                         f"parameters, more than {MAX_NETWORK_PARAMETERS}")
+    return obs, actions, widths
+
+
+def network_parameters(observation_size: int, n_actions: int, hidden: Sequence[int]) -> int:
+    """Weights and biases of the policy network (to ``n_actions`` logits) and the value network together."""
+    return sum(mlp_parameters([observation_size, *hidden, out]) for out in (n_actions, 1))
+
+
+def mlp_parameters(sizes: Sequence[int]) -> int:
+    """Weights and biases of linear layers through ``sizes``."""
+    return sum(a * b + b for a, b in zip(sizes[:-1], sizes[1:]))
+
+
+def _shapes(observation_size: int, n_actions: int, hidden: list[int]) -> dict[str, tuple[int, ...]]:
+    """The state dict's tensor shapes of an actor-critic of these sizes (Linear layers at even indices)."""
+    shapes: dict[str, tuple[int, ...]] = {}
+    for name, out in (("actor", n_actions), ("critic", 1)):
+        sizes = [observation_size, *hidden, out]
+        for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+            shapes[f"{name}.{2 * i}.weight"], shapes[f"{name}.{2 * i}.bias"] = (b, a), (b,)
+    return shapes
+
+
+def check_state_dict(state_dict: Any, shapes: dict[str, tuple[int, ...]], source: str) -> None:
+    """``state_dict`` holds float tensors of exactly ``shapes`` (a ValueError naming ``source``, the
+    first tensor that differs and its shape): checked before a network is built from a file."""
+    torch = _torch()
+    if not isinstance(state_dict, dict) or set(state_dict) != set(shapes):
+        keys = sorted(state_dict)[:8] if isinstance(state_dict, dict) else type(state_dict).__name__
+        raise ValueError(f"{source}: expected the weights {sorted(shapes)}, got {keys}")
+    for key, shape in shapes.items():
+        tensor = state_dict[key]
+        if not (torch.is_tensor(tensor) and tensor.is_floating_point() and tuple(tensor.shape) == shape):
+            got = (tensor.dtype, tuple(tensor.shape)) if torch.is_tensor(tensor) else type(tensor).__name__
+            raise ValueError(f"{source}: {key} must be a float tensor of shape {shape}, got {got}")
 
 
 def save_tensors(path: str | Path, data: Any) -> Path:
@@ -235,7 +322,7 @@ def policy_for(model: ActorCritic, name: str = "ppo", deterministic: bool = True
 def check_header(data: Any, fmt: str, version: int, source: str, what: str) -> None:
     """A saved tensor file's header as this package writes it: ``format`` ``fmt`` at ``version``
     (a ValueError naming ``source`` otherwise)."""
-    if not isinstance(data, dict) or data.get("format") != fmt:
+    if not isinstance(data, dict) or not isinstance(data.get("format"), str) or data["format"] != fmt:
         raise ValueError(f"{source} is not a saved {what} (format {fmt!r})")
-    if data.get("version") != version:
+    if type(data.get("version")) is not int or data["version"] != version:
         raise ValueError(f"{source}: {what} version {data.get('version')!r}; this package reads version {version}")

@@ -28,11 +28,13 @@ masked categorical gets the env's ``action_mask``), then the mode of the masked 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from containergym_marl.config.bounds import MAX_HIDDEN_LAYERS, MAX_NETWORK_PARAMETERS
 from containergym_marl.extras import missing_extra
 
 FORMAT = "containergym-marl shared actor"
@@ -62,6 +64,25 @@ def build_network(layers: list[dict[str, Any]]):
         else:
             raise ValueError(f"unknown layer {layer!r}; expected Linear or one of {ACTIVATIONS}")
     return torch.nn.Sequential(*modules)
+
+
+def _checked_shapes(layers: Any, source: str) -> dict[str, tuple[int, ...]]:
+    """The state dict's tensor shapes of ``layers`` (``torch.nn.Sequential`` indices), whose sizes are
+    checked against the network bounds first, so that a file's header cannot make us allocate."""
+    if not isinstance(layers, list) or not all(isinstance(layer, dict) for layer in layers):
+        raise ValueError(f"{source}: layers must be a list of layer descriptions, got {type(layers).__name__}")
+    shapes: dict[str, tuple[int, ...]] = {}
+    for i, layer in enumerate(layers):
+        if layer.get("type") == "Linear":
+            sizes = (layer.get("out"), layer.get("in"))
+            if not all(type(x) is int and x >= 1 for x in sizes):
+                raise ValueError(f"{source}: layer {i} needs integer sizes in, out >= 1, got {layer!r}")
+            shapes[f"{i}.weight"], shapes[f"{i}.bias"] = sizes, sizes[:1]
+    parameters = sum(math.prod(shape) for shape in shapes.values())
+    if len(shapes) // 2 > MAX_HIDDEN_LAYERS + 1 or parameters > MAX_NETWORK_PARAMETERS:
+        raise ValueError(f"{source}: {len(shapes) // 2} Linear layers of {parameters} parameters; at most "
+                         f"{MAX_HIDDEN_LAYERS + 1} layers and {MAX_NETWORK_PARAMETERS} parameters")
+    return shapes
 
 
 class SharedActor:
@@ -103,14 +124,16 @@ class SharedActor:
     @classmethod
     def load(cls, path: str | Path) -> "SharedActor":
         """Read a saved actor, with an error that says what is wrong with a missing or broken file."""
-        from containergym_marl.policies.actor_critic import check_header, load_tensors
+        from containergym_marl.policies.actor_critic import check_header, check_state_dict, load_tensors
 
         _torch()  # the missing extra is named before anything else
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"model file {str(path)!r} does not exist")
         data = load_tensors(path, otherwise="not a saved shared actor")
-        check_header(data, FORMAT, VERSION, f"model file {str(path)!r}", "shared actor")
+        source = f"model file {str(path)!r}"
+        check_header(data, FORMAT, VERSION, source, "shared actor")
+        check_state_dict(data.get("state_dict"), _checked_shapes(data.get("layers"), source), source)
         try:
             return cls(data["layers"], data["state_dict"], data.get("meta"))
         except (KeyError, RuntimeError, ValueError) as exc:

@@ -11,11 +11,13 @@ import json
 import math
 import os
 import warnings
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 from containergym_marl.files import atomic_write, atomic_write_text
+from containergym_marl.policies.actor_critic import ZIP_ERRORS
 from containergym_marl.rundir import RunWarning, checkpoint_files
 
 
@@ -119,21 +121,72 @@ def save_replay_buffer(model: Any, path: Path) -> None:
         np.savez(f, pos=np.int64(buffer.pos), full=np.bool_(buffer.full), **arrays)
 
 
+#: Bytes a .npy header may take beyond its array's data (numpy reads at most 10,000 by default).
+_NPY_HEADER_BYTES = 16_384
+
+
 def load_replay_buffer(model: Any, path: Path) -> None:
-    """Fill the model's replay buffer from :func:`save_replay_buffer`'s file (``allow_pickle=False``);
-    a ValueError when the arrays do not fit the buffer."""
+    """Fill the model's replay buffer from :func:`save_replay_buffer`'s file; a ValueError naming the
+    file and the array when it does not fit the buffer. Every array's declared size and header (shape
+    and dtype) are checked before it is read, so a small crafted file cannot make us allocate more
+    than the buffer itself; then the write position (0 ≤ pos < buffer_size) and the actions (within the
+    action space). Nothing is pickled; the buffer's ``pos`` and ``full`` are set last, so a file found
+    bad part-way leaves the buffer empty."""
     import numpy as np
 
     buffer = model.replay_buffer
-    with np.load(path, allow_pickle=False) as saved:
-        for name in REPLAY_ARRAYS:
-            mine = getattr(buffer, name, None)
-            if mine is None:
-                continue
-            if name not in saved or saved[name].shape != mine.shape:
-                raise ValueError(f"{name} does not fit the buffer ({mine.shape})")
-            mine[...] = saved[name]
-        buffer.pos, buffer.full = int(saved["pos"]), bool(saved["full"])
+    source = f"replay buffer {str(path)!r}"
+    mine = {name: getattr(buffer, name) for name in REPLAY_ARRAYS if getattr(buffer, name, None) is not None}
+    wanted = {**mine, "pos": np.zeros((), np.int64), "full": np.zeros((), np.bool_)}
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for name, array in wanted.items():
+                _check_npy_header(archive, name, array, source)
+            pos, full = _read_npy(archive, "pos"), _read_npy(archive, "full")
+            if not 0 <= pos < buffer.buffer_size:
+                raise ValueError(f"{source}: pos={int(pos)} lies outside the buffer [0, {buffer.buffer_size})")
+            read = {}
+            if "actions" in mine and hasattr(buffer.action_space, "n"):
+                actions = read["actions"] = _read_npy(archive, "actions")
+                if actions.size and not (0 <= actions.min() and actions.max() < buffer.action_space.n):
+                    raise ValueError(f"{source}: actions must lie in [0, {buffer.action_space.n}), got "
+                                     f"{actions.min()} to {actions.max()}")
+            for name, array in mine.items():
+                array[...] = read[name] if name in read else _read_npy(archive, name)
+    except ZIP_ERRORS as exc:
+        raise ValueError(f"{source} is unreadable ({exc})") from exc
+    buffer.pos, buffer.full = int(pos), bool(full)
+
+
+def _check_npy_header(archive: zipfile.ZipFile, name: str, like: Any, source: str) -> None:
+    """Member ``name``.npy of ``archive`` declares no more bytes than ``like`` (plus a header) and its
+    header says ``like``'s shape and dtype (a ValueError naming ``source`` and ``name`` otherwise)."""
+    import numpy as np
+
+    try:
+        info = archive.getinfo(f"{name}.npy")
+    except KeyError:
+        raise ValueError(f"{source}: no {name} array") from None
+    if info.file_size > like.nbytes + _NPY_HEADER_BYTES:
+        raise ValueError(f"{source}: {name} unpacks to {info.file_size} bytes; the buffer's {like.shape} "
+                         f"{like.dtype} array has {like.nbytes}")
+    with archive.open(info) as f:
+        try:
+            major, _ = np.lib.format.read_magic(f)
+            read_header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read_header(f)
+        except (ValueError, TypeError, SyntaxError) as exc:
+            raise ValueError(f"{source}: {name} has no readable .npy header ({exc})") from None
+    if shape != like.shape or dtype != like.dtype:
+        raise ValueError(f"{source}: {name} is a {shape} {dtype} array; the buffer's is {like.shape} {like.dtype}")
+
+
+def _read_npy(archive: zipfile.ZipFile, name: str) -> Any:
+    """The array of member ``name``.npy (its header checked by :func:`_check_npy_header`)."""
+    import numpy as np
+
+    with archive.open(f"{name}.npy") as f:
+        return np.lib.format.read_array(f, allow_pickle=False)
 
 
 def _link_or_copy(src: Path, dst: Path) -> None:

@@ -73,6 +73,15 @@ from typing import Any
 import numpy as np
 import torch
 
+from containergym_marl.config.bounds import (
+    MAX_DATASET_SIZE,
+    MAX_EPOCHS,
+    MAX_MINIBATCH,
+    MAX_N_STEPS,
+    MAX_PLANNER_FUTURES,
+    MAX_PLANNER_HORIZON,
+    check_count,
+)
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors, save_tensors
 from containergym_marl.policies.planner import PlannerAgents
@@ -150,9 +159,12 @@ class DAggerArgs:
         return args
 
     def validate(self) -> None:
-        for name in ("n_steps", "n_epochs", "minibatch_size", "dataset_size", "futures", "horizon"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"hp: {name} must be >= 1, got {getattr(self, name)}")
+        """Every setting within its bounds (:mod:`containergym_marl.config.bounds`), checked before
+        anything is allocated or written; a ValueError naming it otherwise."""
+        for name, hi in (("n_steps", MAX_N_STEPS), ("n_epochs", MAX_EPOCHS), ("minibatch_size", MAX_MINIBATCH),
+                         ("dataset_size", MAX_DATASET_SIZE), ("futures", MAX_PLANNER_FUTURES),
+                         ("horizon", MAX_PLANNER_HORIZON)):
+            check_count(getattr(self, name), 1, hi, f"hp: {name}")
         if self.expert_iterations < 0:
             raise ValueError(f"hp: expert_iterations must be >= 0, got {self.expert_iterations}")
         for name in ("learning_rate", "adam_eps", "max_grad_norm"):
@@ -167,8 +179,7 @@ class DAggerArgs:
             raise ValueError(f"hp: gae_lambda must be in [0, 1], got {self.gae_lambda}")
         if self.ppo is not None and not 0 < self.imitation_share < 1:
             raise ValueError(f"hp: imitation_share must be in (0, 1), got {self.imitation_share}")
-        if not self.hidden or any(h < 1 for h in self.hidden):
-            raise ValueError(f"hp: hidden must list positive layer widths, got {list(self.hidden)}")
+        fast_ppo.check_hidden(self.hidden)
 
     def learning_rate_at(self, samples: int, budget: int) -> float:
         """Adam's step size after ``samples`` of an imitation budget of ``budget`` samples."""
@@ -229,20 +240,35 @@ class Dataset:
                 "labels": self.labels[:self.size].clone(), "next": self.next}
 
     def load(self, data: Any, source: str) -> None:
-        """Fill from :meth:`to_dict`'s output (a ValueError naming ``source`` when it does not fit)."""
+        """Fill from :meth:`to_dict`'s output: float32 observations [N, F] of this data set's F, labels
+        [N] of 0 and 1 (the two actions), the ring's next slot in [0, N]; a ValueError naming
+        ``source`` and the field when it does not fit (checked before anything is copied)."""
         try:
             if data.get("format") != DATASET_FORMAT or data.get("version") != CHECKPOINT_VERSION:
                 raise ValueError("not a DAgger data set of this version")
-            obs, labels = data["obs"], data["labels"]
-            if obs.shape[1:] != self.obs.shape[1:] or labels.shape[0] != obs.shape[0]:
-                raise ValueError(f"its observations are {tuple(obs.shape)}, expected (*, {self.obs.shape[1]})")
-        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            obs, labels, next_slot = data["obs"], data["labels"], data["next"]
+            if not (torch.is_tensor(obs) and obs.dtype == torch.float32 and obs.dim() == 2
+                    and obs.shape[1] == self.obs.shape[1]):
+                got = (obs.dtype, tuple(obs.shape)) if torch.is_tensor(obs) else type(obs).__name__
+                raise ValueError(f"its observations are {got}, expected float32 (*, {self.obs.shape[1]})")
+            if not (torch.is_tensor(labels) and labels.dim() == 1 and labels.shape[0] == obs.shape[0]
+                    and not labels.is_floating_point() and not labels.is_complex()):
+                got = (labels.dtype, tuple(labels.shape)) if torch.is_tensor(labels) else type(labels).__name__
+                raise ValueError(f"its labels are {got}, expected integers ({obs.shape[0]},)")
+            if labels.numel() and not (int(labels.min()) >= 0 and int(labels.max()) <= 1):
+                raise ValueError(f"its labels must be 0 or 1 (the two actions), got {int(labels.min())} to "
+                                 f"{int(labels.max())}")
+            if not torch.isfinite(obs).all():
+                raise ValueError("its observations are not all finite")
+            if type(next_slot) is not int or not 0 <= next_slot <= obs.shape[0]:
+                raise ValueError(f"its next slot must be an integer in [0, {obs.shape[0]}], got {next_slot!r}")
+        except (AttributeError, KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise ValueError(f"{source}: {exc}") from exc
         capacity = self.labels.shape[0]
         kept = min(obs.shape[0], capacity)
         self.obs[:kept], self.labels[:kept] = obs[:kept], labels[:kept]
         self.size = kept
-        self.next = int(data["next"]) % capacity if kept == capacity else kept  # the oldest sample, when full
+        self.next = next_slot % capacity if kept == capacity else kept  # the oldest sample, when full
 
 
 @dataclass

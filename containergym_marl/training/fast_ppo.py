@@ -54,6 +54,15 @@ from typing import Any
 import numpy as np
 import torch
 
+from containergym_marl.config.bounds import (
+    MAX_EPOCHS,
+    MAX_HIDDEN_LAYERS,
+    MAX_HIDDEN_WIDTH,
+    MAX_MINIBATCH,
+    MAX_N_STEPS,
+    MAX_ROLLOUT_SAMPLES,
+    check_count,
+)
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors
 from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
@@ -110,9 +119,11 @@ class PPOArgs:
         return max(1, round(self.rollout_samples / (self.n_steps * agents_per_sim)))
 
     def validate(self) -> None:
-        for name in ("rollout_samples", "n_steps", "minibatch_size", "n_epochs"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"hp: {name} must be >= 1, got {getattr(self, name)}")
+        """Every setting within its bounds (:mod:`containergym_marl.config.bounds`), checked before
+        anything is allocated or written; a ValueError naming it otherwise."""
+        for name, hi in (("rollout_samples", MAX_ROLLOUT_SAMPLES), ("n_steps", MAX_N_STEPS),
+                         ("minibatch_size", MAX_MINIBATCH), ("n_epochs", MAX_EPOCHS)):
+            check_count(getattr(self, name), 1, hi, f"hp: {name}")
         positive = ("learning_rate", "adam_eps", "clip_range", "max_grad_norm")
         for name in positive:
             value = getattr(self, name)
@@ -124,8 +135,14 @@ class PPOArgs:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"hp: {name} must be a finite number >= 0, got {value}")
-        if not self.hidden or any(h < 1 for h in self.hidden):
-            raise ValueError(f"hp: hidden must list positive layer widths, got {list(self.hidden)}")
+        check_hidden(self.hidden)
+
+
+def check_hidden(hidden: tuple[int, ...]) -> None:
+    """1 to MAX_HIDDEN_LAYERS layer widths, each in [1, MAX_HIDDEN_WIDTH] (a ValueError naming ``hp: hidden``)."""
+    if not 1 <= len(hidden) <= MAX_HIDDEN_LAYERS or any(not 1 <= h <= MAX_HIDDEN_WIDTH for h in hidden):
+        raise ValueError(f"hp: hidden must list 1 to {MAX_HIDDEN_LAYERS} layer widths in [1, {MAX_HIDDEN_WIDTH}], "
+                         f"got {list(hidden)}")
 
 
 def coerce_setting(key: str, value: Any, default: Any) -> Any:

@@ -35,6 +35,7 @@ from containergym_marl.algorithms import (
     paper_budget,
 )
 from containergym_marl.config import PlantConfig, load_config
+from containergym_marl.config.bounds import check_memory
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.rundir import (
     RunLock,
@@ -59,7 +60,7 @@ from containergym_marl.training.checkpoints import (
     read_progress,
     save_checkpoint,
 )
-from containergym_marl.training.runs import TrainArgs, prepare_run_dir
+from containergym_marl.training.runs import TrainArgs, memory_estimate, prepare_run_dir
 
 
 def no_episode_note(best_name: str = "best_model.zip") -> str:
@@ -282,8 +283,9 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
     interval = checkpoint_interval(args.timesteps, spec.num_slots(plant.n_containers, n_envs), args.checkpoint_every)
     args = dataclasses.replace(args, n_envs=n_envs, checkpoint_every=interval)
     torch.set_num_threads(max(int(args.torch_threads), 1))
-    # The env and a new SB3 model are built before anything is written: a size that does not fit or
-    # settings the algorithm refuses leave no run directory behind.
+    # The settings' memory is estimated, then the env and a new SB3 model are built, before anything
+    # is written: a size that does not fit or settings the algorithm refuses leave no run directory behind.
+    check_memory(memory_estimate(args, plant, n_envs), "the run")
     try:
         env = make_training_env(spec, args, plant, n_envs)
     except MemoryError:

@@ -18,6 +18,7 @@ from typing import Any
 
 from containergym_marl.algorithms import ALGORITHMS, REGISTRY, get_algorithm, require_training_extra
 from containergym_marl.config import MAX_SIMS
+from containergym_marl.config.bounds import MAX_EPOCHS, MAX_MINIBATCH, MAX_N_STEPS, MAX_REPLAY_BUFFER, check_count
 from containergym_marl.core.dynamics import ARBITRATION_RULES
 from containergym_marl.files import atomic_write_text
 from containergym_marl.options import key_values, option, positive_int
@@ -144,15 +145,96 @@ MAX_SEED = 2**32 - 1
 
 def _check_sb3_settings(spec, hyperparams: dict[str, Any]) -> None:
     """Every ``--hp`` key is a keyword argument of the algorithm's SB3 class (a ValueError naming the
-    unknown ones and the choices); the values are checked when the model is built, before the run
-    directory is written."""
+    unknown ones and the choices), and the settings that size memory lie within their bounds
+    (:mod:`containergym_marl.config.bounds`); SB3 checks the other values when the model is built,
+    before the run directory is written."""
     import inspect
+
+    from containergym_marl.models import sb3_networks
 
     cls = spec.load_class()
     accepted = set(inspect.signature(cls.__init__).parameters) - {"self", "policy", "env", "kwargs", "args"}
     unknown = sorted(set(hyperparams) - accepted)
     if unknown:
         raise ValueError(f"hp: unknown {cls.__name__} setting(s) {unknown}; choose from {sorted(accepted)}")
+    for key, hi in (("n_steps", MAX_N_STEPS), ("batch_size", MAX_MINIBATCH), ("n_epochs", MAX_EPOCHS),
+                    ("buffer_size", MAX_REPLAY_BUFFER)):
+        if key in hyperparams:
+            check_count(hyperparams[key], 1, hi, f"hp: {key}")
+    sb3_networks(hyperparams.get("policy_kwargs", {}), "hp: policy_kwargs")
+
+
+def memory_estimate(args: TrainArgs, plant, n_envs: int) -> dict[str, int]:
+    """Bytes a run of ``args`` on ``plant`` with ``n_envs`` simulations needs at least, one entry per
+    setting that sizes them (what :func:`~containergym_marl.config.bounds.check_memory` names),
+    with F the observation size, A the actions, S = the slots (simulations, or agents of all of
+    them) and float32 throughout:
+
+    * the simulations: B × (n + m) × 16 floats of state and S × F × 4 observations' copies;
+    * a rollout (``n_steps``): n_steps × S × (F + 8) (observations and ~8 per-sample buffers; SB3's
+      twice, for its flattened copy; the native PPO's action masks add A);
+    * a minibatch: its samples × (F + 4 × the hidden units + A), twice (forward and backward);
+    * the networks (``hidden``, ``policy_kwargs``): parameters × 6 (weights, gradients, Adam's two
+      moments, the saved copies);
+    * a replay buffer (``buffer_size``): samples × (2F + 5); a DAgger data set (``dataset_size``):
+      samples × (4F + 1) bytes, and its labelling planner's futures (K × H look-ahead of n + 1
+      candidates).
+    """
+    import inspect
+
+    from containergym_marl.core.observations import N_SCALAR_FEATURES
+    from containergym_marl.policies.actor_critic import mlp_parameters
+
+    spec = get_algorithm(args.algo)
+    n, m = plant.n_containers, plant.num_processing_units
+    agents = spec.view == "decentralised"
+    obs, actions = (N_SCALAR_FEATURES + m + n, 2) if agents else (n + m, n + 1)
+    slots = spec.num_slots(n, n_envs)
+    estimate = {f"n_envs={n_envs}": n_envs * (n + m) * 16 * 8 + slots * obs * 4 * 4}
+
+    def networks(key: str, nets: list[list[int]]) -> None:
+        estimate[key] = sum(mlp_parameters([obs, *widths, out]) for widths, out in zip(nets, (actions, 1))) * 4 * 6
+
+    def rollout(key: str, n_steps: int, per_sample: int, copies: int = 1) -> None:
+        estimate[key] = n_steps * slots * per_sample * 4 * copies
+
+    def minibatch(key: str, size: int, hidden_units: int, n_steps: int) -> None:
+        estimate[key] = min(size, n_steps * slots) * (obs + 4 * hidden_units + actions) * 4 * 2
+
+    if spec.sb3:
+        from containergym_marl.models import sb3_networks
+
+        kwargs = spec.kwargs(slots, args.gamma, args.hyperparams)
+        nets = sb3_networks(kwargs.get("policy_kwargs", {}), "hp: policy_kwargs")
+        networks("policy_kwargs.net_arch", nets)
+        if spec.rollout:
+            rollout(f"n_steps={kwargs['n_steps']}", kwargs["n_steps"], obs + 8 + actions, copies=2)
+            batch = kwargs.get("batch_size", 64)
+            minibatch(f"batch_size={batch}", batch, sum(map(sum, nets)), kwargs["n_steps"])
+        else:
+            size = kwargs.get("buffer_size", inspect.signature(spec.load_class().__init__).parameters["buffer_size"].default)
+            estimate[f"buffer_size={size}"] = size * (2 * obs + 5) * 4
+        return estimate
+    if "dagger" in spec.phases:
+        from containergym_marl.training.dagger import DAggerArgs
+
+        hp = DAggerArgs.from_hyperparams(args.hyperparams, fine_tune="ppo" in spec.phases)
+        estimate[f"dataset_size={hp.dataset_size}"] = hp.dataset_size * (obs * 4 + 1)
+        estimate[f"futures={hp.futures}, horizon={hp.horizon}"] = hp.futures * (n + 1) * (n + m + hp.horizon) * 8 * 8
+        networks(f"hidden={list(hp.hidden)}", [list(hp.hidden)] * 2)
+        rollout(f"n_steps={hp.n_steps}", hp.n_steps, obs + 8, copies=2)
+        minibatch(f"minibatch_size={hp.minibatch_size}", hp.minibatch_size, 2 * sum(hp.hidden), hp.n_steps)
+        ppo, prefix, hidden = hp.ppo, "ppo_", hp.hidden  # the fine-tuning keeps the imitated network
+    else:
+        from containergym_marl.training.fast_ppo import PPOArgs
+
+        ppo, prefix = PPOArgs.from_hyperparams(args.hyperparams), ""
+        hidden = ppo.hidden
+        networks(f"hidden={list(hidden)}", [list(hidden)] * 2)
+    if ppo is not None:
+        rollout(f"{prefix}n_steps={ppo.n_steps}", ppo.n_steps, obs + 8 + actions * ppo.action_mask)
+        minibatch(f"{prefix}minibatch_size={ppo.minibatch_size}", ppo.minibatch_size, 2 * sum(hidden), ppo.n_steps)
+    return estimate
 
 
 def _jsonable(x):
@@ -191,4 +273,4 @@ def prepare_run_dir(args: TrainArgs, plant, held_lock: RunLock | None = None) ->
         raise
 
 
-__all__ = ["REWARD_MODES", "TrainArgs", "prepare_run_dir"]
+__all__ = ["REWARD_MODES", "TrainArgs", "memory_estimate", "prepare_run_dir"]

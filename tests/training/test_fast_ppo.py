@@ -4,6 +4,7 @@ written, the optional action mask."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -308,10 +309,17 @@ def test_kill_9_then_resume_keeps_metrics_and_episode_window(tmp_path):
     assert not (run / "final_model.pt").exists()
     steps, _ = checkpoints(run)[0]
     at_checkpoint = read_progress(run, steps)
-    with pytest.warns(UserWarning):
+    # rows written between the newest checkpoint and the kill (as many as the kill's timing allowed) are
+    # dropped, and the resume says so; the run then writes them again
+    later = sum(r["timesteps"] > steps for r in read_metrics(run, quiet=True))
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
         train(TrainArgs(algo="fast_shared_ppo", out=str(run), timesteps=400000, resume=True, checkpoint_every=20000,
                         n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 160},
                         overrides={"episode_length_steps": 20}))
+    dropped = [str(w.message) for w in seen if "dropped" in str(w.message)]
+    assert dropped == ([f"{run}/metrics.csv: dropped {later} row(s) after the checkpoint at {steps} samples "
+                        f"(training continues from there)"] if later else [])
     rows = read_metrics(run)
     samples = [int(r["timesteps"]) for r in rows]
     assert samples == sorted(set(samples)) and samples[-1] >= 400000
