@@ -15,9 +15,10 @@ test seeds 10000-10014 or the fresh ones). A run's score is its validation retur
 ``rule_based_agents``' on the same episodes; the trial's value is the IQM of its 25 scores.
 
 **Pruning.** Runs go seed by seed (all rows of seed 101, then of 102, …). After each run the trial
-reports the mean score so far; from the fourth run on (every n = 5 row seen once) Optuna's median
-pruner stops a trial whose mean is below the median of earlier trials at the same run, so a weak
-setting costs four n = 5 runs rather than 25.
+reports the mean score so far; from the fourth run on (every n = 5 row seen once) the median rule
+(:class:`MedianOfOthersPruner`) stops a trial whose mean is below the median of every other trial that
+reached the same run, finished or still running, so a weak setting costs four n = 5 runs rather than
+25 even while no trial has finished. The default setting is never stopped: it is every trial's reference.
 
 **What is recorded.** Every trial, its settings, state, each run's validation return, overflowing
 validation episodes, the validation return of the checkpoint nearest half the budget, and its
@@ -195,6 +196,25 @@ class Objective:
         return iqm(scores)
 
 
+def pruner():
+    """:class:`MedianOfOthersPruner` as an Optuna pruner (Optuna is imported only when a search runs)."""
+    optuna = require_optuna()
+
+    class MedianOfOthersPruner(optuna.pruners.BasePruner):
+        """Optuna's median rule, with every other trial that reached the same run as a reference (a
+        running one too: Optuna's MedianPruner waits for finished trials, hours of runs each here)."""
+
+        def prune(self, study, trial) -> bool:
+            step = trial.last_step
+            if step is None or step + 1 < WARMUP_RUNS or trial.user_attrs.get("default"):
+                return False
+            others = [t.intermediate_values[step] for t in study.get_trials(deepcopy=False)
+                      if t.number != trial.number and step in t.intermediate_values]
+            return bool(others) and trial.intermediate_values[step] < float(np.median(others))
+
+    return MedianOfOthersPruner()
+
+
 def open_study(method: str, journal: Path, sampler_seed: int):
     optuna = require_optuna()
     from optuna.storages import JournalStorage
@@ -203,8 +223,7 @@ def open_study(method: str, journal: Path, sampler_seed: int):
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     storage = JournalStorage(JournalFileBackend(str(journal)))
     sampler = optuna.samplers.TPESampler(seed=sampler_seed, n_startup_trials=8)
-    pruner = optuna.pruners.MedianPruner(n_startup_trials=3, n_warmup_steps=WARMUP_RUNS - 1)
-    return optuna.create_study(study_name=method, storage=storage, sampler=sampler, pruner=pruner,
+    return optuna.create_study(study_name=method, storage=storage, sampler=sampler, pruner=pruner(),
                                direction="maximize", load_if_exists=True)
 
 
@@ -222,7 +241,8 @@ def requeue_interrupted(study) -> int:
     stale = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.RUNNING]
     for t in stale:
         study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)
-        study.enqueue_trial(t.params, user_attrs={"requeued_from": t.number})
+        attrs = {"requeued_from": t.number, **({"default": True} if t.user_attrs.get("default") else {})}
+        study.enqueue_trial(t.params, user_attrs=attrs)
     return len(stale)
 
 

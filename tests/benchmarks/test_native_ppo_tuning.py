@@ -85,3 +85,26 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     [again] = [t for t in _study(out).get_trials() if t.user_attrs.get("requeued_from") == stale.number]
     assert again.value == trials[0].value
     assert not (runs / "fast_shared_ppo" / again.user_attrs["folder"]).exists()  # nothing trained again
+
+
+def test_a_trial_below_the_median_of_the_others_at_the_same_run_is_stopped_but_never_the_default():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("native_ppo_tuning", SCRIPT)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    study = optuna.create_study(direction="maximize", pruner=script.pruner())
+    reference = study.ask()  # still running: a reference all the same
+    for step, value in enumerate([0.9, 0.9, 0.9, 0.9, 0.9]):
+        reference.report(value, step)
+    weak, strong = study.ask(), study.ask()
+    for step in range(script.WARMUP_RUNS - 1):  # before the fourth run nothing is stopped
+        weak.report(0.1, step)
+        assert not weak.should_prune()
+    weak.report(0.1, script.WARMUP_RUNS - 1)
+    strong.report(0.95, script.WARMUP_RUNS - 1)
+    assert weak.should_prune() and not strong.should_prune()
+    default = study.ask()
+    default.set_user_attr("default", True)
+    default.report(0.0, script.WARMUP_RUNS - 1)
+    assert not default.should_prune()
