@@ -240,11 +240,22 @@ def _evaluate_into(to: Path, folder: str, protocol, min_seeds: int, runs_only: b
         else:
             controller = CONTROLLERS[group.method](PlantParams.from_config(protocol.plant(group.config)))
             result = evaluate(controller, group.config, protocol, keep_records=False)
-        data = json.loads(result.to_json())
-        data["model_sha256"] = key
-        atomic_write_text(path, json.dumps(data, indent=2) + "\n", within=to)
+        atomic_write_text(path, compact_evaluation(json.loads(result.to_json()), key), within=to)
         done.append(f"{group.config}/{tables.evaluation_key(group.method, seed)}")
     return done
+
+
+#: What a validation or fresh evaluation file keeps of each episode (hundreds of them per policy; the
+#: test evaluations keep every metric): what the table reads.
+COMPACT_EPISODE = ("seed", "cumulative_reward", "steps", "overflow")
+
+
+def compact_evaluation(data: dict, model_sha256: str) -> str:
+    """An evaluation's JSON with :data:`COMPACT_EPISODE` of each episode, its summary over all of
+    them and the sha256 of the model evaluated, on as few bytes as JSON allows."""
+    data = {**data, "episodes": [{k: e[k] for k in COMPACT_EPISODE} for e in data["episodes"]],
+            "model_sha256": model_sha256}
+    return json.dumps(data, separators=(",", ":")) + "\n"
 
 
 def evaluate_selection(to: Path, min_seeds: int = 3) -> list[str]:

@@ -99,7 +99,11 @@ def team_no_better():
 
 
 def paper_ppo_and_planner():
-    near = all(abs(rows()[(c, "ppo")]["median_mean"] - tables.PAPER_TABLE_1[c]["ppo"][1][0]) <= 5
+    def test_median(c):  # the paper's rule: seeds ranked by test return, the lower median of an even count
+        ranked = np.sort(seeds(c, "ppo"))[::-1]
+        return ranked[len(ranked) // 2]
+
+    near = all(abs(test_median(c) - tables.PAPER_TABLE_1[c]["ppo"][1][0]) <= 5
                for c in ("n5_m2_dt120", "n5_m5_dt120", "n11_m2_dt120", "n11_m11_dt120"))
     few = {rows()[(c, "ppo")]["seeds"] for c in tables.PAPER_TABLE_1} <= {3, 4, 5}
     reference = all(planner()[(c, "planner_agents", "default")]["return_mean"] > rows()[(c, m)]["iqm"]
@@ -146,9 +150,9 @@ FINDINGS = {
     "Shared PPO's (SB3) IQM interval with the team reward never lies above the one with individual "
     "rewards; it lies below on `n5_m5_dt120`, `n11_m11_dt120` and `n16_m2_dt120`, and the two overlap on "
     "the other rows.": team_no_better,
-    "SB3's PPO with the paper's settings has its median seed within 5 points of the paper's median PPO seed "
-    "on the four δ = 120 s paper rows (3–5 seeds here, 15 in the paper). The rollout planner scores above "
-    "every learned method's IQM on every row.": paper_ppo_and_planner,
+    "SB3's PPO with the paper's settings has its median seed (ranked on the test episodes, as the paper ranks its "
+    "seeds) within 5 points of the paper's median PPO seed on the four δ = 120 s paper rows (3–5 seeds here, 15 "
+    "in the paper). The rollout planner scores above every learned method's IQM on every row.": paper_ppo_and_planner,
 }
 
 
