@@ -267,7 +267,8 @@ def _nanmean(values) -> float | None:
 
 def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
     rows = trial_rows(study)
-    cpu_h = sum(r["cpu_s"] for r in rows) / 3600
+    # a run reused by a trial queued again (the same setting) is counted once
+    cpu_h = sum(entry["cpu_s"] for entry in recorded_runs(study).values()) / 3600
     data = {"method": method, "rows": list(ROWS), "seeds": list(SEEDS), "validation_seeds": VALIDATION.seeds,
             "rule_based_agents_validation_return": rule, "space": {k: list(v) for k, v in SPACE.items()},
             "core_hours": round(cpu_h, 2), "trials": rows}
@@ -282,7 +283,7 @@ def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
              f"same share for the checkpoint nearest half the budget. Compute so far: {cpu_h:.1f} core-hours "
              f"(CPU time of the training runs, one core each).", "",
              "| trial | state | " + " | ".join(names) + " | runs | value | mean share | half budget "
-             "| overflowing episodes | CPU h |",
+             "| overflowing episodes | CPU h of its runs |",
              "|" + "---|" * (len(names) + 8)]
     ranked = sorted(rows, key=lambda r: (r["state"] != "COMPLETE", -(r["value"] if r["value"] is not None else -1e9)))
     for r in ranked:
