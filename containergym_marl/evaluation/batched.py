@@ -18,7 +18,14 @@ from containergym_marl.config import PlantConfig
 from containergym_marl.core.observations import agent_observations
 from containergym_marl.core.simulator import PlantSimulator
 from containergym_marl.envs.vector import _agent_requests, _centralised_requests
-from containergym_marl.evaluation.protocol import GOOD_REWARD, PAPER, EpisodeMetrics, EvalProtocol, EvaluationResult
+from containergym_marl.evaluation.protocol import (
+    GOOD_REWARD,
+    PAPER,
+    EpisodeMetrics,
+    EvalProtocol,
+    EvaluationResult,
+    check_observation_shape,
+)
 
 
 def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol = PAPER, *,
@@ -82,15 +89,9 @@ def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol =
 
 
 def _check_fits(policy, sim: PlantSimulator, plant: PlantConfig) -> None:
-    space = getattr(policy, "observation_space", None)
-    if space is None:
-        return
     size = (sim.global_state(sim.state) if policy.view == "centralised"
             else agent_observations(sim.state, sim.params, sim.previous_requests)).shape[-1]
-    if space.shape != (size,):
-        raise ValueError(f"policy {policy.name!r} expects observations of shape {space.shape}, but the "
-                         f"{policy.view} view of {plant.name!r} gives ({size},): the model was trained on a "
-                         f"plant with a different number of containers or PUs")
+    check_observation_shape(policy, (size,), plant.name)
 
 
 __all__ = ["evaluate_batched"]

@@ -217,13 +217,16 @@ def evaluate(
 
 def _check_policy_fits(policy: Policy, env: Any) -> None:
     """Refuse a learned model whose observation space differs from the environment's."""
-    model_space = getattr(policy, "observation_space", None)
-    if model_space is None:
-        return
     env_space = env.observation_space if policy.view == "centralised" else env.observation_space(env.possible_agents[0])
-    if model_space.shape != env_space.shape:
+    check_observation_shape(policy, env_space.shape, env.config.name)
+
+
+def check_observation_shape(policy: Policy, shape: tuple, plant_name: str) -> None:
+    """Refuse a learned model whose observations are not of ``shape`` (those of the view of ``plant_name``)."""
+    model_space = getattr(policy, "observation_space", None)
+    if model_space is not None and model_space.shape != tuple(shape):
         raise ValueError(
             f"policy {policy.name!r} expects observations of shape {model_space.shape}, but the "
-            f"{policy.view} view of {env.config.name!r} gives {env_space.shape}: the model was "
+            f"{policy.view} view of {plant_name!r} gives {tuple(shape)}: the model was "
             f"trained on a plant with a different number of containers or PUs"
         )
