@@ -9,11 +9,12 @@ A whole ``train`` run of ``--samples`` samples is measured first (this process's
 trainer's own functions are run one by one at the run's shape (the same simulations, rollout length,
 minibatches and epochs) and timed apart, each repeated ``--repeats`` times:
 
-* rollout: the vector env's step; the policy's forward with the action sample (Gumbel-max) and the
-  log-probability; the value forward;
+* rollout: the vector env's step; the policy's and value's forward with the action sample
+  (Gumbel-max) and the log-probability;
 * GAE over one rollout;
-* update (``fast_ppo.update``'s loop, replayed step by step): forward and loss, backward, gradient
-  clip, Adam.
+* update (``fast_ppo.update``'s loop, replayed step by step): the minibatch's rows and the networks'
+  forward, the loss's gradients (:mod:`~containergym_marl.training.ppo_gradients`), the networks'
+  backward, gradient clip, Adam.
 
 "Rest" is the whole run less the sum of the phases: the rollout's bookkeeping (copies into the
 buffers, episode returns, the time-limit bootstrap), metrics rows, checkpoints and start-up.
@@ -38,6 +39,7 @@ from containergym_marl.algorithms import get_algorithm
 from containergym_marl.config import load_config
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, new_state
+from containergym_marl.training.ppo_gradients import MLPGradients, ppo_loss_gradients
 
 
 def _cpu(fn, repeats: int) -> float:
@@ -84,21 +86,16 @@ def profile(algo: str, config: str, samples: int, repeats: int) -> dict:
     actions = rng.integers(0, model.n_actions, size=slots)
     per["env step"] = _cpu(lambda: [env.step(actions) for _ in range(steps)], repeats) / rollout
 
-    def policy_forward():
-        with torch.no_grad():
-            for _ in range(steps):
-                logits = model.logits(obs)
-                uniform = torch.rand(logits.shape, generator=generator)
-                a = (logits - torch.log(-torch.log(uniform))).argmax(-1)
-                torch.log_softmax(logits, -1).gather(-1, a[:, None])
+    nets = MLPGradients(model)
 
-    def value_forward():
-        with torch.no_grad():
-            for _ in range(steps):
-                model.value(obs)
+    def policy_forward():  # the rollout's: logits and values in one call, the Gumbel-max sample
+        for _ in range(steps):
+            logits, _ = nets.forward(obs, keep=False)
+            uniform = torch.rand(logits.shape, generator=generator)
+            a = (logits - torch.log(-torch.log(uniform))).argmax(-1)
+            torch.log_softmax(logits, -1).gather(-1, a[:, None])
 
-    per["policy forward + sample"] = _cpu(policy_forward, repeats) / rollout
-    per["value forward"] = _cpu(value_forward, repeats) / rollout
+    per["policy and value forward + sample"] = _cpu(policy_forward, repeats) / rollout
 
     rewards, values, starts = (torch.randn(steps, slots) for _ in range(3))
     last = torch.zeros(slots)
@@ -108,28 +105,27 @@ def profile(algo: str, config: str, samples: int, repeats: int) -> dict:
     flat_act = torch.from_numpy(rng.integers(0, model.n_actions, size=rollout))
     old_logp, adv, ret = torch.full((rollout,), -0.7), torch.randn(rollout), torch.randn(rollout)
     minibatches = max(1, round(rollout / hp.minibatch_size))
-    parts = {"update: forward and loss": 0.0, "update: backward": 0.0, "update: gradient clip": 0.0,
-             "update: Adam": 0.0}
+    parts = {"update: minibatch and forward": 0.0, "update: loss gradients": 0.0, "update: backward": 0.0,
+             "update: gradient clip": 0.0, "update: Adam": 0.0}
 
-    def one_update():
+    def one_update():  # fast_ppo.update's loop, phase by phase
         for _ in range(hp.n_epochs):
             for idx in torch.tensor_split(torch.randperm(rollout, generator=generator), minibatches):
                 t0 = time.process_time()
-                log_probs = torch.log_softmax(model.logits(flat_obs[idx]), -1)
-                ratio = torch.exp(log_probs.gather(-1, flat_act[idx, None]).squeeze(-1) - old_logp[idx])
-                a = (adv[idx] - adv[idx].mean()) / (adv[idx].std() + 1e-8)
-                loss = -torch.min(a * ratio, a * torch.clamp(ratio, 0.8, 1.2)).mean() + 0.5 * torch.nn.functional.mse_loss(
-                    ret[idx], model.value(flat_obs[idx]))
-                (-(log_probs.exp() * log_probs).sum(-1).mean()).detach()
+                logits, values = nets.forward(flat_obs.index_select(0, idx))
+                a = adv.index_select(0, idx)
                 t1 = time.process_time()
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
+                g_logits, g_values, _ = ppo_loss_gradients(
+                    logits, values, flat_act.index_select(0, idx), old_logp.index_select(0, idx),
+                    (a - a.mean()) / (a.std() + 1e-8), ret.index_select(0, idx), hp.clip_range, hp.vf_coef, hp.ent_coef)
                 t2 = time.process_time()
-                torch.nn.utils.clip_grad_norm_(model.net.parameters(), hp.max_grad_norm)
+                nets.backward(g_logits, g_values)
                 t3 = time.process_time()
-                optimizer.step()
+                nets.clip_grad_norm_(hp.max_grad_norm)
                 t4 = time.process_time()
-                for name, dt in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+                optimizer.step()
+                t5 = time.process_time()
+                for name, dt in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)):
                     parts[name] += dt
 
     for _ in range(repeats):

@@ -14,7 +14,9 @@ REPO = Path(__file__).resolve().parents[2]
 def test_smoke_run_reports_share_cost_and_decision_time(tmp_path):
     subprocess.run([sys.executable, str(REPO / "benchmarks" / "dagger_rows.py"), "--smoke", "--num-cpus", "1",
                     "--out", str(tmp_path / "out"), "--runs", str(tmp_path / "runs")],
-                   capture_output=True, text=True, timeout=300, check=True)
+                   # a guard against a hang, not a speed check: Ray's workers run at nice 15 and take
+                   # several times their idle time beside other jobs on a 2-core machine
+                   capture_output=True, text=True, timeout=1800, check=True)
     report = json.loads((tmp_path / "out" / "rows.json").read_text())
     assert [(e["row"], e["method"]) for e in report["entries"]] == [
         ("n5_m2_dt120", "dagger_agents"), ("n5_m2_dt120", "dagger_ppo_agents")]

@@ -206,8 +206,9 @@ def test_a_finished_run_is_published_with_its_torch_models(trained, tmp_path):
 
     assert done["runs"] == ["mappo_n5_m2_dt120_s3"] and done["models"] == ["n5_m2_dt120/mappo"]
     shipped = to / "runs" / "mappo_n5_m2_dt120_s3"
+    # .lock: the copy's lock (rundir.RunLock), left like a trained run's; git and the manifest ignore it
     assert sorted(p.name for p in shipped.iterdir()) == sorted(
-        ["args.json", "run.json", "config.toml", "metrics.csv", "best_model.pt", "final_model.pt"])
+        [".lock", "args.json", "run.json", "config.toml", "metrics.csv", "best_model.pt", "final_model.pt"])
     for which in ("best", "median"):  # one seed: it is both
         assert (to / "models" / "n5_m2_dt120" / f"mappo_{which}.pt").read_bytes() == (run / "best_model.pt").read_bytes()
     meta = json.loads((to / "models" / "n5_m2_dt120" / "mappo.json").read_text())

@@ -373,13 +373,15 @@ def test_the_sigmoid_form_of_tanh_equals_torch_tanh_and_its_gradient():
     np.testing.assert_allclose(grad.numpy(), (1 - torch.tanh(x) ** 2).detach().numpy(), atol=1e-6)
 
 
-def test_a_rollout_is_split_into_equal_minibatches():
+def test_a_rollout_is_split_into_equal_minibatches(monkeypatch):
     """4160 samples with minibatches of about 1024: four Adam steps on 1040 samples each per epoch
     (SB3's slicing would take four of 1024 and a fifth of 64)."""
+    from containergym_marl.training.ppo_gradients import MLPGradients
+
     model = ActorCritic("decentralised", 3, 2, generator=torch.Generator().manual_seed(1))
     sizes = []
-    forward = model.logits
-    model.logits = lambda obs, masks=None: (sizes.append(obs.shape[0]), forward(obs, masks))[1]
+    forward = MLPGradients.forward
+    monkeypatch.setattr(MLPGradients, "forward", lambda self, obs: (sizes.append(obs.shape[0]), forward(self, obs))[1])
     optimizer = torch.optim.Adam(model.net.parameters(), lr=1e-4)
     total = 4160
     update(model, optimizer, PPOArgs(minibatch_size=1024, n_epochs=2), torch.Generator().manual_seed(0),

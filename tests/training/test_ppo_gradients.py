@@ -1,0 +1,94 @@
+"""The native PPO's written-out gradients (training/ppo_gradients.py) against autograd: the networks'
+outputs bit for bit and their gradients to float rounding, the same norm clip; the clipped loss's
+gradients and diagnostics."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic
+from containergym_marl.training.ppo_gradients import MLPGradients, ppo_loss_gradients
+
+
+@pytest.mark.parametrize("view, obs_size, n_actions, hidden", [
+    ("decentralised", 7, 2, (64, 64)),  # a container agent: a narrow first layer
+    ("centralised", 33, 12, (64, 64)),
+    ("decentralised", 5, 2, (16, 32, 8)),  # three hidden layers of different widths
+])
+def test_outputs_and_gradients_equal_autograds(view, obs_size, n_actions, hidden):
+    gen = torch.Generator().manual_seed(4)
+    model = ActorCritic(view, obs_size, n_actions, hidden, generator=gen)
+    obs = torch.randn(300, obs_size, generator=gen)
+    g_logits, g_values = torch.randn(300, n_actions, generator=gen), torch.randn(300, generator=gen)
+
+    logits, values = model.logits(obs), model.value(obs)
+    torch.autograd.backward([logits, values], [g_logits, g_values])
+    expected = [p.grad.clone() for p in model.net.parameters()]
+
+    nets = MLPGradients(model)
+    got_logits, got_values = nets.forward(obs)
+    assert torch.equal(got_logits, logits.detach()) and torch.equal(got_values, values.detach())
+    nets.backward(g_logits, g_values)
+    for (name, p), want in zip(model.net.named_parameters(), expected):
+        torch.testing.assert_close(p.grad, want, rtol=1e-5, atol=1e-5, msg=name)
+        assert p.grad.data_ptr() != want.data_ptr()
+    # every gradient is a view of the one flat buffer that the clip scales
+    assert sum(p.grad.numel() for p in model.net.parameters()) == nets.flat_grad.numel()
+    norm = torch.linalg.vector_norm(torch.cat([w.flatten() for w in expected]))
+    nets.clip_grad_norm_(0.5)
+    for p, want in zip(model.net.parameters(), expected):
+        torch.testing.assert_close(p.grad, want * (0.5 / (norm + 1e-6)), rtol=1e-5, atol=1e-6)
+    before = nets.flat_grad.clone()
+    nets.clip_grad_norm_(1e9)  # within the bound: unchanged
+    assert torch.equal(nets.flat_grad, before)
+
+
+def _autograd_loss(logits, values, actions, old_logp, adv, returns, clip, vf_coef, ent_coef, masks):
+    """SB3's PPO loss through autograd (the trainer's loss before it was written out)."""
+    if masks is not None:
+        logits = logits.masked_fill(~masks, MASKED_LOGIT)
+    log_probs = torch.log_softmax(logits, -1)
+    log_ratio = log_probs.gather(-1, actions[:, None]).squeeze(-1) - old_logp
+    ratio = log_ratio.exp()
+    policy_loss = -torch.min(adv * ratio, adv * torch.clamp(ratio, 1 - clip, 1 + clip)).mean()
+    entropy = -(log_probs.exp() * log_probs.clamp_min(torch.finfo(log_probs.dtype).min)).sum(-1).mean()
+    return policy_loss + vf_coef * torch.nn.functional.mse_loss(returns, values) - ent_coef * entropy, entropy, ratio, log_ratio
+
+
+@pytest.mark.parametrize("n_actions, masked, ent_coef", [(2, False, 0.0), (6, True, 0.01), (2, False, 0.05)])
+def test_loss_gradients_equal_autograds(n_actions, masked, ent_coef):
+    """Samples with ratios inside the clip range (ties of the two surrogates, as in every first epoch:
+    r = 1), above and below it, positive and negative advantages; masked actions."""
+    gen = torch.Generator().manual_seed(7)
+    b, clip = 240, 0.2
+    logits = torch.randn(b, n_actions, generator=gen) * 2
+    values, returns = torch.randn(b, generator=gen), torch.randn(b, generator=gen)
+    masks = torch.rand(b, n_actions, generator=gen) < 0.7 if masked else None
+    if masks is not None:
+        masks[:, 0] = True
+    actions = torch.multinomial(torch.softmax(logits if masks is None else logits.masked_fill(~masks, MASKED_LOGIT), -1),
+                                1, generator=gen).squeeze(-1)
+    with torch.no_grad():
+        current = torch.log_softmax(logits if masks is None else logits.masked_fill(~masks, MASKED_LOGIT), -1)
+        current = current.gather(-1, actions[:, None]).squeeze(-1)
+    # a third at ratio 1, a third within the range, a third well outside it (either side)
+    shift = torch.cat([torch.zeros(b // 3), torch.empty(b // 3).uniform_(-0.1, 0.1, generator=gen),
+                       torch.empty(b - 2 * (b // 3)).uniform_(-1.0, 1.0, generator=gen)])
+    old_logp = current + shift
+    adv = torch.randn(b, generator=gen)
+
+    z, v = logits.clone().requires_grad_(), values.clone().requires_grad_()
+    loss, entropy, ratio, log_ratio = _autograd_loss(z, v, actions, old_logp, adv, returns, clip, 0.5, ent_coef, masks)
+    want_z, want_v = torch.autograd.grad(loss, (z, v))
+
+    g_z, g_v, diagnostics = ppo_loss_gradients(logits, values, actions, old_logp, adv, returns, clip, 0.5, ent_coef, masks)
+    torch.testing.assert_close(g_z, want_z, rtol=1e-5, atol=1e-7)
+    torch.testing.assert_close(g_v, want_v, rtol=1e-6, atol=1e-8)
+    assert (want_z.abs() > 1e-4).sum() > b // 2  # the comparison is of gradients that are there
+    if masks is not None:
+        assert torch.all(g_z[~masks] == 0)
+    assert float(diagnostics["entropy"]) == pytest.approx(float(entropy.detach()), rel=1e-6)
+    assert float(diagnostics["approx_kl"]) == pytest.approx(float(((ratio - 1) - log_ratio).mean().detach()), rel=1e-5)
+    clipped = float(((ratio.detach() - 1).abs() > clip).float().mean())
+    assert float(diagnostics["clip_fraction"]) == clipped and 0 < clipped < 1
