@@ -3,6 +3,8 @@
     python benchmarks/native_ppo_tuning.py --method fast_shared_ppo --trials 40 --workers 2
     python benchmarks/native_ppo_tuning.py --method fast_shared_ppo --report      # the tables only
     python benchmarks/native_ppo_tuning.py --method fast_ppo --smoke --out /tmp/t  # 2 tiny trials
+    python benchmarks/native_ppo_tuning.py --method fast_shared_ppo --write-config  # the best trial's settings
+                                                          # into configs/hyperparams/fast_shared_ppo.toml
 
 **What a trial is.** Optuna's TPE sampler proposes one setting of :class:`~containergym_marl.training.fast_ppo.PPOArgs`
 (:data:`SPACE`: samples per update, rollout length, minibatch, epochs, step size and its annealing,
@@ -31,6 +33,10 @@ resumes from its checkpoint, a finished one is reused with its cached validation
 left running is marked failed when the search starts again and its setting is queued anew; its
 finished runs are reused, from the journal where their folders are gone (another machine). One search per method at a time (a lock on its folder); the ``--workers``
 processes share the journal.
+
+**What is chosen.** ``--write-config`` writes the best finished trial's settings (highest value) as the
+method's settings file, ``configs/hyperparams/<method>.toml``, which ``train`` and ``compare`` read
+(:mod:`containergym_marl.config.hyperparams`).
 """
 
 from __future__ import annotations
@@ -51,6 +57,7 @@ from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import evaluate
 from containergym_marl.evaluation.protocol import VALIDATION
 from containergym_marl.evaluation.stats import iqm
+from containergym_marl.config.hyperparams import settings_file, write_settings
 from containergym_marl.files import atomic_write_text
 from containergym_marl.methods import get_method
 from containergym_marl.policies import RuleBasedAgents
@@ -303,6 +310,21 @@ def _cell(value) -> str:
     return str(value).lower() if isinstance(value, bool) else str(value)
 
 
+def write_config(method: str, study, path: Path) -> dict[str, Any]:
+    """Write the best finished trial's settings (highest IQM share of rule_based_agents over every run)
+    as ``method``'s settings file, read by ``train`` and ``compare``; a ValueError when no trial has
+    finished."""
+    optuna = require_optuna()
+    done = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE]
+    if not done:
+        raise ValueError(f"--write-config: no trial of {method}'s search has finished yet; nothing to write")
+    best = max(done, key=lambda t: t.value)
+    source = (f"benchmarks/native_ppo_tuning.py: trial {best.number} of {len(done)} finished, IQM share of "
+              f"rule_based_agents {best.value:.3f} on validation episodes (results/ppo_tuning/{method}/trials.md)")
+    write_settings(path, dict(best.params), source)
+    return dict(best.params)
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--method", default="fast_shared_ppo",
@@ -314,7 +336,11 @@ def main(argv=None) -> None:
     p.add_argument("--runs", default="runs/ppo_tuning", help="the trials' runs, in <runs>/<method>/")
     p.add_argument("--report", action="store_true", help="train nothing: write the tables of the journal")
     p.add_argument("--smoke", action="store_true", help="trials of 1 row x 1 seed at 8192 samples (a test)")
+    p.add_argument("--write-config", nargs="?", const="", default=None, metavar="PATH",
+                   help="train nothing: write the best finished trial's settings as the method's settings file "
+                        "(default configs/hyperparams/<method>.toml)")
     ns = p.parse_args(argv)
+    ns.report = ns.report or ns.write_config is not None
     optuna = require_optuna()
     out, runs = Path(ns.out) / ns.method, Path(ns.runs) / ns.method
     out.mkdir(parents=True, exist_ok=True)
@@ -344,6 +370,9 @@ def main(argv=None) -> None:
                     proc.join()
             study = open_study(ns.method, journal, sampler_seed=0)
         print(report(ns.method, study, out, rule))
+        if ns.write_config is not None:
+            path = Path(ns.write_config) if ns.write_config else settings_file(ns.method)
+            print(f"wrote {path}: {write_config(ns.method, study, path)}")
 
 
 if __name__ == "__main__":

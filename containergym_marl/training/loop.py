@@ -36,6 +36,7 @@ from containergym_marl.algorithms import (
 )
 from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.config.bounds import check_memory
+from containergym_marl.config.hyperparams import method_settings
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.rundir import (
     RunLock,
@@ -263,6 +264,17 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, load=None):
 
 
 # ---- train ----------------------------------------------------------------------------------------
+def run_settings(args: TrainArgs) -> dict[str, Any]:
+    """The settings a run trains with: a new run, its method's file (``configs/hyperparams/``,
+    :mod:`~containergym_marl.config.hyperparams`) with ``--hp`` on top; a resumed run, the settings
+    its ``args.json`` recorded with ``--hp`` on top (not the file as it is now)."""
+    if args.resume and (args.run_dir() / "args.json").is_file():
+        base = run_args(args.run_dir()).get("hyperparams") or {}
+    else:
+        base = method_settings(get_algorithm(args.algo).method_name(args.reward_mode))
+    return {**base, **args.hyperparams}
+
+
 def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
     """Train one run; returns its directory. Resumable, crash-safe, never overwrites results,
     one writer per directory: the run's lock is taken here, or handed over as ``held_lock`` by a
@@ -270,6 +282,8 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
     left to that caller to release."""
     spec = get_algorithm(args.algo)
     args.validate()
+    args = dataclasses.replace(args, hyperparams=run_settings(args))
+    args.validate()  # the settings from the method's file or the resumed run, checked as --hp's
     # a MissingExtraError naming the extra, before anything is written
     algo_cls = spec.load_class() if spec.sb3 else None
     import torch

@@ -86,6 +86,15 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert again.value == trials[0].value
     assert not (runs / "fast_shared_ppo" / again.user_attrs["folder"]).exists()  # nothing trained again
 
+    # the best finished trial's settings, as the method's settings file that train reads
+    from containergym_marl.config.hyperparams import read_settings
+
+    _search(out, runs, "--write-config", str(tmp_path / "chosen.toml"))
+    finished = [t for t in _study(out).get_trials() if t.state == optuna.trial.TrialState.COMPLETE]
+    best = max(finished, key=lambda t: t.value)
+    settings, source = read_settings(tmp_path / "chosen.toml")
+    assert settings == best.params and f"trial {best.number} of {len(finished)} finished" in source
+
 
 def test_a_trial_below_the_median_of_the_others_at_the_same_run_is_stopped_but_never_the_default():
     import importlib.util

@@ -1,0 +1,84 @@
+"""A method's settings file (configs/hyperparams/<method>.toml): read by train for a new run, under
+--hp; a resumed run keeps the settings it recorded; a bad file is refused before anything is written."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from containergym_marl.config import hyperparams as files
+from containergym_marl.methods import METHODS
+from containergym_marl.training import TrainArgs, train
+from containergym_marl.training.fast_ppo import PPOArgs
+
+TINY = dict(config="n5_m2_dt120", n_envs=2, progress_bar=False, overrides={"episode_length_steps": 20})
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    path = tmp_path / "hyperparams"
+    path.mkdir()
+    monkeypatch.setattr(files, "hyperparams_dir", lambda: path)
+    return path
+
+
+def _settings(run) -> dict:
+    return json.loads((run / "args.json").read_text())["hyperparams"]
+
+
+def test_the_shipped_files_are_the_native_methods_and_valid():
+    shipped = sorted(p.stem for p in files.hyperparams_dir().glob("*.toml"))
+    assert shipped == ["fast_ppo", "fast_shared_ppo", "fast_shared_ppo_team"]
+    for name in shipped:
+        assert name in METHODS and METHODS[name].algo in ("fast_ppo", "fast_shared_ppo")
+        settings, source = files.read_settings(files.settings_file(name))
+        assert source and settings
+        PPOArgs.from_hyperparams(settings)  # every key a PPOArgs field, every value within bounds
+
+
+def test_a_new_run_takes_its_methods_file_under_hp(folder, tmp_path):
+    files.write_settings(folder / "fast_shared_ppo.toml", {"n_steps": 16, "learning_rate": 1e-3}, "a test")
+    files.write_settings(folder / "fast_shared_ppo_team.toml", {"n_steps": 8, "minibatch_size": 32}, "a test")
+    run = train(TrainArgs(algo="fast_shared_ppo", timesteps=400, out=str(tmp_path / "a"),
+                          hyperparams={"learning_rate": "5e-4"}, **TINY))
+    assert _settings(run) == {"n_steps": 16, "learning_rate": "5e-4"}  # --hp wins over the file
+    rows = (run / "metrics.csv").read_text().splitlines()[1:]
+    assert all(int(r.split(",")[0]) % (16 * 2 * 5) == 0 for r in rows)  # 16 steps x 2 sims x 5 agents
+    team = train(TrainArgs(algo="fast_shared_ppo", reward_mode="team", timesteps=400, out=str(tmp_path / "b"), **TINY))
+    assert _settings(team) == {"n_steps": 8, "minibatch_size": 32}  # the method fast_shared_ppo_team's file
+    sb3 = train(TrainArgs(algo="ppo", timesteps=64, out=str(tmp_path / "c"), **TINY))
+    assert _settings(sb3) == {}  # no file: the algorithm's defaults
+
+
+def test_a_resumed_run_keeps_its_recorded_settings(folder, tmp_path):
+    files.write_settings(folder / "fast_shared_ppo.toml", {"n_steps": 16}, "a test")
+    first = train(TrainArgs(algo="fast_shared_ppo", timesteps=160, out=str(tmp_path / "r"), **TINY))
+    files.write_settings(folder / "fast_shared_ppo.toml", {"n_steps": 8}, "changed since")
+    run = train(TrainArgs(algo="fast_shared_ppo", timesteps=480, out=str(first), resume=True, **TINY))
+    assert _settings(run) == {"n_steps": 16}
+    steps = [int(r.split(",")[0]) for r in (run / "metrics.csv").read_text().splitlines()[1:]]
+    assert steps and steps[-1] == 480 and all(s % 160 == 0 for s in steps)
+
+
+@pytest.mark.parametrize("text, named", [
+    ("[settings]\nn_epochs = 0\n", "n_epochs"),  # out of PPOArgs' bounds
+    ("[settings]\nlearning_rte = 0.1\n", "learning_rte"),  # not a setting
+    ("[settings]\nlearning_rate = nan\n", "settings.learning_rate"),
+    ("[settings]\nhidden = {a = 1}\n", "settings.hidden"),
+    ("sources = 'x'\n", "sources"),
+    ("[settings\n", "not a TOML file"),
+])
+def test_a_bad_file_is_refused_before_anything_is_written(folder, tmp_path, text, named):
+    (folder / "fast_shared_ppo.toml").write_text(text)
+    with pytest.raises(ValueError, match=named):
+        train(TrainArgs(algo="fast_shared_ppo", timesteps=160, out=str(tmp_path / "run"), **TINY))
+    assert not (tmp_path / "run").exists()
+
+
+def test_write_settings_reads_back(tmp_path):
+    settings = {"anneal_lr": True, "hidden": [64, 32], "learning_rate": 2.5e-4, "n_epochs": 5}
+    files.write_settings(tmp_path / "m.toml", settings, 'trial 3 of "a search"')
+    assert files.read_settings(tmp_path / "m.toml") == (settings, 'trial 3 of "a search"')
+    with pytest.raises(ValueError, match="method"):
+        files.settings_file("../escape")
