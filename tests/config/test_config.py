@@ -715,7 +715,9 @@ def test_wheel_install_loads_builtin_configs(tmp_path):
         "for name, mod in list(sys.modules.items()):\n"
         "    if name.split('.')[0] == 'containergym_marl':\n"
         "        assert site in pathlib.Path(mod.__file__).resolve().parents, (name, mod.__file__)\n"
-        "print(json.dumps({'count': len(list_configs()), 'names': list_configs(), 'n': cfg.n_containers, 'file': str(where)}))\n"
+        "from containergym_marl.config.hyperparams import method_settings\n"
+        "lr = method_settings('fast_shared_ppo')['learning_rate']\n"
+        "print(json.dumps({'count': len(list_configs()), 'names': list_configs(), 'n': cfg.n_containers, 'file': str(where), 'lr': lr}))\n"
     )
     env = {**os.environ, "PYTHONPATH": str(site)}
     env.pop("CONTAINERGYM_REFERENCE_CONFIGS", None)
@@ -727,6 +729,7 @@ def test_wheel_install_loads_builtin_configs(tmp_path):
     assert sorted(out["names"]) == sorted(BUILTINS)
     assert out["n"] == 5
     assert not Path(out["file"]).is_relative_to(REPO_ROOT)
+    assert out["lr"] > 0  # the methods' settings files (configs/hyperparams/) ship in the wheel
 
 
 # ---- direct construction is validated as strictly as the loaders ------------------------------
