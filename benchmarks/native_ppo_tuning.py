@@ -21,6 +21,8 @@ reports the mean score so far; from the fourth run on (every n = 5 row seen once
 (:class:`MedianOfOthersPruner`) stops a trial whose mean is below the median of every other trial that
 reached the same run, finished or still running, so a weak setting costs four n = 5 runs rather than
 25 even while no trial has finished. The default setting is never stopped: it is every trial's reference.
+A setting the sampler proposes again after a trial judged it takes that trial's verdict (state
+``(= trial N)`` in the table) without training.
 
 **What is recorded.** Every trial, its settings, state, each run's validation return, overflowing
 validation episodes, the validation return of the checkpoint nearest half the budget, and its
@@ -187,6 +189,16 @@ class Objective:
     def __call__(self, trial) -> float:
         optuna = require_optuna()
         hp = suggest(trial)
+        # TPE proposes a setting of this discrete space again now and then: a setting already judged
+        # takes the earlier trial's verdict, training nothing (a duplicate is not a new trial's evidence)
+        finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+        twin = next((t for t in trial.study.get_trials(deepcopy=False, states=finished) if t.params == trial.params),
+                    None)
+        if twin is not None:
+            trial.set_user_attr("duplicate_of", twin.number)
+            if twin.state == optuna.trial.TrialState.PRUNED:
+                raise optuna.TrialPruned()
+            return twin.value
         folder = self.runs / settings_key(hp)
         trial.set_user_attr("folder", folder.name)
         scores = []
@@ -259,7 +271,8 @@ def trial_rows(study) -> list[dict[str, Any]]:
     out = []
     for t in study.get_trials(deepcopy=False):
         runs = [v for k, v in sorted(t.user_attrs.items()) if k.startswith("run_")]
-        out.append({"number": t.number, "state": t.state.name, "params": t.params, "value": t.value,
+        out.append({"number": t.number, "state": t.state.name, "duplicate_of": t.user_attrs.get("duplicate_of"),
+                    "params": t.params, "value": t.value,
                     "runs": runs, "mean_score": float(np.mean([r["score"] for r in runs])) if runs else None,
                     "overflowing_episodes": sum(r["overflowing_episodes"] for r in runs),
                     "half_budget_score": _nanmean([r["half_budget_score"] for r in runs]),
@@ -296,7 +309,8 @@ def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
     for r in ranked:
         cells = [_cell(r["params"].get(n)) for n in names]
         fmt = lambda x: "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.3f}"  # noqa: E731
-        lines.append(f"| {r['number']} | {r['state'].lower()} | " + " | ".join(cells) +
+        state = r["state"].lower() + ("" if r["duplicate_of"] is None else f" (= trial {r['duplicate_of']})")
+        lines.append(f"| {r['number']} | {state} | " + " | ".join(cells) +
                      f" | {len(r['runs'])} | {fmt(r['value'])} | {fmt(r['mean_score'])} | "
                      f"{fmt(r['half_budget_score'])} | {r['overflowing_episodes']} | {r['cpu_s'] / 3600:.2f} |")
     text = "\n".join(lines) + "\n"

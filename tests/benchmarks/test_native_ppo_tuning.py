@@ -117,3 +117,31 @@ def test_a_trial_below_the_median_of_the_others_at_the_same_run_is_stopped_but_n
     default.set_user_attr("default", True)
     default.report(0.0, script.WARMUP_RUNS - 1)
     assert not default.should_prune()
+
+
+def test_a_setting_proposed_again_takes_the_earlier_verdict_without_training(tmp_path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("native_ppo_tuning", SCRIPT)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    study = optuna.create_study(direction="maximize", sampler=optuna.samplers.RandomSampler(seed=0))
+    judged = {**DEFAULT_TRIAL, "n_epochs": 5}
+    study.enqueue_trial(DEFAULT_TRIAL)
+    study.enqueue_trial(judged)
+    complete, pruned = study.ask(), study.ask()
+    script.suggest(complete), script.suggest(pruned)
+    study.tell(complete, 0.8)
+    study.tell(pruned, state=optuna.trial.TrialState.PRUNED)
+    runs = tmp_path / "runs"
+    objective = script.Objective("fast_shared_ppo", runs, ["n5_m2_dt120"], [101], {"n5_m2_dt120": 50.0}, 8192, {})
+    for params in (DEFAULT_TRIAL, judged):
+        study.enqueue_trial(params)
+    study.optimize(objective, n_trials=2)
+    again = study.get_trials()[2:]
+    assert (again[0].state, again[0].value, again[0].user_attrs["duplicate_of"]) == (
+        optuna.trial.TrialState.COMPLETE, 0.8, complete.number)
+    assert (again[1].state, again[1].user_attrs["duplicate_of"]) == (optuna.trial.TrialState.PRUNED, pruned.number)
+    assert not runs.exists()  # nothing trained
+    rows = {r["number"]: r for r in script.trial_rows(study)}
+    assert rows[again[0].number]["duplicate_of"] == complete.number
