@@ -55,7 +55,8 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert "| 0 | complete | 4096 | 64 | 1024 | 10 | 0.0003 | false | 0.0 | 0.2 | 1 |" in \
         (out / "fast_shared_ppo" / "trials.md").read_text()
 
-    # a trial that a kill left running: failed, and its setting run again (reusing its finished run)
+    # a trial that a kill left running: failed, and its setting queued again; the default has been
+    # judged already (trial 0), so the queued one takes its verdict without training
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("native_ppo_tuning", SCRIPT)
@@ -70,21 +71,31 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert trials[stale.number].state == optuna.trial.TrialState.FAIL
     [again] = [t for t in trials.values() if t.user_attrs.get("requeued_from") == stale.number]
     assert again.state == optuna.trial.TrialState.COMPLETE and again.params == DEFAULT_TRIAL
-    assert again.value == trials[0].value  # the same runs, reused
+    assert again.value == trials[0].value and again.user_attrs["duplicate_of"] == 0
     assert len(list((runs / "fast_shared_ppo").iterdir())) == 2
 
-    # on another machine (no run folders) a requeued trial takes its runs from the journal
+    # a setting no trial has judged, whose trial a kill stopped after its run was recorded (what
+    # Objective records after each run); on another machine (no run folders) the setting queued
+    # again takes that run from the journal instead of training it again
     import shutil
 
-    shutil.rmtree(runs)
+    setting = {**DEFAULT_TRIAL, "n_epochs": 5, "learning_rate": 1e-3}
     study = _study(out)
-    study.enqueue_trial(DEFAULT_TRIAL)
+    study.enqueue_trial(setting)
     stale = study.ask()
-    script.suggest(stale)
-    _search(out, runs, "--trials", "4")
+    assert script.suggest(stale) == setting
+    key = script.settings_key(setting)
+    entry = script.train_and_validate("fast_shared_ppo", "n5_m2_dt120", 101, setting,
+                                      runs / "fast_shared_ppo" / key / "n5_m2_dt120_s101", 8192)
+    entry.update(score=entry["validation_return"] / rule, half_budget_score=entry["half_budget_return"] / rule)
+    stale.set_user_attr("folder", key)
+    stale.set_user_attr("run_00", entry)
+    shutil.rmtree(runs)
+    _search(out, runs, "--trials", "5")
     [again] = [t for t in _study(out).get_trials() if t.user_attrs.get("requeued_from") == stale.number]
-    assert again.value == trials[0].value
-    assert not (runs / "fast_shared_ppo" / again.user_attrs["folder"]).exists()  # nothing trained again
+    assert again.state == optuna.trial.TrialState.COMPLETE and "duplicate_of" not in again.user_attrs
+    assert again.user_attrs["run_00"]["validation_return"] == entry["validation_return"]
+    assert not (runs / "fast_shared_ppo" / key).exists()  # nothing trained again
 
     # the best finished trial's settings, as the method's settings file that train reads
     from containergym_marl.config.hyperparams import read_settings
