@@ -10,7 +10,8 @@ loss's gradients in closed form and the networks' backward layer by layer
 float rounding. Rounding still changes, and over a run a last-bit difference grows into another
 trajectory, so the same seed does not give the same model. This script trains every seed twice,
 ``written``: the trainer as it is, and ``autograd``: the same trainer with the update taken
-through autograd (:func:`autograd_update` below, the update as it was written before), scores
+through autograd and torch's fused Adam (:func:`autograd_update`, :func:`autograd_optimizer`: the
+update as it was written before), scores
 each run's best model on the validation episodes (20000-20029), and reports both methods' returns
 and a two-sided Welch t-test and a permutation test of the difference in means. Each run is
 trained in its own process, one torch thread; runs already in ``--out`` are reused.
@@ -31,7 +32,10 @@ import numpy as np
 import torch
 
 from containergym_marl.files import atomic_write_text
+from containergym_marl.training import fast_ppo
 
+#: the trainer's own update and optimiser
+WRITTEN = (fast_ppo.update, fast_ppo._optimizer)
 VARIANTS = ("written", "autograd")
 
 
@@ -69,21 +73,31 @@ def autograd_update(model, optimizer, hp, generator, obs, actions, old_logp, adv
     return {"entropy": entropy, "approx_kl": approx_kl, "clip_fraction": clip_fraction}
 
 
+def autograd_optimizer(model, hp):
+    """The optimiser the trainer used before its flat Adam: torch's fused Adam over the parameters."""
+    return torch.optim.Adam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps, fused=True)
+
+
+def use_update(variant: str):
+    """Make ``fast_ppo.learn`` use ``variant``'s update and optimiser in this process (a worker trains
+    one run after another: each run sets its own); returns the update."""
+    fast_ppo.update, fast_ppo._optimizer = (autograd_update, autograd_optimizer) if variant == "autograd" else WRITTEN
+    return fast_ppo.update
+
+
 def train_and_score(job: tuple[str, str, int, int, str, int]) -> dict:
     variant, row, seed, samples, out, episodes = job
     from containergym_marl.evaluation import evaluate
     from containergym_marl.evaluation.protocol import VALIDATION, EvalProtocol
     from containergym_marl.evaluation.runs import policy_from_run
     from containergym_marl.training import TrainArgs, train
-    from containergym_marl.training import fast_ppo
 
     run = Path(out) / variant / f"{row}_s{seed}"
     cached = run / "score.json"
     if cached.is_file():
         return json.loads(cached.read_text())
     torch.set_num_threads(1)
-    if variant == "autograd":
-        fast_ppo.update = autograd_update  # this worker process only
+    use_update(variant)
     start = time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

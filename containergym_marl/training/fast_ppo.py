@@ -70,10 +70,10 @@ from containergym_marl.config.bounds import (
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic, load_tensors
 from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
-from containergym_marl.training.ppo_gradients import MLPGradients, ppo_loss_gradients
+from containergym_marl.training.ppo_gradients import FlatAdam, MLPGradients, ppo_loss_gradients
 
 CHECKPOINT_FORMAT = "containergym-marl ppo checkpoint"
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2  # 1: the optimiser's state was torch.optim.Adam's (still read)
 
 
 @dataclass(frozen=True)
@@ -211,9 +211,9 @@ def state_from_model(model: ActorCritic, hp: PPOArgs, generator: torch.Generator
     return TrainingState(model, _optimizer(model, hp), generator, int(num_timesteps), dataclasses.asdict(hp))
 
 
-def _optimizer(model: ActorCritic, hp: PPOArgs):
-    # Adam's fused CPU kernel: SB3's update rule, one kernel per step (as the SB3 runs use).
-    return torch.optim.Adam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps, fused=True)
+def _optimizer(model: ActorCritic, hp: PPOArgs) -> FlatAdam:
+    # SB3's update rule (Adam, eps 1e-5) on one flat buffer of the parameters (ppo_gradients.FlatAdam)
+    return FlatAdam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps)
 
 
 def load_checkpoint(path: str | Path, hp: PPOArgs) -> TrainingState:
@@ -223,7 +223,7 @@ def load_checkpoint(path: str | Path, hp: PPOArgs) -> TrainingState:
     source = f"checkpoint {str(path)!r}"
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{source} is not a native PPO checkpoint (format {CHECKPOINT_FORMAT!r})")
-    if data.get("version") != CHECKPOINT_VERSION:
+    if data.get("version") not in (1, CHECKPOINT_VERSION):
         raise ValueError(f"{source}: version {data.get('version')!r}; this package reads {CHECKPOINT_VERSION}")
     model = ActorCritic.from_dict(data.get("model"), source)
     optimizer = _optimizer(model, hp)
@@ -258,7 +258,7 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
     mask_buf = torch.ones((n_steps, slots, n_actions), dtype=torch.bool) if hp.action_mask else None
     adv_buf = torch.zeros((n_steps, slots))  # GAE, written in place each rollout
 
-    nets = MLPGradients(model)  # the networks without module calls, and their gradients
+    nets = MLPGradients(model, getattr(optimizer, "flat_grad", None))  # the networks without module calls
     obs = torch.from_numpy(env.reset())
     episode_start = torch.ones(slots)
     num_sims = env.num_sims
@@ -373,7 +373,7 @@ def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, 
     # equal minibatches of about minibatch_size: a rollout of 4160 samples is 4 of 1040, not 4 of 1024
     # and a last one of 64 whose normalised advantages and Adam step would rest on a handful of samples
     minibatches = max(1, round(total / hp.minibatch_size))
-    nets = nets or MLPGradients(model)  # the gradients written out (ppo_gradients.py), checked against autograd's
+    nets = nets or MLPGradients(model, getattr(optimizer, "flat_grad", None))  # the gradients written out (ppo_gradients.py), checked against autograd's
     sums = torch.zeros(3)  # entropy, approx_kl, clip_fraction, summed over minibatches
     count = 0
     for _ in range(hp.n_epochs):

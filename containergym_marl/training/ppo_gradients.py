@@ -14,6 +14,9 @@ checks every gradient against autograd's on the same loss.
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import torch
 
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic
@@ -24,6 +27,67 @@ def _tanh_(z: torch.Tensor) -> torch.Tensor:
     return torch.sigmoid_(z.mul_(2.0)).mul_(2.0).sub_(1.0)
 
 
+class FlatAdam:
+    """Adam on parameters that are views of one flat buffer: torch's update rule (no weight decay,
+    no AMSGrad) in five in-place operations per step, where ``torch.optim.Adam`` (even fused) costs
+    several times that in per-step bookkeeping for a dozen small tensors.
+
+    Construction moves the parameters' values into :attr:`flat_param` and makes each parameter, and
+    its ``.grad``, a view of :attr:`flat_param` and :attr:`flat_grad`. ``param_groups[0]["lr"]`` is
+    the step size (as torch's optimisers, for a schedule). :meth:`state_dict` holds tensors only;
+    :meth:`load_state_dict` also reads a ``torch.optim.Adam`` state of the same parameters (the
+    checkpoints of version 1).
+    """
+
+    FORMAT = "containergym-marl flat adam"
+
+    def __init__(self, params, lr: float, eps: float, betas: tuple[float, float] = (0.9, 0.999)):
+        self.params = list(params)
+        sizes = [p.numel() for p in self.params]
+        self.flat_param = torch.cat([p.detach().reshape(-1) for p in self.params])
+        self.flat_grad = torch.zeros_like(self.flat_param)
+        self.exp_avg, self.exp_avg_sq = torch.zeros_like(self.flat_param), torch.zeros_like(self.flat_param)
+        offset = 0
+        for p, n in zip(self.params, sizes):
+            p.data = self.flat_param[offset:offset + n].view_as(p)
+            p.grad = self.flat_grad[offset:offset + n].view_as(p)
+            offset += n
+        self.param_groups = [{"lr": float(lr)}]
+        self.eps, self.betas, self.steps = float(eps), (float(betas[0]), float(betas[1])), 0
+
+    def step(self) -> None:
+        self.steps += 1
+        beta1, beta2 = self.betas
+        g = self.flat_grad
+        self.exp_avg.lerp_(g, 1.0 - beta1)
+        self.exp_avg_sq.mul_(beta2).addcmul_(g, g, value=1.0 - beta2)
+        bias1, bias2 = 1.0 - beta1 ** self.steps, 1.0 - beta2 ** self.steps
+        denom = (self.exp_avg_sq.sqrt() / math.sqrt(bias2)).add_(self.eps)
+        self.flat_param.addcdiv_(self.exp_avg, denom, value=-self.param_groups[0]["lr"] / bias1)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"format": self.FORMAT, "steps": self.steps, "lr": self.param_groups[0]["lr"],
+                "exp_avg": self.exp_avg.clone(), "exp_avg_sq": self.exp_avg_sq.clone()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """The moments and step count of ``state`` (this class's, or ``torch.optim.Adam``'s for the
+        same parameters in the same order); a ValueError when they do not fit."""
+        if state.get("format") == self.FORMAT:
+            steps, lr, avg, avg_sq = state["steps"], state["lr"], state["exp_avg"], state["exp_avg_sq"]
+        else:  # torch.optim.Adam's: per-parameter moments, indexed in parameter order
+            per = [state["state"][i] for i in range(len(self.params))] if state.get("state") else []
+            steps = int(per[0]["step"]) if per else 0
+            lr = state["param_groups"][0]["lr"]
+            avg = torch.cat([s["exp_avg"].reshape(-1) for s in per]) if per else torch.zeros_like(self.exp_avg)
+            avg_sq = torch.cat([s["exp_avg_sq"].reshape(-1) for s in per]) if per else torch.zeros_like(self.exp_avg)
+        if not (isinstance(avg, torch.Tensor) and isinstance(avg_sq, torch.Tensor)
+                and avg.shape == avg_sq.shape == self.exp_avg.shape):
+            raise ValueError(f"optimiser state: moments for {self.exp_avg.numel()} parameters expected")
+        self.exp_avg.copy_(avg)
+        self.exp_avg_sq.copy_(avg_sq)
+        self.steps, self.param_groups[0]["lr"] = int(steps), float(lr)
+
+
 class MLPGradients:
     """Forward and backward of ``model``'s two networks with the gradients in one flat buffer.
 
@@ -32,11 +96,12 @@ class MLPGradients:
     optimiser); :meth:`clip_grad_norm_` is ``torch.nn.utils.clip_grad_norm_`` on that buffer.
     """
 
-    def __init__(self, model: ActorCritic):
+    def __init__(self, model: ActorCritic, flat_grad: torch.Tensor | None = None):
         self.model = model
         self.layers = [[m for m in net if isinstance(m, torch.nn.Linear)] for net in (model.net.actor, model.net.critic)]
         params = list(model.net.parameters())
-        self.flat_grad = torch.zeros(sum(p.numel() for p in params))
+        # FlatAdam's gradient buffer where given (its parameters' .grad are views of it already)
+        self.flat_grad = torch.zeros(sum(p.numel() for p in params)) if flat_grad is None else flat_grad
         offset = 0
         for p in params:  # the optimiser reads p.grad: views, never replaced (no zero_grad(set_to_none))
             p.grad = self.flat_grad[offset:offset + p.numel()].view_as(p)
@@ -120,4 +185,4 @@ def ppo_loss_gradients(logits: torch.Tensor, values: torch.Tensor, actions: torc
     return g_logits, g_values, diagnostics
 
 
-__all__ = ["MLPGradients", "ppo_loss_gradients"]
+__all__ = ["FlatAdam", "MLPGradients", "ppo_loss_gradients"]

@@ -184,6 +184,14 @@ def test_update_equivalence_reference_is_the_autograd_update_and_the_smoke_run_r
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
         assert not torch.equal(a, s)
 
+    # a worker trains one run after another: each run sets its variant's update, whatever ran before
+    from containergym_marl.training import fast_ppo
+
+    assert update_equivalence.use_update("autograd") is update_equivalence.autograd_update is fast_ppo.update
+    assert fast_ppo._optimizer is update_equivalence.autograd_optimizer
+    assert update_equivalence.use_update("written") is update is fast_ppo.update
+    assert fast_ppo._optimizer is update_equivalence.WRITTEN[1]
+
     out = tmp_path / "eq"
     proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "update_equivalence.py"), "--smoke",
                            "--workers", "1", "--out", str(out)], capture_output=True, text=True, timeout=600,

@@ -388,3 +388,25 @@ def test_a_rollout_is_split_into_equal_minibatches(monkeypatch):
            torch.randn(total, 3), torch.randint(0, 2, (total,)), torch.full((total,), -0.69), torch.randn(total),
            torch.zeros(total))
     assert sizes == [1040] * 8
+
+
+def test_a_version_1_checkpoint_resumes_its_torch_adam_state_on_the_flat_adam(tmp_path):
+    """Checkpoints written before the flat Adam hold torch.optim.Adam's state: they load, with the
+    moments and the step count carried over (a resumed run of before continues its optimiser)."""
+    from containergym_marl.training.fast_ppo import CHECKPOINT_FORMAT
+
+    model = ActorCritic("decentralised", 7, 2, generator=torch.Generator().manual_seed(0))
+    adam = torch.optim.Adam(model.net.parameters(), lr=3e-4, eps=1e-5)
+    for p in model.net.parameters():
+        p.grad = torch.full_like(p, 0.5)
+    adam.step()
+    adam.step()
+    path = tmp_path / "ckpt_100_steps.pt"
+    torch.save({"format": CHECKPOINT_FORMAT, "version": 1, "model": model.to_dict(), "optimizer": adam.state_dict(),
+                "generator": torch.Generator().manual_seed(1).get_state(), "num_timesteps": 100, "hyperparams": {}}, path)
+    state = load_checkpoint(path, PPOArgs())
+    assert state.optimizer.steps == 2 and state.num_timesteps == 100
+    moments = torch.cat([adam.state[p]["exp_avg"].reshape(-1) for p in model.net.parameters()])
+    assert torch.equal(state.optimizer.exp_avg, moments)
+    for ours, theirs in zip(state.model.net.parameters(), model.net.parameters()):
+        assert torch.equal(ours, theirs)

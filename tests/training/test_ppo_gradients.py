@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic
-from containergym_marl.training.ppo_gradients import MLPGradients, ppo_loss_gradients
+from containergym_marl.training.ppo_gradients import FlatAdam, MLPGradients, ppo_loss_gradients
 
 
 @pytest.mark.parametrize("view, obs_size, n_actions, hidden", [
@@ -92,3 +92,43 @@ def test_loss_gradients_equal_autograds(n_actions, masked, ent_coef):
     assert float(diagnostics["approx_kl"]) == pytest.approx(float(((ratio - 1) - log_ratio).mean().detach()), rel=1e-5)
     clipped = float(((ratio.detach() - 1).abs() > clip).float().mean())
     assert float(diagnostics["clip_fraction"]) == clipped and 0 < clipped < 1
+
+
+def test_flat_adam_steps_as_torch_adam_and_reads_its_state():
+    """Five steps of FlatAdam against torch.optim.Adam from the same start with the same gradients;
+    then FlatAdam loaded from torch's state (a version-1 checkpoint) and from its own continues as
+    torch's optimiser does. The parameters are views of the flat buffer throughout."""
+    gen = torch.Generator().manual_seed(5)
+    models = [ActorCritic("decentralised", 6, 2, (8, 8), generator=torch.Generator().manual_seed(2)) for _ in range(2)]
+    ours = FlatAdam(models[0].net.parameters(), lr=1e-2, eps=1e-5)
+    theirs = torch.optim.Adam(models[1].net.parameters(), lr=1e-2, eps=1e-5)
+    grads = [[torch.randn(p.shape, generator=gen) for p in models[0].net.parameters()] for _ in range(8)]
+
+    def step(model, optimizer, gs):
+        for p, g in zip(model.net.parameters(), gs):
+            p.grad.copy_(g) if isinstance(optimizer, FlatAdam) else setattr(p, "grad", g.clone())
+        optimizer.step()
+
+    for gs in grads[:5]:
+        step(models[0], ours, gs)
+        step(models[1], theirs, gs)
+    for a, b in zip(models[0].net.parameters(), models[1].net.parameters()):
+        torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-7)
+        assert a.data_ptr() != b.data_ptr()
+    assert models[0].net.actor[0].weight.untyped_storage().data_ptr() == ours.flat_param.untyped_storage().data_ptr()
+
+    resumed = ActorCritic.from_dict(models[1].to_dict(), "test")
+    from_torch = FlatAdam(resumed.net.parameters(), lr=0.5, eps=1e-5)
+    from_torch.load_state_dict(theirs.state_dict())
+    assert (from_torch.steps, from_torch.param_groups[0]["lr"]) == (5, 1e-2)
+    again = ActorCritic.from_dict(models[0].to_dict(), "test")
+    from_own = FlatAdam(again.net.parameters(), lr=0.5, eps=1e-5)
+    from_own.load_state_dict(ours.state_dict())
+    for gs in grads[5:]:
+        for model, optimizer in ((resumed, from_torch), (again, from_own), (models[1], theirs)):
+            step(model, optimizer, gs)
+    for a, b, c in zip(resumed.net.parameters(), again.net.parameters(), models[1].net.parameters()):
+        torch.testing.assert_close(a, c, rtol=1e-6, atol=1e-7)
+        torch.testing.assert_close(b, c, rtol=1e-6, atol=1e-7)
+    with pytest.raises(ValueError, match="moments"):
+        FlatAdam(ActorCritic("decentralised", 6, 2, (4,)).net.parameters(), 1e-3, 1e-5).load_state_dict(ours.state_dict())
