@@ -151,9 +151,13 @@ def test_a_run_that_a_running_train_holds_is_never_cleared(tmp_path):
                              "--timesteps", "10000000", "--no-progress"], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     try:
-        deadline = time.time() + 60
-        while time.time() < deadline and not ((run / ".lock").is_file() and (run / ".lock").read_text()):
+        # wait for what is asserted: the writer takes the lock, then writes args.json (waiting for the
+        # lock alone raced the second step on a busy machine); the deadline only guards against a hang
+        deadline = time.time() + 600
+        while proc.poll() is None and time.time() < deadline and not (
+                (run / "args.json").is_file() and (run / ".lock").is_file() and (run / ".lock").read_text()):
             time.sleep(0.1)
+        assert proc.poll() is None, "the training process ended before the test could check its run"
         assert (run / "args.json").is_file()
         with pytest.raises(RunError, match="in use by another writer"):
             prepare_run(_spec(run, 10_000_000))
