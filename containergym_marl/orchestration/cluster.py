@@ -29,6 +29,7 @@ class SweepError(RuntimeError):
 
 
 def ray_missing_message() -> str:
+    """What to install when Ray is missing (the ``sweep`` extra), in the words compare prints."""
     from containergym_marl.extras import INSTALL
 
     return ("containergym-marl compare runs its training and evaluation on Ray, which is not installed: "

@@ -59,6 +59,8 @@ def evaluation_fingerprint(args: CompareArgs, config: str, method: Method, run: 
 
 
 def cached_evaluation(path: Path, fingerprint: dict, protocol: dict) -> dict | None:
+    """The evaluation saved at ``path`` when it was made of the same inputs (``fingerprint``) under the
+    same ``protocol``; None when there is none, it is unreadable, or it differs (evaluated again)."""
     if not path.is_file():
         return None
     try:
@@ -121,25 +123,27 @@ class Plan:
 
 
 def eval_spec(args: CompareArgs, config: str, name: str, seed: int | None):
-
+    """The evaluation task of method ``name`` (seed ``seed`` of a learned one) on ``config``."""
     method = METHODS[name]
     return EvalSpec(tables.evaluation_key(name, seed), name, config, args.episodes, seed=seed,
                     arbitration=method.arbitration)
 
 
 def run_files(run_dir: str | Path) -> dict[str, dict[str, bytes]]:
-
+    """A finished run's files that its evaluation reads, by name (shipped to the evaluation task)."""
     run = Path(run_dir)
     return {"files": {f: (run / f).read_bytes() for f in evaluated_files(run)}}
 
 
 def model_sha256(source: dict[str, dict[str, bytes]]) -> str:
-
+    """The SHA-256 of the model file that an evaluation of ``source`` (:func:`run_files`) loads."""
     return sha256_bytes(evaluated_model(source["files"]))
 
 
 def training_plan(args: CompareArgs, out: Path, runs: Path) -> Plan:
-
+    """What the comparison ``args`` has to train and evaluate, from the files in ``runs`` and ``out``:
+    finished runs of the same budget are reused, evaluations whose inputs are unchanged too; a finished
+    run with another budget is an error (:func:`~containergym_marl.orchestration.tasks.check_budget`)."""
     protocol = asdict(EvalProtocol(episodes=args.episodes))
     specs = run_specs(args, runs)
     finished = {s.name for s in specs if check_budget(s)}  # raises for a finished run with another budget
@@ -170,6 +174,6 @@ def training_plan(args: CompareArgs, out: Path, runs: Path) -> Plan:
 
 
 def resume_point(spec) -> int:
-
+    """The samples of the run's newest checkpoint (0 when it has none): where its training resumes."""
     ckpt = latest_checkpoint(Path(spec.run_dir)) if Path(spec.run_dir).is_dir() else None
     return ckpt[1] if ckpt else 0

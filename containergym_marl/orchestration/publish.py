@@ -123,6 +123,11 @@ def _copy_run(run: Path, to: Path) -> bool:
 
 def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_checkpoints: bool = False,
             readme: Path | None = None, pages: tuple[Path, ...] = ()) -> dict:
+    """Publish a comparison into ``to``: every finished run of ``runs`` (its small files and models;
+    an interrupted one's newest checkpoint with ``with_checkpoints``), the evaluations of
+    ``compare_out``, the best and median model of each (row, method) with at least ``min_seeds``
+    seeds, picked on validation episodes, the table, and the generated blocks of ``readme`` and
+    ``pages``. Returns what was published, by kind."""
     for folder in (runs, compare_out, to):  # before anything is written: no link followed in any
         refuse_links_in(folder)
     done = {"runs": [], "interrupted": [], "evaluations": 0, "models": []}

@@ -96,6 +96,8 @@ def _stop(known: dict[int, float]) -> None:
 
 
 def main(argv: list[str]) -> None:
+    """The reaper process: ``argv[0]`` the instance's processes as JSON [(pid, creation time)]; it
+    watches standard input (the driver's pipe) and stops them when it closes."""
     known = _tree({int(pid): float(created) for pid, created in json.loads(argv[0])})
     stdin = sys.stdin.fileno()
     while True:

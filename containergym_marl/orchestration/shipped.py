@@ -134,6 +134,7 @@ def shipped_report(shipped: Shipped, evaluations: dict[tuple[str, str], dict], e
 
 
 def shipped_summary(shipped: Shipped, report: dict, methods: list[str]) -> list[str]:
+    """What compare says of the shipped policies it evaluated: reproduced, differing, skipped, missing."""
     lines = []
     if (n := len(report["reproduced"])) == 1:
         lines.append("The 1 shipped policy evaluated now returns what its published evaluation says, "

@@ -28,6 +28,8 @@ from containergym_marl.orchestration.tasks import EvalSpec, EventSender, RunSpec
 
 @dataclass
 class Outcome:
+    """What a sweep's tasks returned: training results and evaluations by key, and the failures."""
+
     runs: dict[str, dict] = field(default_factory=dict)  # run name -> training task result
     evaluations: dict[tuple[str, str], tuple[Any, str | None]] = field(default_factory=dict)  # (config, key) -> (result, model sha)
     failures: dict[str, str] = field(default_factory=dict)
