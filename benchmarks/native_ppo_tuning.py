@@ -305,6 +305,12 @@ def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
              "| trial | state | " + " | ".join(names) + " | runs | value | mean share | half budget "
              "| overflowing episodes | CPU h of its runs |",
              "|" + "---|" * (len(names) + 8)]
+    # a trial a kill stopped is failed and its setting queued again: its row says which trial took it on
+    successor = {t.user_attrs["requeued_from"]: t.number for t in study.get_trials(deepcopy=False)
+                 if "requeued_from" in t.user_attrs}
+    for r in rows:
+        if r["state"] == "FAIL" and r["number"] in successor:
+            r["state"] = f"interrupted (queued again as trial {successor[r['number']]})"
     ranked = sorted(rows, key=lambda r: (r["state"] != "COMPLETE", -(r["value"] if r["value"] is not None else -1e9)))
     for r in ranked:
         cells = [_cell(r["params"].get(n)) for n in names]

@@ -72,6 +72,8 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     [again] = [t for t in trials.values() if t.user_attrs.get("requeued_from") == stale.number]
     assert again.state == optuna.trial.TrialState.COMPLETE and again.params == DEFAULT_TRIAL
     assert again.value == trials[0].value and again.user_attrs["duplicate_of"] == 0
+    assert f"| {stale.number} | interrupted (queued again as trial {again.number}) |" in \
+        (out / "fast_shared_ppo" / "trials.md").read_text()
     assert len(list((runs / "fast_shared_ppo").iterdir())) == 2
 
     # a setting no trial has judged, whose trial a kill stopped after its run was recorded (what
