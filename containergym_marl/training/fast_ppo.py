@@ -258,7 +258,7 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
     mask_buf = torch.ones((n_steps, slots, n_actions), dtype=torch.bool) if hp.action_mask else None
     adv_buf = torch.zeros((n_steps, slots))  # GAE, written in place each rollout
 
-    nets = MLPGradients(model, getattr(optimizer, "flat_grad", None))  # the networks without module calls
+    nets = MLPGradients(model, optimizer)  # the networks without module calls, and their gradients
     obs = torch.from_numpy(env.reset())
     episode_start = torch.ones(slots)
     num_sims = env.num_sims
@@ -373,7 +373,7 @@ def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, 
     # equal minibatches of about minibatch_size: a rollout of 4160 samples is 4 of 1040, not 4 of 1024
     # and a last one of 64 whose normalised advantages and Adam step would rest on a handful of samples
     minibatches = max(1, round(total / hp.minibatch_size))
-    nets = nets or MLPGradients(model, getattr(optimizer, "flat_grad", None))  # the gradients written out (ppo_gradients.py), checked against autograd's
+    nets = nets or MLPGradients(model, optimizer)  # the gradients written out (ppo_gradients.py)
     sums = torch.zeros(3)  # entropy, approx_kl, clip_fraction, summed over minibatches
     count = 0
     for _ in range(hp.n_epochs):

@@ -22,6 +22,15 @@ import torch
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic
 
 
+def _views(flat: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]:
+    """Consecutive views of ``flat`` shaped as each of ``params``, in order."""
+    views, offset = [], 0
+    for p in params:
+        views.append(flat[offset:offset + p.numel()].view_as(p))
+        offset += p.numel()
+    return views
+
+
 def _tanh_(z: torch.Tensor) -> torch.Tensor:
     # the networks' tanh (policies/_fast_tanh.py: 2·sigmoid(2x) − 1) in place: the same values
     return torch.sigmoid_(z.mul_(2.0)).mul_(2.0).sub_(1.0)
@@ -43,15 +52,11 @@ class FlatAdam:
 
     def __init__(self, params, lr: float, eps: float, betas: tuple[float, float] = (0.9, 0.999)):
         self.params = list(params)
-        sizes = [p.numel() for p in self.params]
         self.flat_param = torch.cat([p.detach().reshape(-1) for p in self.params])
         self.flat_grad = torch.zeros_like(self.flat_param)
         self.exp_avg, self.exp_avg_sq = torch.zeros_like(self.flat_param), torch.zeros_like(self.flat_param)
-        offset = 0
-        for p, n in zip(self.params, sizes):
-            p.data = self.flat_param[offset:offset + n].view_as(p)
-            p.grad = self.flat_grad[offset:offset + n].view_as(p)
-            offset += n
+        for p, value, grad in zip(self.params, _views(self.flat_param, self.params), _views(self.flat_grad, self.params)):
+            p.data, p.grad = value, grad
         self.param_groups = [{"lr": float(lr)}]
         self.eps, self.betas, self.steps = float(eps), (float(betas[0]), float(betas[1])), 0
 
@@ -93,19 +98,17 @@ class MLPGradients:
 
     ``forward(obs)`` returns (logits, values) and keeps the activations; ``backward(g_logits,
     g_values)`` writes the parameters' gradients (``p.grad``, views of :attr:`flat_grad`, for the
-    optimiser); :meth:`clip_grad_norm_` is ``torch.nn.utils.clip_grad_norm_`` on that buffer.
+    optimiser); :meth:`clip_grad_norm_` is ``torch.nn.utils.clip_grad_norm_`` on that buffer, which is
+    ``optimizer``'s own when it is a :class:`FlatAdam`.
     """
 
-    def __init__(self, model: ActorCritic, flat_grad: torch.Tensor | None = None):
-        self.model = model
+    def __init__(self, model: ActorCritic, optimizer=None):
         self.layers = [[m for m in net if isinstance(m, torch.nn.Linear)] for net in (model.net.actor, model.net.critic)]
         params = list(model.net.parameters())
-        # FlatAdam's gradient buffer where given (its parameters' .grad are views of it already)
-        self.flat_grad = torch.zeros(sum(p.numel() for p in params)) if flat_grad is None else flat_grad
-        offset = 0
-        for p in params:  # the optimiser reads p.grad: views, never replaced (no zero_grad(set_to_none))
-            p.grad = self.flat_grad[offset:offset + p.numel()].view_as(p)
-            offset += p.numel()
+        self.flat_grad = optimizer.flat_grad if isinstance(optimizer, FlatAdam) else torch.zeros(
+            sum(p.numel() for p in params))
+        for p, grad in zip(params, _views(self.flat_grad, params)):  # the optimiser reads p.grad: never replaced
+            p.grad = grad
         self._inputs: list[list[torch.Tensor]] = [[], []]
 
     def forward(self, obs: torch.Tensor, keep: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
