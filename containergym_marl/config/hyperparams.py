@@ -24,12 +24,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10: the same parser as the tomli package
-    import tomli as tomllib
-
-from containergym_marl.config.bounds import SAFE_NAME
+from containergym_marl.config.bounds import MAX_CONFIG_DEPTH, SAFE_NAME
+from containergym_marl.config.loading import _nesting_depth, tomllib
 from containergym_marl.files import atomic_write_text, open_file
 
 _MAX_FILE_BYTES = 64 * 1024
@@ -55,8 +51,11 @@ def read_settings(path: str | Path) -> tuple[dict[str, Any], str]:
     if len(raw) > _MAX_FILE_BYTES:
         raise ValueError(f"{path}: larger than {_MAX_FILE_BYTES} bytes; not a settings file")
     try:
-        data = tomllib.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        text = raw.decode("utf-8")
+        if _nesting_depth(text, toml=True) > MAX_CONFIG_DEPTH:  # the plant configs' bound, before parsing
+            raise ValueError(f"nested deeper than {MAX_CONFIG_DEPTH} levels")
+        data = tomllib.loads(text)
+    except (UnicodeDecodeError, ValueError) as exc:  # TOMLDecodeError is a ValueError
         raise ValueError(f"{path}: not a TOML file ({exc})") from None
     unknown = sorted(set(data) - {"source", "settings"})
     if unknown:

@@ -68,6 +68,7 @@ def test_a_resumed_run_keeps_its_recorded_settings(folder, tmp_path):
     ("[settings]\nhidden = {a = 1}\n", "settings.hidden"),
     ("sources = 'x'\n", "sources"),
     ("[settings\n", "not a TOML file"),
+    ("[settings]\nx = " + "[" * 5000 + "]" * 5000 + "\n", "nested deeper"),  # bounded before parsing
 ])
 def test_a_bad_file_is_refused_before_anything_is_written(folder, tmp_path, text, named):
     (folder / "fast_shared_ppo.toml").write_text(text)
