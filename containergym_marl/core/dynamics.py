@@ -328,15 +328,19 @@ class ArbitrationRule:
     priority: Callable  # compiled: (i, volume, uniform, params) -> float, larger wins
     description: str
     step_batch: Callable  # the batched step with this rule (see _compile_batch_step)
+    #: whether the priority reads its uniform draw; a simulator copies the step's uniform rows out of
+    #: the random stream only for a rule that does (the rows are consumed either way)
+    reads_uniform: bool = True
 
 
 #: name -> rule, in the order they are documented.
 ARBITRATION_RULES: dict[str, ArbitrationRule] = {}
 
 
-def arbitration_rule(name: str):
+def arbitration_rule(name: str, reads_uniform: bool = True):
     """Register a priority function under ``name`` (compiled with numba); its docstring's first line
-    is the rule's description. The step kernels of the rules defined in this module are cached on
+    is the rule's description. ``reads_uniform=False`` declares that it never reads its ``uniform``
+    argument, which is then 0. The step kernels of the rules defined in this module are cached on
     disk; a rule defined elsewhere has its kernel compiled in each process that uses it (see
     :func:`_compile_batch_step`)."""
 
@@ -344,7 +348,7 @@ def arbitration_rule(name: str):
         priority = jit(function)
         description = (function.__doc__ or "").strip().splitlines()[0]
         step_batch = _compile_batch_step(priority, cache=function.__module__ == __name__)
-        ARBITRATION_RULES[name] = ArbitrationRule(name, priority, description, step_batch)
+        ARBITRATION_RULES[name] = ArbitrationRule(name, priority, description, step_batch, reads_uniform)
         return priority
 
     return register
@@ -358,7 +362,7 @@ def get_rule(name: str) -> ArbitrationRule:
     return rule
 
 
-@arbitration_rule("fullest")
+@arbitration_rule("fullest", reads_uniform=False)
 def fullest_first(i, volume, uniform, params):
     """The fullest container first (highest v / v_max); the default."""
     return volume / params.max_volume[i]
@@ -370,13 +374,13 @@ def random_order(i, volume, uniform, params):
     return uniform
 
 
-@arbitration_rule("index")
+@arbitration_rule("index", reads_uniform=False)
 def lowest_index_first(i, volume, uniform, params):
     """A fixed priority: the lower container index first."""
     return -float(i)
 
 
-@arbitration_rule("best_reward")
+@arbitration_rule("best_reward", reads_uniform=False)
 def best_reward_first(i, volume, uniform, params):
     """The request whose emptying would earn the most now first."""
     return emptying_reward(i, volume, params)

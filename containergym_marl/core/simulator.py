@@ -61,6 +61,7 @@ class PlantSimulator:
         self.last_outcome: StepOutcome | None = None
         # The step writes into these two in turn (see step()).
         self._outputs = (StepOutputs(self.num_sims, n, m), StepOutputs(self.num_sims, n, m))
+        self._zero_uniforms = np.zeros((self.num_sims, n))
         self._next_outputs = 0
 
     # ---- randomness --------------------------------------------------------------------------
@@ -149,7 +150,9 @@ class PlantSimulator:
                 f"call reset() before stepping again"
             )
         requests = dynamics.check_requests(requests, self.state.volumes.shape)  # before a random row is used
-        normals, uniforms = self._streams.next_rows()
+        normals, uniforms = self._streams.next_rows(uniforms=self._rule.reads_uniform)
+        if uniforms is None:  # a rule that never reads them: zeros, not a copy of rows nobody reads
+            uniforms = self._zero_uniforms
         # Written into the outputs of the step before last: the state (this step's input) lies in
         # the last step's outputs or in arrays of a reset, never in these.
         outputs = self._outputs[self._next_outputs]
