@@ -200,3 +200,17 @@ def test_update_equivalence_reference_is_the_autograd_update_and_the_smoke_run_r
     assert sorted((e["variant"], e["seed"]) for e in report["entries"]) == [
         ("autograd", 101), ("autograd", 102), ("written", 101), ("written", 102)]
     assert all(e["samples"] == 8192 for e in report["entries"]) and "permutation test" in proc.stdout
+
+
+def test_threads_smoke_times_both_layouts(tmp_path):
+    """benchmarks/threads.py trains whole runs in both layouts and writes what it judged from."""
+    out_json = tmp_path / "threads.json"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "threads.py"), "--smoke", "--json", str(out_json)],
+                          capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "| one thread per run | 2 |" in proc.stdout and "| two threads per run | 1 |" in proc.stdout
+    data = json.loads(out_json.read_text())
+    assert [m["runs"] for m in data["measured"]["one thread"]] == [2]
+    assert [m["threads"] for m in data["measured"]["two threads"]] == [2]
+    assert all(m["samples_per_wall_s"] > 0 and m["cpu_s"] > 0 for ms in data["measured"].values() for m in ms)
+    assert len(data["ratios"]) == 1

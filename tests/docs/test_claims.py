@@ -1,4 +1,5 @@
-"""The statements of README.md, docs/results.md and docs/planner.md hold in the committed result files.
+"""The statements of README.md, docs/results.md, docs/planner.md and docs/performance.md hold in the
+committed result files.
 
 Each claim is a sentence (or a distinctive part of one) of a page, and a check of the files it rests on
 (``results/paper_rows/`` for the comparison, ``results/planner/`` and ``results/planner_validation/``
@@ -502,6 +503,18 @@ PLANNER_CLAIMS = {
 }
 
 
+def one_thread_per_run():
+    """docs/performance.md's threads claim, from benchmarks/threads.py's committed measurement."""
+    report = json.loads((ROOT / "results" / "threads" / "two_cores.json").read_text())
+    return (report["args"]["cores"] == 2 and report["args"]["rounds"] >= 2
+            and all(r < 1 for r in report["ratios"]) and round(1 / float(np.median(report["ratios"])), 1) == 2.1)
+
+
+PERFORMANCE_CLAIMS = {
+    "on 2 cores, two runs of one thread train 2.1× the samples per second of one run of two": one_thread_per_run,
+}
+
+
 def _flat(text: str) -> str:
     return re.sub(r"\s+", " ", text)
 
@@ -510,6 +523,7 @@ PAGES = {
     "README.md": FINDINGS,
     "docs/results.md": {**FINDINGS, **READINGS},
     "docs/planner.md": PLANNER_CLAIMS,
+    "docs/performance.md": PERFORMANCE_CLAIMS,
 }
 
 
