@@ -70,16 +70,16 @@ class AlgorithmSpec:
         name: the registry key (CLI ``--algo``, run directory names, table rows).
         class_path: ``"module:Class"`` of the SB3 / sb3-contrib algorithm (imported by :meth:`load_class`),
             or None for an algorithm trained outside SB3 (``native``, or by ``trainer``).
-        native: trained by the package's own trainers, in the order of ``phases``.
-        phases: a native algorithm's training phases: ``("ppo",)`` the native PPO
-            (:mod:`containergym_marl.training.fast_ppo`), ``("dagger",)`` imitation of the rollout
-            planner (:mod:`containergym_marl.training.dagger`), ``("dagger", "ppo")`` both in one run.
+        native: ``"module:NAME"`` of the package's own trainer that trains it (a
+            :class:`~containergym_marl.training.native.NativeTrainer`, imported by :meth:`trainer`),
+            or None.
         policy_adapter: the class that evaluates its models; its ``view`` ("centralised" or
             "decentralised") is the algorithm's view. For a non-SB3 algorithm it also loads them
             (``policy_adapter.load_model(path)``).
         description: one line for help texts and the baseline script.
-        default_n_envs: simulations stepped together when the caller gives none; None for the native
-            PPO, which steps as many as give its ``rollout_samples`` per update (:meth:`default_sims`).
+        default_n_envs: simulations stepped together when the caller gives none; None for a native
+            algorithm, whose trainer says how many (the native PPO: as many as give its
+            ``rollout_samples`` per update, :meth:`default_sims`).
         rollout: True for on-policy algorithms (``n_steps`` samples per update, see
             :func:`rollout_steps`); False for a replay buffer, which checkpoints then also save.
         minibatch: the minibatch size of a rollout algorithm (passed as ``batch_size``), or None.
@@ -89,7 +89,8 @@ class AlgorithmSpec:
             decentralised algorithm can train with (the first is the default); () for centralised
             ones, which train on the plant reward.
         extra_modules: modules it needs beyond torch and stable_baselines3 (for error messages).
-        trainer: what trains it: ``containergym-marl train`` for the SB3 algorithms, a script otherwise.
+        trainer_name: what trains it: ``containergym-marl train`` for the SB3 and native algorithms, a
+            script otherwise.
         model_suffix: the suffix of its model files in a run directory (``best_model<suffix>``,
             ``final_model<suffix>``): SB3's ``.zip``, or a torch file (``.pt``).
     """
@@ -98,15 +99,14 @@ class AlgorithmSpec:
     class_path: str | None
     policy_adapter: type
     description: str
-    native: bool = False
-    phases: tuple[str, ...] = ("ppo",)
+    native: str | None = None
     default_n_envs: int | None = 8
     rollout: bool = True
     minibatch: int | None = 64
     adam_eps: float | None = 1e-5
     reward_modes: tuple[str, ...] = ()
     extra_modules: tuple[str, ...] = ()
-    trainer: str = "containergym-marl train"
+    trainer_name: str = "containergym-marl train"
     model_suffix: str = ".zip"
 
     @property
@@ -147,25 +147,36 @@ class AlgorithmSpec:
     def load_class(self):
         """The SB3 algorithm class, with an error naming the ``train`` extra when it is missing."""
         if not self.sb3:
-            raise ValueError(f"{self.name} is not a Stable-Baselines3 algorithm: it is trained by {self.trainer}")
+            raise ValueError(f"{self.name} is not a Stable-Baselines3 algorithm: it is trained by {self.trainer_name}")
         require_training_extra(("stable_baselines3", *self.extra_modules))
         module, cls = self.class_path.split(":")
         return getattr(importlib.import_module(module), cls)
 
-    def default_sims(self, n_containers: int, hyperparams: dict[str, Any] | None = None) -> int:
-        """Simulations a run steps when the caller gives none: ``default_n_envs``, or for the native
-        PPO as many as make about its ``rollout_samples`` per update on a plant of ``n_containers``
-        (fewer simulations for more container agents: the same samples per update at every n)."""
+    def trainer(self):
+        """The native trainer (:attr:`native`), with an error naming the ``train`` extra when torch
+        is missing."""
+        if not self.native:
+            raise ValueError(f"{self.name} is not trained by a native trainer: it is trained by {self.trainer_name}")
+        require_training_extra(())
+        module, name = self.native.split(":")
+        return getattr(importlib.import_module(module), name)
+
+    def default_sims(self, n_containers: int, hyperparams: dict[str, Any] | None = None, settings=None) -> int:
+        """Simulations a run steps when the caller gives none: ``default_n_envs``, or what a native
+        trainer asks for with these settings on a plant of ``n_containers`` (the native PPO: as many
+        as make about its ``rollout_samples`` per update, fewer for more container agents).
+        ``settings``: the trainer's settings when parsed already, else parsed from ``hyperparams``."""
         if self.default_n_envs is not None:
             return self.default_n_envs
-        from containergym_marl.training.fast_ppo import PPOArgs
-
-        return PPOArgs.from_hyperparams(hyperparams or {}).num_sims(self.num_slots(n_containers, 1))
+        trainer = self.trainer()
+        if settings is None:
+            settings = trainer.settings(hyperparams or {})
+        return trainer.default_sims(settings, self.num_slots(n_containers, 1))
 
     @property
     def default_sims_text(self) -> str:
         """``default_sims`` in words, for help texts."""
-        return str(self.default_n_envs) if self.default_n_envs is not None else "rollout_samples / (n_steps x agents)"
+        return str(self.default_n_envs) if self.default_n_envs is not None else "its trainer's"
 
     def num_slots(self, n_containers: int, num_sims: int) -> int:
         """Vectorised slots (samples per vector step): one per simulation, or one per container
@@ -201,6 +212,10 @@ class AlgorithmSpec:
         return self.policy_adapter(model, name=name, deterministic=deterministic)
 
 
+_PPO = "containergym_marl.training.fast_ppo:TRAINER"
+#: what every native entry shares: tensor-only model files, the trainer's own simulations and minibatches
+_NATIVE = {"default_n_envs": None, "minibatch": None, "adam_eps": None, "model_suffix": ".pt"}
+
 REGISTRY: dict[str, AlgorithmSpec] = {
     spec.name: spec
     for spec in (
@@ -219,27 +234,25 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       reward_modes=REWARD_MODES),
         AlgorithmSpec("fast_ppo", None, CentralisedActorCriticPolicy,
                       "centralised PPO, native trainer: SB3's network and loss, about 4096 samples per update "
-                      "in minibatches of 1024", native=True, default_n_envs=None, minibatch=None, adam_eps=None,
-                      model_suffix=".pt"),
+                      "in minibatches of 1024", native=_PPO, **_NATIVE),
         AlgorithmSpec("fast_shared_ppo", None, SharedActorCriticPolicy,
                       "decentralised PPO, native trainer: one policy shared by every container agent, "
-                      "about 4096 samples per update whatever the plant's size, minibatches of 1024", native=True,
-                      default_n_envs=None, minibatch=None, adam_eps=None, reward_modes=REWARD_MODES,
-                      model_suffix=".pt"),
+                      "about 4096 samples per update whatever the plant's size, minibatches of 1024", native=_PPO,
+                      reward_modes=REWARD_MODES, **_NATIVE),
         AlgorithmSpec("dagger_agents", None, SharedActorCriticPolicy,
                       "decentralised imitation of planner_agents (DAgger): fast_shared_ppo's shared policy, "
-                      "trained on the planner's decisions in the states it visits itself", native=True,
-                      phases=("dagger",), default_n_envs=64, minibatch=None, adam_eps=None, model_suffix=".pt"),
+                      "trained on the planner's decisions in the states it visits itself",
+                      native="containergym_marl.training.dagger:IMITATION", **{**_NATIVE, "default_n_envs": 64}),
         # the fine-tuning's default reward is the plant's, the objective the planner it imitates plans for
         AlgorithmSpec("dagger_ppo_agents", None, SharedActorCriticPolicy,
                       "dagger_agents for half the budget, then fast_shared_ppo from the imitated policy, "
                       "every agent rewarded with the plant's reward",
-                      native=True, phases=("dagger", "ppo"), default_n_envs=64, minibatch=None, adam_eps=None,
-                      reward_modes=("team", "individual"), model_suffix=".pt"),
+                      native="containergym_marl.training.dagger:IMITATION_THEN_PPO",
+                      reward_modes=("team", "individual"), **{**_NATIVE, "default_n_envs": 64}),
         AlgorithmSpec("mappo", None, SharedActorPolicy,
                       "MAPPO (BenchMARL, CTDE): one actor shared by the container agents, a critic on the "
                       "global state; team reward (its settings are BenchMARL's, in the script)",
-                      reward_modes=("team",), extra_modules=("benchmarl",), trainer="baselines/train_mappo.py",
+                      reward_modes=("team",), extra_modules=("benchmarl",), trainer_name="baselines/train_mappo.py",
                       model_suffix=".pt"),
     )
 }

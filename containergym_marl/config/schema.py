@@ -36,6 +36,7 @@ from containergym_marl.config.bounds import (
     _check_name,
     _check_range,
 )
+from containergym_marl.config.pu_time import pu_time_s
 
 
 def _field(toml_comment: str):
@@ -262,9 +263,6 @@ def _validate_container(c: ContainerSpec) -> None:
     _check_range(c.product_size, MIN_VOLUME, MAX_VOLUME, f"{where}: product_size", " volume units")
     for key in ("pu_offset_s", "pu_time_per_product_s"):
         _check_range(getattr(c, key), 0.0, MAX_PU_DURATION_S, f"{where}: {key}", " seconds", lo_open=True)
-    # imported here: the core imports this package (a cycle at import time)
-    from containergym_marl.core.params import pu_time_s
-
     longest = pu_time_s(float(c.max_volume), float(c.pu_offset_s), float(c.pu_time_per_product_s),
                         float(c.product_size))
     if not longest <= MAX_PU_TIME_S:

@@ -41,7 +41,8 @@ from typing import Callable, NamedTuple
 import numba
 import numpy as np
 
-from containergym_marl.core.params import JIT_OPTIONS, PlantParams, generated_function, jit, pu_time_s, unpack_params
+from containergym_marl.config.pu_time import JIT_OPTIONS, jit, pu_time_s
+from containergym_marl.core.params import PlantParams, generated_function, unpack_params
 
 #: From this batch size on, blocks of simulations are stepped in parallel threads.
 PARALLEL_MIN_BATCH = 2048

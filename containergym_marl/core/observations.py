@@ -36,7 +36,8 @@ from __future__ import annotations
 import numpy as np
 
 from containergym_marl.core.dynamics import PlantState, emptying_reward
-from containergym_marl.core.params import PlantParams, jit, unpack_params
+from containergym_marl.config.pu_time import jit
+from containergym_marl.core.params import PlantParams, unpack_params
 
 #: The rule-based controller's margin (paper, section 6.2), also used by ``others_ready_frac``.
 READY_MARGIN = 1.0  # v >= v* − margin counts as ready

@@ -12,33 +12,20 @@ table :data:`STORAGE` says where each field is stored; packing (:meth:`PlantPara
 and unpacking (:func:`unpack_params`, generated from the table) both follow it, so no index is
 written anywhere else.
 
-This module also holds g(v), the PU time (paper eq. 2), the one definition that the step, the
-bound ``max_pu_time_s`` and the config's validation all call.
+The bound ``max_pu_time_s`` is the largest g(v), the PU time (paper eq. 2) of
+:mod:`containergym_marl.config.pu_time`, the one definition that the step and the config's
+validation also call.
 """
 
 from __future__ import annotations
 
-import math
 import operator
 from typing import Callable, NamedTuple, get_type_hints
 
 import numba
 import numpy as np
 
-#: The compiled functions are cached on disk: a new process loads them instead of recompiling.
-#: ``error_model="numpy"``: a division by zero gives inf instead of raising. No divisor here can be
-#: zero (v_max, product sizes and reward widths are validated ≥ 1e-3 by the config), and without the
-#: exception paths numba can drop its reference counting from the step (14 % of a one-simulation
-#: kernel call, ``benchmarks/kernel.py``).
-JIT_OPTIONS = {"cache": True, "error_model": "numpy"}
-jit = numba.njit(**JIT_OPTIONS)
-
-
-@jit
-def pu_time_s(volume: float, offset_s: float, time_per_product_s: float, product_size: float) -> float:
-    """g(v) = β + λ·⌊v / b⌋: seconds a PU is busy after emptying a container at ``volume`` (paper
-    eq. 2), for its offset β, time per product λ and product size b."""
-    return offset_s + time_per_product_s * math.floor(volume / product_size)
+from containergym_marl.config.pu_time import JIT_OPTIONS, pu_time_s
 
 
 class PlantParams(NamedTuple):

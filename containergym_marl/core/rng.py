@@ -26,7 +26,7 @@ from llvmlite import ir
 from numba.extending import intrinsic
 from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
 
-from containergym_marl.core.params import JIT_OPTIONS
+from containergym_marl.config.pu_time import JIT_OPTIONS
 
 #: Rows drawn per refill. Part of the definition of the random stream: changing it changes every
 #: trajectory for a given seed (and would bump the environments' versions).

@@ -88,6 +88,7 @@ from containergym_marl.policies.planner import PlannerAgents
 from containergym_marl.rundir import RunWarning
 from containergym_marl.training import fast_ppo
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
+from containergym_marl.training.native import MemoryShapes
 
 CHECKPOINT_FORMAT = "containergym-marl dagger checkpoint"
 DATASET_FORMAT = "containergym-marl dagger dataset"
@@ -544,5 +545,51 @@ def train(run: Path, state, env, budget: int, gamma: float, hp: DAggerArgs, prog
     return state
 
 
-__all__ = ["DAggerArgs", "DAggerState", "Dataset", "Episodes", "Labeller", "Rollout", "collect", "learn",
+class DAggerTrainer:
+    """DAgger, and with ``fine_tune`` the native PPO after it, as ``train`` runs them
+    (:class:`~containergym_marl.training.native.NativeTrainer`)."""
+
+    def __init__(self, fine_tune: bool):
+        self.fine_tune = fine_tune
+
+    def settings(self, hyperparams: dict[str, Any]) -> DAggerArgs:
+        return DAggerArgs.from_hyperparams(hyperparams, fine_tune=self.fine_tune)
+
+    def memory(self, settings: DAggerArgs, shapes: MemoryShapes) -> dict[str, int]:
+        """The data set (F float32 + 1 byte a sample), the labelling planner's futures (K × H
+        look-ahead of n + 1 candidates), the networks, a rollout and a minibatch; the fine-tuning's
+        rollout and minibatch."""
+        hp, n, m = settings, shapes.n_containers, shapes.n_pus
+        estimate = {f"dataset_size={hp.dataset_size}": hp.dataset_size * (shapes.obs * 4 + 1),
+                    f"futures={hp.futures}, horizon={hp.horizon}": hp.futures * (n + 1) * (n + m + hp.horizon) * 8 * 8,
+                    f"hidden={list(hp.hidden)}": shapes.networks(hp.hidden),
+                    f"n_steps={hp.n_steps}": shapes.rollout(hp.n_steps, shapes.obs + 8, copies=2),
+                    f"minibatch_size={hp.minibatch_size}": shapes.minibatch(hp.minibatch_size, 2 * sum(hp.hidden),
+                                                                             hp.n_steps)}
+        if hp.ppo is not None:
+            estimate.update(fast_ppo.TRAINER.memory(dataclasses.replace(hp.ppo, hidden=hp.hidden), shapes, "ppo_"))
+        return estimate
+
+    def new_state(self, env, settings: DAggerArgs, view: str, seed: int, meta: dict[str, Any]) -> DAggerState:
+        return new_state(env, settings, seed, meta)
+
+    def load_checkpoint(self, path: Path, settings: DAggerArgs):
+        return load_checkpoint(path, settings)
+
+    def learn(self, run: Path, state, env, budget: int, gamma: float, settings: DAggerArgs,
+              progress: TrainingProgress, interval: int, seed: int, on_samples=None):
+        return train(run, state, env, budget, gamma, settings, progress, interval, seed, on_samples)
+
+    def save_final(self, state, path: Path) -> None:
+        fast_ppo.save_final(state, path)
+
+    def run_summary(self, run: Path) -> dict[str, Any]:
+        return {"imitation": summary(run)}
+
+
+#: The registry's trainers: ``dagger_agents`` (DAgger alone) and ``dagger_ppo_agents`` (then PPO).
+IMITATION = DAggerTrainer(fine_tune=False)
+IMITATION_THEN_PPO = DAggerTrainer(fine_tune=True)
+
+__all__ = ["DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_PPO", "Dataset", "Episodes", "Labeller", "Rollout", "collect", "learn",
            "load_checkpoint", "new_state", "summary", "train", "update"]

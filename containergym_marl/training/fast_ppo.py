@@ -70,6 +70,7 @@ from containergym_marl.config.bounds import (
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic, load_tensors
 from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
+from containergym_marl.training.native import MemoryShapes
 from containergym_marl.training.ppo_gradients import FlatAdam, MLPGradients, ppo_loss_gradients
 
 CHECKPOINT_FORMAT = "containergym-marl ppo checkpoint"
@@ -435,5 +436,45 @@ def save_final(state: TrainingState, path: Path) -> None:
     state.model.save(path)
 
 
-__all__ = ["PPOArgs", "TrainingState", "coerce_setting", "compute_gae", "explained_variance", "learn",
+class PPOTrainer:
+    """The native PPO as ``train`` runs it (:class:`~containergym_marl.training.native.NativeTrainer`)."""
+
+    def settings(self, hyperparams: dict[str, Any]) -> PPOArgs:
+        return PPOArgs.from_hyperparams(hyperparams)
+
+    def default_sims(self, settings: PPOArgs, agents_per_sim: int) -> int:
+        return settings.num_sims(agents_per_sim)
+
+    def memory(self, settings: PPOArgs, shapes: MemoryShapes, prefix: str = "") -> dict[str, int]:
+        """``prefix``: the settings' prefix in the names (``ppo_`` for a fine-tuning's)."""
+        estimate = {f"{prefix}n_steps={settings.n_steps}":
+                    shapes.rollout(settings.n_steps, shapes.obs + 8 + shapes.actions * settings.action_mask),
+                    f"{prefix}minibatch_size={settings.minibatch_size}":
+                    shapes.minibatch(settings.minibatch_size, 2 * sum(settings.hidden), settings.n_steps)}
+        if not prefix:  # a fine-tuning keeps the network it starts from
+            estimate[f"hidden={list(settings.hidden)}"] = shapes.networks(settings.hidden)
+        return estimate
+
+    def new_state(self, env, settings: PPOArgs, view: str, seed: int, meta: dict[str, Any]) -> TrainingState:
+        return new_state(env, settings, view, seed, meta)
+
+    def load_checkpoint(self, path: Path, settings: PPOArgs) -> TrainingState:
+        return load_checkpoint(path, settings)
+
+    def learn(self, run: Path, state: TrainingState, env, budget: int, gamma: float, settings: PPOArgs,
+              progress: TrainingProgress, interval: int, seed: int, on_samples=None) -> TrainingState:
+        learn(run, state, env, budget, gamma, settings, progress, interval, on_samples)
+        return state
+
+    def save_final(self, state: TrainingState, path: Path) -> None:
+        save_final(state, path)
+
+    def run_summary(self, run: Path) -> dict[str, Any]:
+        return {}
+
+
+#: The registry's native PPO (``fast_ppo``, ``fast_shared_ppo``).
+TRAINER = PPOTrainer()
+
+__all__ = ["PPOArgs", "PPOTrainer", "TRAINER", "TrainingState", "coerce_setting", "compute_gae", "explained_variance", "learn",
            "load_checkpoint", "log_rollout", "new_state", "save_final", "save_if_best", "state_from_model", "update"]

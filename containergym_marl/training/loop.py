@@ -283,7 +283,7 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
     spec = get_algorithm(args.algo)
     args.validate()
     args = dataclasses.replace(args, hyperparams=run_settings(args))
-    args.validate()  # the settings from the method's file or the resumed run, checked as --hp's
+    settings = args.validate()  # the settings from the method's file or the resumed run, checked as --hp's
     # a MissingExtraError naming the extra, before anything is written
     algo_cls = spec.load_class() if spec.sb3 else None
     import torch
@@ -293,13 +293,13 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
         args = dataclasses.replace(args, timesteps=paper_budget(plant.n_containers))
     if args.resume and (args.run_dir() / "args.json").is_file():
         args = dataclasses.replace(args, n_envs=run_args(args.run_dir()).get("n_envs"))  # the model's shape
-    n_envs = spec.default_sims(plant.n_containers, args.hyperparams) if args.n_envs is None else int(args.n_envs)
+    n_envs = spec.default_sims(plant.n_containers, settings=settings) if args.n_envs is None else int(args.n_envs)
     interval = checkpoint_interval(args.timesteps, spec.num_slots(plant.n_containers, n_envs), args.checkpoint_every)
     args = dataclasses.replace(args, n_envs=n_envs, checkpoint_every=interval)
     torch.set_num_threads(max(int(args.torch_threads), 1))
     # The settings' memory is estimated, then the env and a new SB3 model are built, before anything
     # is written: a size that does not fit or settings the algorithm refuses leave no run directory behind.
-    check_memory(memory_estimate(args, plant, n_envs), "the run")
+    check_memory(memory_estimate(args, plant, n_envs, settings), "the run")
     try:
         env = make_training_env(spec, args, plant, n_envs)
     except MemoryError:
@@ -313,10 +313,8 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
         try:
             if _finished_already(run, spec, args):
                 return run
-            if spec.native and "dagger" in spec.phases:
-                _train_dagger(run, spec, args, env, interval)
-            elif spec.native:
-                _train_native(run, spec, args, env, interval)
+            if spec.native:
+                _train_native(run, spec, args, env, interval, settings)
             else:
                 _train(run, spec, algo_cls, args, env, interval, model)
         finally:
@@ -366,46 +364,24 @@ def _train(run: Path, spec: AlgorithmSpec, algo_cls, args: TrainArgs, env, inter
             lambda path: atomic_save_model(model, path))
 
 
-def _train_native(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval: int):
-    """The native PPO (:mod:`containergym_marl.training.fast_ppo`) in the run directory."""
-    from containergym_marl.training import fast_ppo
-
-    hp = fast_ppo.PPOArgs.from_hyperparams(args.hyperparams)
-    resumed = _resume(run, spec, args, env, load=lambda path: fast_ppo.load_checkpoint(path, hp)) \
+def _train_native(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval: int, settings) -> None:
+    """A native trainer (:class:`~containergym_marl.training.native.NativeTrainer`, the registry
+    entry's ``native``) in the run directory, from its newest intact checkpoint on a resume."""
+    trainer = spec.trainer()
+    resumed = _resume(run, spec, args, env, load=lambda path: trainer.load_checkpoint(path, settings)) \
         if args.resume else None
     if resumed is None:
         env.seed(args.seed)
         meta = {"algo": args.algo, "config": config_stem(args.config), "seed": args.seed,
                 "reward_mode": args.reward_mode if spec.reward_modes else None}
-        state, start, progress = fast_ppo.new_state(env, hp, spec.view, args.seed, meta), 0, TrainingProgress()
+        state, start, progress = trainer.new_state(env, settings, spec.view, args.seed, meta), 0, TrainingProgress()
     else:
         state, start, progress = resumed
     with _training_bar(args, start) as bar:
-        fast_ppo.learn(run, state, env, int(args.timesteps), float(args.gamma), hp, progress, interval,
-                       on_samples=lambda steps, p: bar.advance_to(steps, _return_text(p)))
+        state = trainer.learn(run, state, env, int(args.timesteps), float(args.gamma), settings, progress, interval,
+                              args.seed, on_samples=lambda steps, p: bar.advance_to(steps, _return_text(p)))
     _finish(run, spec, args, state.num_timesteps, progress, start if resumed is not None else None,
-            lambda path: fast_ppo.save_final(state, path))
-
-
-def _train_dagger(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, interval: int):
-    """Imitation of the rollout planner (:mod:`containergym_marl.training.dagger`), then the native
-    PPO where the algorithm has that phase, in the run directory."""
-    from containergym_marl.training import dagger, fast_ppo
-
-    hp = dagger.DAggerArgs.from_hyperparams(args.hyperparams, fine_tune="ppo" in spec.phases)
-    resumed = _resume(run, spec, args, env, load=lambda path: dagger.load_checkpoint(path, hp)) \
-        if args.resume else None
-    if resumed is None:
-        meta = {"algo": args.algo, "config": config_stem(args.config), "seed": args.seed,
-                "reward_mode": args.reward_mode if spec.reward_modes else None}
-        state, start, progress = dagger.new_state(env, hp, args.seed, meta), 0, TrainingProgress()
-    else:
-        state, start, progress = resumed
-    with _training_bar(args, start) as bar:
-        state = dagger.train(run, state, env, int(args.timesteps), float(args.gamma), hp, progress, interval,
-                             args.seed, on_samples=lambda steps, p: bar.advance_to(steps, _return_text(p)))
-    _finish(run, spec, args, state.num_timesteps, progress, start if resumed is not None else None,
-            lambda path: fast_ppo.save_final(state, path), extra={"imitation": dagger.summary(run)})
+            lambda path: trainer.save_final(state, path), extra=trainer.run_summary(run))
 
 
 def _training_bar(args: TrainArgs, start: int) -> Bar:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from containergym_marl.algorithms import ALGORITHMS, REGISTRY, get_algorithm, require_training_extra
+from containergym_marl.algorithms import ALGORITHMS, REGISTRY, get_algorithm
 from containergym_marl.config import MAX_SIMS
 from containergym_marl.config.bounds import MAX_EPOCHS, MAX_MINIBATCH, MAX_N_STEPS, MAX_REPLAY_BUFFER, check_count
 from containergym_marl.core.dynamics import ARBITRATION_RULES
@@ -95,11 +95,12 @@ class TrainArgs:
             return Path(self.out)
         return Path("runs") / run_name(self.algo, self.config, self.seed)
 
-    def validate(self) -> None:
-        """Refuse bad values up front (a ValueError naming the argument)."""
+    def validate(self):
+        """Refuse bad values up front (a ValueError naming the argument). Returns a native trainer's
+        parsed settings (None for the others), so that the run does not parse them again."""
         spec = get_algorithm(self.algo)
         if not spec.trained_here:
-            raise ValueError(f"algo: {self.algo} is not trained by containergym-marl train but by {spec.trainer}")
+            raise ValueError(f"algo: {self.algo} is not trained by containergym-marl train but by {spec.trainer_name}")
         for name in ("timesteps", "n_envs", "checkpoint_every"):
             value = getattr(self, name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
@@ -128,15 +129,8 @@ class TrainArgs:
         if spec.native:
             if self.vec != "native":
                 raise ValueError(f"vec: {self.algo} trains on the native vector env only, not {self.vec!r}")
-            require_training_extra(())  # torch, with a message naming the extra
-            if "dagger" in spec.phases:
-                from containergym_marl.training.dagger import DAggerArgs
-
-                DAggerArgs.from_hyperparams(self.hyperparams, fine_tune="ppo" in spec.phases)
-            else:
-                from containergym_marl.training.fast_ppo import PPOArgs
-
-                PPOArgs.from_hyperparams(self.hyperparams)
+            return spec.trainer().settings(self.hyperparams)  # torch missing: a message naming the extra
+        return None
 
 
 #: The largest training seed: SB3 seeds numpy's global generator, which takes seeds below 2**32.
@@ -164,76 +158,49 @@ def _check_sb3_settings(spec, hyperparams: dict[str, Any]) -> None:
     sb3_networks(hyperparams.get("policy_kwargs", {}), "hp: policy_kwargs")
 
 
-def memory_estimate(args: TrainArgs, plant, n_envs: int) -> dict[str, int]:
+def memory_estimate(args: TrainArgs, plant, n_envs: int, settings=None) -> dict[str, int]:
     """Bytes a run of ``args`` on ``plant`` with ``n_envs`` simulations needs at least, one entry per
     setting that sizes them (what :func:`~containergym_marl.config.bounds.check_memory` names),
     with F the observation size, A the actions, S = the slots (simulations, or agents of all of
-    them) and float32 throughout:
+    them) and float32 throughout (:class:`~containergym_marl.training.native.MemoryShapes`):
 
     * the simulations: B × (n + m) × 16 floats of state and S × F × 4 observations' copies;
     * a rollout (``n_steps``): n_steps × S × (F + 8) (observations and ~8 per-sample buffers; SB3's
-      twice, for its flattened copy; the native PPO's action masks add A);
+      twice, for its flattened copy);
     * a minibatch: its samples × (F + 4 × the hidden units + A), twice (forward and backward);
-    * the networks (``hidden``, ``policy_kwargs``): parameters × 6 (weights, gradients, Adam's two
-      moments, the saved copies);
-    * a replay buffer (``buffer_size``): samples × (2F + 5); a DAgger data set (``dataset_size``):
-      samples × (4F + 1) bytes, and its labelling planner's futures (K × H look-ahead of n + 1
-      candidates).
+    * the networks (``policy_kwargs``): parameters × 6 (weights, gradients, Adam's two moments, the
+      saved copies);
+    * a replay buffer (``buffer_size``): samples × (2F + 5);
+    * a native trainer's own terms (``NativeTrainer.memory``), from ``settings`` (parsed from
+      ``args.hyperparams`` when None).
     """
     import inspect
 
     from containergym_marl.core.observations import N_SCALAR_FEATURES
-    from containergym_marl.policies.actor_critic import mlp_parameters
+    from containergym_marl.training.native import MemoryShapes
 
     spec = get_algorithm(args.algo)
     n, m = plant.n_containers, plant.num_processing_units
     agents = spec.view == "decentralised"
     obs, actions = (N_SCALAR_FEATURES + m + n, 2) if agents else (n + m, n + 1)
-    slots = spec.num_slots(n, n_envs)
-    estimate = {f"n_envs={n_envs}": n_envs * (n + m) * 16 * 8 + slots * obs * 4 * 4}
+    shapes = MemoryShapes(obs, actions, spec.num_slots(n, n_envs), n, m)
+    estimate = {f"n_envs={n_envs}": n_envs * (n + m) * 16 * 8 + shapes.slots * obs * 4 * 4}
+    if spec.native:
+        trainer = spec.trainer()
+        return {**estimate, **trainer.memory(trainer.settings(args.hyperparams) if settings is None else settings,
+                                             shapes)}
+    from containergym_marl.models import sb3_networks
 
-    def networks(key: str, nets: list[list[int]]) -> None:
-        estimate[key] = sum(mlp_parameters([obs, *widths, out]) for widths, out in zip(nets, (actions, 1))) * 4 * 6
-
-    def rollout(key: str, n_steps: int, per_sample: int, copies: int = 1) -> None:
-        estimate[key] = n_steps * slots * per_sample * 4 * copies
-
-    def minibatch(key: str, size: int, hidden_units: int, n_steps: int) -> None:
-        estimate[key] = min(size, n_steps * slots) * (obs + 4 * hidden_units + actions) * 4 * 2
-
-    if spec.sb3:
-        from containergym_marl.models import sb3_networks
-
-        kwargs = spec.kwargs(slots, args.gamma, args.hyperparams)
-        nets = sb3_networks(kwargs.get("policy_kwargs", {}), "hp: policy_kwargs")
-        networks("policy_kwargs.net_arch", nets)
-        if spec.rollout:
-            rollout(f"n_steps={kwargs['n_steps']}", kwargs["n_steps"], obs + 8 + actions, copies=2)
-            batch = kwargs.get("batch_size", 64)
-            minibatch(f"batch_size={batch}", batch, sum(map(sum, nets)), kwargs["n_steps"])
-        else:
-            size = kwargs.get("buffer_size", inspect.signature(spec.load_class().__init__).parameters["buffer_size"].default)
-            estimate[f"buffer_size={size}"] = size * (2 * obs + 5) * 4
-        return estimate
-    if "dagger" in spec.phases:
-        from containergym_marl.training.dagger import DAggerArgs
-
-        hp = DAggerArgs.from_hyperparams(args.hyperparams, fine_tune="ppo" in spec.phases)
-        estimate[f"dataset_size={hp.dataset_size}"] = hp.dataset_size * (obs * 4 + 1)
-        estimate[f"futures={hp.futures}, horizon={hp.horizon}"] = hp.futures * (n + 1) * (n + m + hp.horizon) * 8 * 8
-        networks(f"hidden={list(hp.hidden)}", [list(hp.hidden)] * 2)
-        rollout(f"n_steps={hp.n_steps}", hp.n_steps, obs + 8, copies=2)
-        minibatch(f"minibatch_size={hp.minibatch_size}", hp.minibatch_size, 2 * sum(hp.hidden), hp.n_steps)
-        ppo, prefix, hidden = hp.ppo, "ppo_", hp.hidden  # the fine-tuning keeps the imitated network
+    kwargs = spec.kwargs(shapes.slots, args.gamma, args.hyperparams)
+    nets = sb3_networks(kwargs.get("policy_kwargs", {}), "hp: policy_kwargs")
+    estimate["policy_kwargs.net_arch"] = shapes.networks(*nets)
+    if spec.rollout:
+        estimate[f"n_steps={kwargs['n_steps']}"] = shapes.rollout(kwargs["n_steps"], obs + 8 + actions, copies=2)
+        batch = kwargs.get("batch_size", 64)
+        estimate[f"batch_size={batch}"] = shapes.minibatch(batch, sum(map(sum, nets)), kwargs["n_steps"])
     else:
-        from containergym_marl.training.fast_ppo import PPOArgs
-
-        ppo, prefix = PPOArgs.from_hyperparams(args.hyperparams), ""
-        hidden = ppo.hidden
-        networks(f"hidden={list(hidden)}", [list(hidden)] * 2)
-    if ppo is not None:
-        rollout(f"{prefix}n_steps={ppo.n_steps}", ppo.n_steps, obs + 8 + actions * ppo.action_mask)
-        minibatch(f"{prefix}minibatch_size={ppo.minibatch_size}", ppo.minibatch_size, 2 * sum(hidden), ppo.n_steps)
+        size = kwargs.get("buffer_size", inspect.signature(spec.load_class().__init__).parameters["buffer_size"].default)
+        estimate[f"buffer_size={size}"] = size * (2 * obs + 5) * 4
     return estimate
 
 

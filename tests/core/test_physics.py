@@ -11,7 +11,8 @@ import pytest
 from containergym_marl import load_config
 from containergym_marl.core import dynamics, emptying_reward, emptying_rewards, pu_busy_time_s
 from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
-from containergym_marl.core.params import PlantParams, pack_params, pu_time_s, unpack_params
+from containergym_marl.config.pu_time import pu_time_s
+from containergym_marl.core.params import PlantParams, pack_params, unpack_params
 from tests.helpers import make_state
 
 R_PEN = -0.1

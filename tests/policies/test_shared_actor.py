@@ -38,7 +38,7 @@ def test_registry_evaluates_mappo_but_sb3_does_not_train_it():
     spec = get_algorithm("mappo")
     assert "mappo" in REGISTRY and "mappo" not in ALGORITHMS and not spec.sb3
     assert spec.policy_adapter is SharedActorPolicy and spec.view == "decentralised"
-    assert (spec.model_file("best"), spec.trainer) == ("best_model.pt", "baselines/train_mappo.py")
+    assert (spec.model_file("best"), spec.trainer_name) == ("best_model.pt", "baselines/train_mappo.py")
     assert all(REGISTRY[a].model_file("final") == ("final_model.zip" if REGISTRY[a].sb3 else "final_model.pt")
                and REGISTRY[a].trained_here for a in ALGORITHMS)
     with pytest.raises(ValueError, match="baselines/train_mappo.py"):

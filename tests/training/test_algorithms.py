@@ -28,8 +28,13 @@ def test_registry_entries_load_their_classes_and_views():
         with pytest.raises(ValueError, match="not a Stable-Baselines3 algorithm"):
             spec.load_class()
     assert get_algorithm("fast_shared_ppo").method_name("team") == "fast_shared_ppo_team"
-    assert [get_algorithm(a).phases for a in ("fast_shared_ppo", "dagger_agents", "dagger_ppo_agents")] == [
-        ("ppo",), ("dagger",), ("dagger", "ppo")]
+    from containergym_marl.training import dagger, fast_ppo
+
+    trainers = [get_algorithm(a).trainer() for a in ("fast_ppo", "fast_shared_ppo", "dagger_agents", "dagger_ppo_agents")]
+    assert trainers == [fast_ppo.TRAINER, fast_ppo.TRAINER, dagger.IMITATION, dagger.IMITATION_THEN_PPO]
+    assert not dagger.IMITATION.fine_tune and dagger.IMITATION_THEN_PPO.fine_tune
+    with pytest.raises(ValueError, match="not trained by a native trainer"):
+        get_algorithm("ppo").trainer()
     assert get_algorithm("dagger_agents").policy_adapter is get_algorithm("fast_shared_ppo").policy_adapter
     assert get_algorithm("shared_ppo").policy_adapter is SharedModelPolicy
     assert all(REGISTRY[a].policy_adapter is CentralisedModelPolicy for a in ("ppo", "trpo", "dqn", "maskable_ppo"))
