@@ -20,6 +20,7 @@ import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.files import atomic_write_text
 
 CAUSES = ("denied", "not_requested", "no_free_pu")
@@ -41,7 +42,7 @@ def run_causes(args: tuple[str, int]) -> dict:
     saved = run_args(run)
     protocol = EvalProtocol(episodes=episodes, first_seed=VALIDATION.first_seed)
     result = evaluate(policy_from_run(run, "best"), saved["config"], protocol,
-                      arbitration=saved.get("arbitration", "fullest"))
+                      arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
     params = PlantParams.from_config(protocol.plant(saved["config"]))
     return {"run": Path(run).name, "method": REGISTRY[saved["algo"]].method_name(saved.get("reward_mode")), "row": saved["config"],
             "seed": saved["seed"], "episodes": episodes, "first_seed": protocol.first_seed,

@@ -18,7 +18,7 @@ import threading
 from dataclasses import dataclass
 
 from containergym_marl.config import ConfigError, load_config
-from containergym_marl.core.dynamics import ARBITRATION_RULES
+from containergym_marl.core.dynamics import ARBITRATION_RULES, DEFAULT_ARBITRATION
 from containergym_marl.core.params import PlantParams
 from containergym_marl.methods import CONTROLLERS
 from containergym_marl.options import add_options, from_namespace, option, positive_int
@@ -101,7 +101,7 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
         policy = CONTROLLERS[target](PlantParams.from_config(plant))
         bar, on_episode = _episode_bar(protocol.episodes)
         with bar:
-            return evaluate(policy, plant, protocol, arbitration=arbitration or "fullest", on_episode=on_episode)
+            return evaluate(policy, plant, protocol, arbitration=arbitration or DEFAULT_ARBITRATION, on_episode=on_episode)
     if Path(target).is_dir():
         from containergym_marl.evaluation.runs import evaluate_run
         from containergym_marl.rundir import RunWarning

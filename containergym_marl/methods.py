@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.algorithms import AlgorithmSpec, get_algorithm
 from containergym_marl.policies import RuleBasedAgents, RuleBasedController
 from containergym_marl.policies.planner import PlannerAgents, RolloutPlanner
@@ -36,7 +37,7 @@ class Method:
     algo: str | None = None
     reward_mode: str | None = None
     counterpart: str | None = None
-    arbitration: str = "fullest"
+    arbitration: str = DEFAULT_ARBITRATION
 
     @property
     def learned(self) -> bool:

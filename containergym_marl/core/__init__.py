@@ -8,6 +8,7 @@ look-ahead planning).
 
 from containergym_marl.core.dynamics import (
     ARBITRATION_RULES,
+    DEFAULT_ARBITRATION,
     ArbitrationRule,
     PlantState,
     StepOutcome,
@@ -28,6 +29,7 @@ __all__ = [
     "ARBITRATION_RULES",
     "ArbitrationRule",
     "BLOCK_ROWS",
+    "DEFAULT_ARBITRATION",
     "EpisodeFinishedError",
     "Futures",
     "NoiseStreams",

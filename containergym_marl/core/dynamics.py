@@ -336,6 +336,8 @@ class ArbitrationRule:
 
 #: name -> rule, in the order they are documented.
 ARBITRATION_RULES: dict[str, ArbitrationRule] = {}
+#: The rule every simulator, environment, run and evaluation uses unless told otherwise.
+DEFAULT_ARBITRATION = "fullest"
 
 
 def arbitration_rule(name: str, reads_uniform: bool = True):
@@ -363,7 +365,7 @@ def get_rule(name: str) -> ArbitrationRule:
     return rule
 
 
-@arbitration_rule("fullest", reads_uniform=False)
+@arbitration_rule(DEFAULT_ARBITRATION, reads_uniform=False)
 def fullest_first(i, volume, uniform, params):
     """The fullest container first (highest v / v_max); the default."""
     return volume / params.max_volume[i]
@@ -421,7 +423,7 @@ def step(
     params: PlantParams,
     normals: np.ndarray,
     uniforms: np.ndarray,
-    arbitration: str = "fullest",
+    arbitration: str = DEFAULT_ARBITRATION,
 ) -> tuple[PlantState, StepOutcome]:
     """Advance B simulations by one step of δ seconds. Pure: ``state`` is not modified.
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from containergym_marl.config import MAX_SIMS, PlantConfig
 from containergym_marl.core import dynamics
-from containergym_marl.core.dynamics import PlantState, StepOutcome, StepOutputs, get_rule
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION, PlantState, StepOutcome, StepOutputs, get_rule
 from containergym_marl.core.observations import global_state
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.rng import NoiseStreams
@@ -39,7 +39,7 @@ class PlantSimulator:
             :data:`~containergym_marl.core.dynamics.ARBITRATION_RULES`.
     """
 
-    def __init__(self, config: PlantConfig, num_sims: int = 1, arbitration: str = "fullest"):
+    def __init__(self, config: PlantConfig, num_sims: int = 1, arbitration: str = DEFAULT_ARBITRATION):
         self._rule = get_rule(arbitration)  # validated once, before anything is built
         if (isinstance(num_sims, bool) or not isinstance(num_sims, (int, np.integer))
                 or not 1 <= num_sims <= MAX_SIMS):

@@ -20,7 +20,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from containergym_marl.core import dynamics
-from containergym_marl.core.dynamics import PlantState
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION, PlantState
 from containergym_marl.core.params import PlantParams
 
 #: ``policy(state, params) -> (B, n) bool requests``: who decides after the first step.
@@ -55,7 +55,7 @@ def simulate_futures(
     policy: RequestPolicy,
     params: PlantParams,
     normals: np.ndarray,
-    arbitration: str = "fullest",
+    arbitration: str = DEFAULT_ARBITRATION,
 ) -> Futures:
     """Simulate K futures of each of C first decisions from simulation ``sim`` of ``state``.
 

@@ -15,7 +15,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import conversions, wrappers
 
 from containergym_marl.config import PlantConfig, load_config
-from containergym_marl.core.dynamics import get_rule
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION, get_rule
 from containergym_marl.core.observations import (
     agent_feature_names,
     agent_observation_bounds,
@@ -150,7 +150,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self,
         config: str | PlantConfig = "n5_m2_dt120",
         *,
-        arbitration: str = "fullest",
+        arbitration: str = DEFAULT_ARBITRATION,
         reward_mode: str = "individual",
         action_masking: bool = False,
         observation_mode: str = "box",

@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 from gymnasium.utils import seeding
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.observations import agent_observation_bounds, agent_observations
 from containergym_marl.core.simulator import PlantSimulator
@@ -122,7 +123,7 @@ class ContainerAgentsTorchRLEnv(EnvBase):
         config: str | PlantConfig = "n5_m2_dt120",
         num_envs: int = 64,
         *,
-        arbitration: str = "fullest",
+        arbitration: str = DEFAULT_ARBITRATION,
         reward_mode: str = "individual",
         categorical_actions: bool = True,
         seed: int | None = None,

@@ -46,7 +46,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from containergym_marl.config import PlantConfig, load_config
-from containergym_marl.core.dynamics import StepOutcome
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION, StepOutcome
 from containergym_marl.core.observations import (
     agent_observation_bounds,
     agent_observations,
@@ -106,7 +106,7 @@ NO_INFO: dict = _ReadOnlyEmptyInfo()
 class _AutoresetBatch:
     """B simulations with per-simulation seeds and automatic reset (shared by all vector envs)."""
 
-    def __init__(self, config: PlantConfig, num_sims: int, arbitration: str = "fullest"):
+    def __init__(self, config: PlantConfig, num_sims: int, arbitration: str = DEFAULT_ARBITRATION):
         self.sim = PlantSimulator(config, num_sims=num_sims, arbitration=arbitration)
         self.params = self.sim.params
         self.num_sims = num_sims
@@ -254,7 +254,7 @@ class ContainerGymVecEnv(_SB3Base):
         _require_sb3(type(self).__name__)
         cfg = load_config(config, protocol=protocol, **overrides)
         low, high = global_state_bounds(PlantParams.from_config(cfg))
-        self._init_sb3(cfg, num_envs, "fullest", num_envs,
+        self._init_sb3(cfg, num_envs, DEFAULT_ARBITRATION, num_envs,
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(cfg.n_containers + 1))
 
     def _observe(self, state, previous_requests) -> np.ndarray:
@@ -290,7 +290,7 @@ class ContainerAgentsVecEnv(_SB3Base):
     """
 
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_sims: int = 8, *,
-                 arbitration: str = "fullest", reward_mode: str = "individual",
+                 arbitration: str = DEFAULT_ARBITRATION, reward_mode: str = "individual",
                  protocol: str | None = None, **overrides: Any):
         check_reward_mode(reward_mode)
         num_sims = check_batch_size(num_sims, "num_sims")

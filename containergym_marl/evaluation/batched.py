@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.config import PlantConfig
 from containergym_marl.core.observations import agent_observations
 from containergym_marl.core.simulator import PlantSimulator
@@ -29,7 +30,7 @@ from containergym_marl.evaluation.protocol import (
 
 
 def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol = PAPER, *,
-                     arbitration: str = "fullest") -> EvaluationResult:
+                     arbitration: str = DEFAULT_ARBITRATION) -> EvaluationResult:
     """Every episode of ``protocol`` at once; an :class:`EvaluationResult` without records."""
     from gymnasium.utils import seeding
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.algorithms import get_algorithm
 from containergym_marl.evaluation.batched import evaluate_batched
 from containergym_marl.evaluation.protocol import VALIDATION, EvalProtocol
@@ -60,7 +61,7 @@ def run_curve(run: str | Path, protocol: EvalProtocol = VALIDATION, write: bool 
     policies.append((int(summary["timesteps"]), policy_from_run(run, "final")))
     points = []
     for steps, policy in policies:
-        s = evaluate_batched(policy, saved["config"], protocol, arbitration=saved.get("arbitration", "fullest")).summary()
+        s = evaluate_batched(policy, saved["config"], protocol, arbitration=saved.get("arbitration", DEFAULT_ARBITRATION)).summary()
         points.append({"samples": int(steps), "return_mean": s["return_mean"], "overflow_rate": s["overflow_rate"]})
     curve = {"protocol": asdict(protocol), "budget": int(summary["budget"]), "points": points}
     if write:

@@ -17,6 +17,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.config import PAPER_TEST_PROTOCOL, PlantConfig, load_config
 from containergym_marl.evaluation.records import EpisodeRecord, EpisodeRecorder
 
@@ -159,7 +160,7 @@ def evaluate(
     config: str | PlantConfig,
     protocol: EvalProtocol = PAPER,
     *,
-    arbitration: str = "fullest",
+    arbitration: str = DEFAULT_ARBITRATION,
     keep_records: bool = True,
     on_step: Callable[[Any], None] | None = None,
     on_episode: Callable[[int, EpisodeMetrics], None] | None = None,

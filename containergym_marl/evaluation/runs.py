@@ -6,6 +6,7 @@ import json
 import warnings
 from pathlib import Path
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.algorithms import get_algorithm
 from containergym_marl.files import atomic_write_text
 from containergym_marl.rundir import read_run_summary, run_args, RunWarning
@@ -68,7 +69,7 @@ def evaluate_run(run: str | Path, config: str | None = None, which: str = "best"
     saved = run_args(run)
     policy = policy_from_run(run, which)
     result = evaluate(policy, config or saved["config"], protocol or PAPER,
-                      arbitration=arbitration or saved.get("arbitration", "fullest"), on_episode=on_episode)
+                      arbitration=arbitration or saved.get("arbitration", DEFAULT_ARBITRATION), on_episode=on_episode)
     summary = read_run_summary(run) or {}
     if isinstance(summary.get("training"), dict):
         result.training = summary["training"]

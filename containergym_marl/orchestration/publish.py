@@ -53,6 +53,7 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text, open_file, refuse_links, refuse_links_in
 from containergym_marl.manifest import check_file, is_covered, read_manifest, write_manifest
@@ -239,7 +240,7 @@ def _evaluate_into(to: Path, folder: str, protocol, min_seeds: int, runs_only: b
             try:
                 saved = run_args(run)
                 result = evaluate_batched(policy_from_run(run), group.config, protocol,
-                                          arbitration=saved.get("arbitration", "fullest"))
+                                          arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
             finally:
                 torch.set_num_threads(threads)
         else:

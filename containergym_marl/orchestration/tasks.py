@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.files import open_file
 from containergym_marl.manifest import sha256_bytes
 from containergym_marl.rundir import (
@@ -212,7 +213,7 @@ class EvalSpec:
     method: str
     config: str
     episodes: int
-    arbitration: str = "fullest"
+    arbitration: str = DEFAULT_ARBITRATION
     seed: int | None = None
 
 

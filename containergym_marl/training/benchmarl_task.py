@@ -53,12 +53,13 @@ except ImportError as error:  # a clear message instead of a bare ModuleNotFound
 
     raise missing_extra("containergym_marl.training.benchmarl_task", "clients", error) from error
 
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.envs.torchrl_env import GROUP, ContainerAgentsTorchRLEnv
 
 #: The environment name of these tasks (BenchMARL's ``env_name``; logs and run names carry it).
 ENV_NAME = "containergym"
 #: Used when a task is made without a config (``get_task()``).
-DEFAULT_TASK_CONFIG: Dict[str, Any] = {"reward_mode": "team", "arbitration": "fullest"}
+DEFAULT_TASK_CONFIG: Dict[str, Any] = {"reward_mode": "team", "arbitration": DEFAULT_ARBITRATION}
 
 
 class ContainerGymTaskClass(TaskClass):

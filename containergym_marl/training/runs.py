@@ -19,7 +19,7 @@ from typing import Any
 from containergym_marl.algorithms import ALGORITHMS, REGISTRY, get_algorithm
 from containergym_marl.config import MAX_SIMS
 from containergym_marl.config.bounds import MAX_EPOCHS, MAX_MINIBATCH, MAX_N_STEPS, MAX_REPLAY_BUFFER, check_count
-from containergym_marl.core.dynamics import ARBITRATION_RULES
+from containergym_marl.core.dynamics import ARBITRATION_RULES, DEFAULT_ARBITRATION
 from containergym_marl.files import atomic_write_text
 from containergym_marl.options import key_values, option, positive_int
 from containergym_marl.rundir import (
@@ -66,7 +66,7 @@ class TrainArgs:
                                           "or the plant's for every agent (default: " + ", ".join(
                                               f"{name} {REGISTRY[name].default_reward_mode}" for name in ALGORITHMS
                                               if REGISTRY[name].reward_modes) + ")")
-    arbitration: str = option("fullest", choices=tuple(ARBITRATION_RULES),
+    arbitration: str = option(DEFAULT_ARBITRATION, choices=tuple(ARBITRATION_RULES),
                               help="how free PUs are shared among the container agents' requests")
     checkpoint_every: int | None = option(None, type=positive_int,
                                           help="samples between checkpoints, taken at the end of a rollout "
