@@ -22,7 +22,10 @@ reports the mean score so far; from the fourth run on (every n = 5 row seen once
 reached the same run, finished or still running, so a weak setting costs four n = 5 runs rather than
 25 even while no trial has finished. The default setting is never stopped: it is every trial's reference.
 A setting the sampler proposes again after a trial judged it takes that trial's verdict (state
-``(= trial N)`` in the table) without training.
+``(= trial N)`` in the table) without training; each setting counts once in the median. A pruned
+setting may have been stopped by noise when close to the median: ``--finalists K`` queues the K
+settings with the best mean score (over at least one run of every row) again as *finalists*, which
+are never pruned and so are judged on every run, their earlier runs reused.
 
 **What is recorded.** Every trial, its settings, state, each run's validation return, overflowing
 validation episodes, the validation return of the checkpoint nearest half the budget, and its
@@ -194,7 +197,7 @@ class Objective:
         finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
         twin = next((t for t in trial.study.get_trials(deepcopy=False, states=finished) if t.params == trial.params),
                     None)
-        if twin is not None:
+        if twin is not None and not trial.user_attrs.get("finalist"):
             trial.set_user_attr("duplicate_of", twin.number)
             if twin.state == optuna.trial.TrialState.PRUNED:
                 raise optuna.TrialPruned()
@@ -225,11 +228,15 @@ def pruner():
 
         def prune(self, study, trial) -> bool:
             step = trial.last_step
-            if step is None or step + 1 < WARMUP_RUNS or trial.user_attrs.get("default"):
+            if (step is None or step + 1 < WARMUP_RUNS or trial.user_attrs.get("default")
+                    or trial.user_attrs.get("finalist")):
                 return False
-            others = [t.intermediate_values[step] for t in study.get_trials(deepcopy=False)
-                      if t.number != trial.number and step in t.intermediate_values]
-            return bool(others) and trial.intermediate_values[step] < float(np.median(others))
+            # one value per other setting: a setting tried again (queued after a kill, a finalist)
+            # reuses its runs, and counting each of its trials would make it the median
+            others = {json.dumps(t.params, sort_keys=True): t.intermediate_values[step]
+                      for t in study.get_trials(deepcopy=False)
+                      if t.params != trial.params and step in t.intermediate_values}
+            return bool(others) and trial.intermediate_values[step] < float(np.median(list(others.values())))
 
     return MedianOfOthersPruner()
 
@@ -254,13 +261,39 @@ def _worker(method: str, journal: str, runs: str, rows, seeds, rule, timesteps, 
                    callbacks=[optuna.study.MaxTrialsCallback(total, states=done)])
 
 
+def enqueue_finalists(study, count: int, min_runs: int) -> list[int]:
+    """Queue the ``count`` settings with the highest mean score over at least ``min_runs`` runs that
+    no trial has finished all runs of, as finalists: the pruner never stops them, so each is judged
+    on every run, as the default is (a setting pruned by a hair at a few runs gets its full
+    comparison). Their runs so far are reused. Returns the numbers of the trials they come from."""
+    optuna = require_optuna()
+    complete = {json.dumps(t.params, sort_keys=True) for t in study.get_trials(deepcopy=False)
+                if t.state == optuna.trial.TrialState.COMPLETE}
+    # a queued trial's setting is in its fixed params until a worker takes it
+    queued = {json.dumps(t.params or t.system_attrs.get("fixed_params", {}), sort_keys=True)
+              for t in study.get_trials(deepcopy=False)
+              if t.state in (optuna.trial.TrialState.WAITING, optuna.trial.TrialState.RUNNING)}
+    best: dict[str, Any] = {}
+    for row in trial_rows(study):
+        key = json.dumps(row["params"], sort_keys=True)
+        if key in complete or key in queued or len(row["runs"]) < min_runs:
+            continue
+        if key not in best or len(row["runs"]) > len(best[key]["runs"]):
+            best[key] = row
+    chosen = sorted(best.values(), key=lambda r: r["mean_score"], reverse=True)[:count]
+    for row in chosen:
+        study.enqueue_trial(row["params"], user_attrs={"finalist": True, "finalist_of": row["number"]})
+    return [row["number"] for row in chosen]
+
+
 def requeue_interrupted(study) -> int:
     """Trials a kill left running: failed, and their settings queued again (their runs are reused)."""
     optuna = require_optuna()
     stale = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.RUNNING]
     for t in stale:
         study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)
-        attrs = {"requeued_from": t.number, **({"default": True} if t.user_attrs.get("default") else {})}
+        attrs = {"requeued_from": t.number,
+                 **{k: True for k in ("default", "finalist") if t.user_attrs.get(k)}}
         study.enqueue_trial(t.params, user_attrs=attrs)
     return len(stale)
 
@@ -272,6 +305,7 @@ def trial_rows(study) -> list[dict[str, Any]]:
     for t in study.get_trials(deepcopy=False):
         runs = [v for k, v in sorted(t.user_attrs.items()) if k.startswith("run_")]
         out.append({"number": t.number, "state": t.state.name, "duplicate_of": t.user_attrs.get("duplicate_of"),
+                    "finalist_of": t.user_attrs.get("finalist_of"),
                     "params": t.params, "value": t.value,
                     "runs": runs, "mean_score": float(np.mean([r["score"] for r in runs])) if runs else None,
                     "overflowing_episodes": sum(r["overflowing_episodes"] for r in runs),
@@ -316,6 +350,8 @@ def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
         cells = [_cell(r["params"].get(n)) for n in names]
         fmt = lambda x: "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.3f}"  # noqa: E731
         state = r["state"].lower() + ("" if r["duplicate_of"] is None else f" (= trial {r['duplicate_of']})")
+        if r.get("finalist_of") is not None:
+            state += f" (finalist: trial {r['finalist_of']}'s setting, never pruned)"
         lines.append(f"| {r['number']} | {state} | " + " | ".join(cells) +
                      f" | {len(r['runs'])} | {fmt(r['value'])} | {fmt(r['mean_score'])} | "
                      f"{fmt(r['half_budget_score'])} | {r['overflowing_episodes']} | {r['cpu_s'] / 3600:.2f} |")
@@ -356,6 +392,9 @@ def main(argv=None) -> None:
     p.add_argument("--runs", default="runs/ppo_tuning", help="the trials' runs, in <runs>/<method>/")
     p.add_argument("--report", action="store_true", help="train nothing: write the tables of the journal")
     p.add_argument("--smoke", action="store_true", help="trials of 1 row x 1 seed at 8192 samples (a test)")
+    p.add_argument("--finalists", type=int, default=0, metavar="K",
+                   help="first queue the K best settings not yet judged on every run (mean score over at least "
+                        "one run of every row) as finalists, which the pruner never stops")
     p.add_argument("--write-config", nargs="?", const="", default=None, metavar="PATH",
                    help="train nothing: write the best finished trial's settings as the method's settings file "
                         "(default configs/hyperparams/<method>.toml)")
@@ -379,6 +418,10 @@ def main(argv=None) -> None:
                 study.enqueue_trial(DEFAULT_TRIAL, user_attrs={"default": True})
             done = sum(t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
                        for t in study.get_trials(deepcopy=False))
+            if ns.finalists:
+                finalists = enqueue_finalists(study, ns.finalists, min_runs=len(rows))
+                print(f"finalists queued, the settings of trial(s) {finalists}")
+                total = max(total, done + len(finalists))
             if done < total:
                 args = (ns.method, str(journal), str(runs), rows, seeds, rule, timesteps, total)
                 ctx = multiprocessing.get_context("spawn")

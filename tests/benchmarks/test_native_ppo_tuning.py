@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 optuna = pytest.importorskip("optuna")
@@ -109,27 +110,82 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert settings == best.params and f"trial {best.number} of {len(finished)} finished" in source
 
 
-def test_a_trial_below_the_median_of_the_others_at_the_same_run_is_stopped_but_never_the_default():
+def _load_script():
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("native_ppo_tuning", SCRIPT)
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
+    return script
+
+
+def _setting(study, x: int):
+    """A trial of setting ``x`` (its only parameter)."""
+    study.enqueue_trial({"x": x})
+    trial = study.ask()
+    trial.suggest_int("x", 0, 100)
+    return trial
+
+
+def test_a_trial_below_the_median_of_the_others_at_the_same_run_is_stopped_but_never_the_default():
+    script = _load_script()
     study = optuna.create_study(direction="maximize", pruner=script.pruner())
-    reference = study.ask()  # still running: a reference all the same
+    reference = _setting(study, 1)  # still running: a reference all the same
     for step, value in enumerate([0.9, 0.9, 0.9, 0.9, 0.9]):
         reference.report(value, step)
-    weak, strong = study.ask(), study.ask()
+    weak, strong = _setting(study, 2), _setting(study, 3)
     for step in range(script.WARMUP_RUNS - 1):  # before the fourth run nothing is stopped
         weak.report(0.1, step)
         assert not weak.should_prune()
     weak.report(0.1, script.WARMUP_RUNS - 1)
     strong.report(0.95, script.WARMUP_RUNS - 1)
     assert weak.should_prune() and not strong.should_prune()
-    default = study.ask()
-    default.set_user_attr("default", True)
-    default.report(0.0, script.WARMUP_RUNS - 1)
-    assert not default.should_prune()
+    for attr in ("default", "finalist"):
+        protected = _setting(study, 4 if attr == "default" else 5)
+        protected.set_user_attr(attr, True)
+        protected.report(0.0, script.WARMUP_RUNS - 1)
+        assert not protected.should_prune()
+
+
+def test_a_setting_tried_several_times_counts_once_in_the_median():
+    """The default queued again after kills is one setting: three trials of it at 0.9 and one other
+    setting at 0.5 make a median of 0.7 (two settings), not 0.9 (four trials)."""
+    script = _load_script()
+    study = optuna.create_study(direction="maximize", pruner=script.pruner())
+    step = script.WARMUP_RUNS - 1
+    for _ in range(3):
+        _setting(study, 1).report(0.9, step)
+    _setting(study, 2).report(0.5, step)
+    candidate = _setting(study, 3)
+    candidate.report(0.8, step)
+    assert not candidate.should_prune()  # above 0.7; below 0.9, the median of the four trials
+    other = _setting(study, 4)
+    other.report(0.6, step)
+    assert other.should_prune()  # the median of (0.9, 0.5, 0.8) is 0.8
+
+
+def test_finalists_are_the_best_settings_not_yet_judged_on_every_run():
+    script = _load_script()
+    study = optuna.create_study(direction="maximize")
+
+    def finished(x: int, scores: list[float], state):
+        trial = _setting(study, x)
+        for k, score in enumerate(scores):
+            trial.set_user_attr(f"run_{k:02d}", {"score": score, "overflowing_episodes": 0,
+                                                 "half_budget_score": score, "cpu_s": 1.0})
+        study.tell(trial, float(np.mean(scores)) if state == optuna.trial.TrialState.COMPLETE else None, state=state)
+        return trial
+
+    pruned, complete = optuna.trial.TrialState.PRUNED, optuna.trial.TrialState.COMPLETE
+    finished(1, [0.9] * 10, complete)  # judged on every run: never a finalist
+    near = finished(2, [0.95] * 7, pruned)
+    finished(3, [0.99] * 3, pruned)  # too few runs to rank
+    lower = finished(4, [0.7] * 7, pruned)
+    assert script.enqueue_finalists(study, 2, min_runs=5) == [near.number, lower.number]
+    waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+    assert [t.system_attrs["fixed_params"] for t in waiting] == [{"x": 2}, {"x": 4}]  # as a worker will ask them
+    assert all(t.user_attrs["finalist"] for t in waiting)
+    assert script.enqueue_finalists(study, 2, min_runs=5) == []  # queued already
 
 
 def test_a_setting_proposed_again_takes_the_earlier_verdict_without_training(tmp_path):
