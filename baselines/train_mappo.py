@@ -102,7 +102,7 @@ import numpy as np
 
 from containergym_marl.config import load_config
 from containergym_marl.evaluation import EvalProtocol
-from containergym_marl.evaluation.runs import evaluate_run
+from containergym_marl.evaluation.run_policies import evaluate_run
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.shared_actor import SharedActor
 from containergym_marl.algorithms import paper_budget

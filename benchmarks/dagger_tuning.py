@@ -116,7 +116,7 @@ def evaluate_one(job: tuple[str, str, int, str, str, int]) -> dict:
     import torch
 
     from containergym_marl.evaluation.protocol import VALIDATION, EvalProtocol
-    from containergym_marl.evaluation.runs import evaluate_run
+    from containergym_marl.evaluation.run_policies import evaluate_run
 
     torch.set_num_threads(1)
     variant, row, seed, runs, which, episodes = job

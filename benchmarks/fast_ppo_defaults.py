@@ -22,7 +22,7 @@ import numpy as np
 
 from containergym_marl.evaluation import evaluate
 from containergym_marl.evaluation.protocol import VALIDATION
-from containergym_marl.evaluation.runs import policy_from_run
+from containergym_marl.evaluation.run_policies import policy_from_run
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.rundir import read_run_summary, run_status
 

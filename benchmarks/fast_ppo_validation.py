@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from containergym_marl.evaluation import stats as st
-from containergym_marl.evaluation.runs import evaluate_run
+from containergym_marl.evaluation.run_policies import evaluate_run
 from containergym_marl.evaluation.table import bootstrap_rng, load_evaluations
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.rundir import run_status

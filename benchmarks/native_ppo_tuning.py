@@ -146,7 +146,7 @@ def train_and_validate(method: str, row: str, seed: int, hp: dict[str, Any], run
                        timesteps: int | None) -> dict[str, Any]:
     """Train (or resume, or reuse) one run and evaluate its best model, and the checkpoint nearest
     half its budget, on the validation episodes; cached in ``run``/validation.json."""
-    from containergym_marl.evaluation.runs import policy_from_run
+    from containergym_marl.evaluation.run_policies import policy_from_run
     from containergym_marl.policies.actor_critic import policy_for
     from containergym_marl.training import TrainArgs, train
     from containergym_marl.training.fast_ppo import PPOArgs, load_checkpoint

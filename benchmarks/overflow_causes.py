@@ -33,7 +33,7 @@ def run_causes(args: tuple[str, int]) -> dict:
     from containergym_marl.core.params import PlantParams
     from containergym_marl.evaluation import EvalProtocol, evaluate
     from containergym_marl.evaluation.protocol import VALIDATION
-    from containergym_marl.evaluation.runs import policy_from_run
+    from containergym_marl.evaluation.run_policies import policy_from_run
     from containergym_marl.rundir import run_args
     from planner_figures import overflow_causes
 

@@ -89,7 +89,7 @@ def train_and_score(job: tuple[str, str, int, int, str, int]) -> dict:
     variant, row, seed, samples, out, episodes = job
     from containergym_marl.evaluation import evaluate
     from containergym_marl.evaluation.protocol import VALIDATION, EvalProtocol
-    from containergym_marl.evaluation.runs import policy_from_run
+    from containergym_marl.evaluation.run_policies import policy_from_run
     from containergym_marl.training import TrainArgs, train
 
     run = Path(out) / variant / f"{row}_s{seed}"

@@ -77,7 +77,7 @@ def _print_training_end(run) -> None:
 def _episode_bar(total: int):
     """The evaluation's bar on stderr (episodes, episodes/s, ETA, the last episode's return), on a
     terminal only, and the ``on_episode`` that moves it."""
-    from containergym_marl.progress import Bar
+    from containergym_marl.progress_bar import Bar
 
     bar = Bar("evaluating", total, "episodes")
 
@@ -103,7 +103,7 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
         with bar:
             return evaluate(policy, plant, protocol, arbitration=arbitration or DEFAULT_ARBITRATION, on_episode=on_episode)
     if Path(target).is_dir():
-        from containergym_marl.evaluation.runs import evaluate_run
+        from containergym_marl.evaluation.run_policies import evaluate_run
         from containergym_marl.rundir import RunWarning
 
         bar, on_episode = _episode_bar(protocol.episodes)
@@ -213,7 +213,7 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from containergym_marl.training.runs import TrainArgs
+    from containergym_marl.training.train_args import TrainArgs
 
     parser = argparse.ArgumentParser(prog="containergym-marl", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)

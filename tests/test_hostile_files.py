@@ -41,7 +41,7 @@ from containergym_marl.rundir import checkpoints
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training import dagger, fast_ppo
 from containergym_marl.training.checkpoints import load_replay_buffer, save_replay_buffer
-from containergym_marl.training.runs import memory_estimate
+from containergym_marl.training.train_args import memory_estimate
 
 from tests.helpers import CFG
 

@@ -17,7 +17,7 @@ import torch
 
 from containergym_marl.cli import main as cli_main
 from containergym_marl.evaluation import EvalProtocol
-from containergym_marl.evaluation.runs import evaluate_run
+from containergym_marl.evaluation.run_policies import evaluate_run
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.rundir import checkpoint_files, checkpoints
 from containergym_marl.models import load_model

@@ -1,4 +1,4 @@
-"""One progress style (containergym_marl.progress): rich bars with rates and ETAs on a terminal for
+"""One progress style (containergym_marl.progress_bar): rich bars with rates and ETAs on a terminal for
 training, evaluation and the sweep; nothing from training and evaluation, and only plain lines from
 the sweep, when the stream is not a terminal."""
 
@@ -12,8 +12,8 @@ import time
 import pytest
 
 from containergym_marl.cli import main
-from containergym_marl.orchestration.progress import Progress
-from containergym_marl.progress import Bar, format_duration
+from containergym_marl.orchestration.sweep_progress import Progress
+from containergym_marl.progress_bar import Bar, format_duration
 from containergym_marl.training import TrainArgs, train
 
 # episodes of T = 20 steps, so that a tiny budget ends training episodes (the bar's training return)

@@ -60,7 +60,7 @@ dataset_size (DAgger)        1 ≤ size ≤ 2**26 samples                       
 buffer_size (SB3 replay)     1 ≤ size ≤ 2**24 samples (SB3's default: 10**6)      MAX_REPLAY_BUFFER
 futures, horizon             1 ≤ K ≤ 1024, 1 ≤ H ≤ 1024 (DAgger's labelling       MAX_PLANNER_FUTURES,
                              planner; defaults 16, 8)                             MAX_PLANNER_HORIZON
-memory of a run              its estimate (``training.runs.memory_estimate``:     machine_memory()
+memory of a run              its estimate (``training.train_args.memory_estimate``:     machine_memory()
                              buffers, data set, networks, simulations) ≤ the
                              machine's physical memory
 config file                  ≤ 1,000,000 bytes                                    MAX_CONFIG_BYTES

@@ -50,7 +50,7 @@ def run_curve(run: str | Path, protocol: EvalProtocol = VALIDATION, write: bool 
     """Every checkpoint of a finished run and its final model on ``protocol``'s episodes: a dict with
     the protocol and ``points``, one per policy by samples: ``samples``, ``return_mean``,
     ``overflow_rate``. Written to ``RUN/curve.json`` unless ``write`` is False."""
-    from containergym_marl.evaluation.runs import policy_from_run
+    from containergym_marl.evaluation.run_policies import policy_from_run
 
     run = Path(run)
     saved, summary = run_args(run), read_run_summary(run)

@@ -100,10 +100,10 @@ from containergym_marl.orchestration.plan import (
     resume_point,
     training_plan,
 )
-from containergym_marl.orchestration.progress import estimate_rate
+from containergym_marl.orchestration.sweep_progress import estimate_rate
 from containergym_marl.orchestration.shipped import shipped_plan, shipped_report, shipped_summary
 from containergym_marl.orchestration.sweep import execute
-from containergym_marl.progress import format_duration
+from containergym_marl.progress_bar import format_duration
 from containergym_marl.rundir import run_name, write_files
 
 

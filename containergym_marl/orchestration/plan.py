@@ -13,7 +13,7 @@ from pathlib import Path
 
 from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation import table as tables
-from containergym_marl.evaluation.runs import evaluated_files, evaluated_model
+from containergym_marl.evaluation.run_policies import evaluated_files, evaluated_model
 from containergym_marl.manifest import sha256_bytes
 from containergym_marl.methods import METHODS, Method
 from containergym_marl.orchestration.compare_args import CompareArgs

@@ -215,7 +215,7 @@ def _evaluate_into(to: Path, folder: str, protocol, min_seeds: int, runs_only: b
     from containergym_marl.core.params import PlantParams
     from containergym_marl.evaluation import evaluate
     from containergym_marl.evaluation.batched import evaluate_batched
-    from containergym_marl.evaluation.runs import evaluated_files, evaluated_model, policy_from_run
+    from containergym_marl.evaluation.run_policies import evaluated_files, evaluated_model, policy_from_run
     from containergym_marl.manifest import sha256_bytes
     from containergym_marl.methods import CONTROLLERS
 

@@ -6,7 +6,7 @@ runs one thread), so Ray runs as many trainings at once as the cluster has CPUs,
 has one free; an evaluation takes its training task's result (the run's small files, models
 included) as its argument, so Ray starts it when the training ends. Training tasks send events
 (started, samples so far) through a ``ray.util.queue.Queue``, which the driver folds into its progress
-display (:class:`~containergym_marl.orchestration.progress.Progress`). Results are handed to the
+display (:class:`~containergym_marl.orchestration.sweep_progress.Progress`). Results are handed to the
 caller as they land, so an interrupted sweep keeps what finished.
 
 Storage: a training task writes its run directory at the same absolute path on whichever node runs
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, TextIO
 
 from containergym_marl.orchestration.cluster import Cluster
-from containergym_marl.orchestration.progress import Progress
+from containergym_marl.orchestration.sweep_progress import Progress
 from containergym_marl.orchestration.tasks import EvalSpec, EventSender, RunSpec
 
 

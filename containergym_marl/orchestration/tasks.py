@@ -60,7 +60,7 @@ class RunSpec:
     train: dict[str, Any] = field(default_factory=dict)  # further TrainArgs fields (n_envs, reward_mode, …)
 
     def train_args(self, resume: bool):
-        from containergym_marl.training.runs import TrainArgs
+        from containergym_marl.training.train_args import TrainArgs
 
         return TrainArgs(algo=self.algo, config=self.config, seed=self.seed, timesteps=self.timesteps,
                          out=self.run_dir, resume=resume, progress_bar=False, torch_threads=1, **self.train)
@@ -236,9 +236,9 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
         model_sha = None
         result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
     else:
-        from containergym_marl.evaluation.runs import evaluated_model, policy_from_run
+        from containergym_marl.evaluation.run_policies import evaluated_model, policy_from_run
 
-        files = run["files"]  # evaluation.runs.evaluated_files of the run
+        files = run["files"]  # evaluation.run_policies.evaluated_files of the run
         model_sha = sha256_bytes(evaluated_model(files))
         with tempfile.TemporaryDirectory(prefix="cgm-eval-") as tmp:
             write_files(tmp, {k: v for k, v in files.items()

@@ -11,7 +11,7 @@ from containergym_marl.algorithms import (
 from containergym_marl.extras import MissingExtraError
 from containergym_marl.rundir import RunError, RunWarning, read_metrics, run_status
 from containergym_marl.training.loop import train
-from containergym_marl.training.runs import TrainArgs
+from containergym_marl.training.train_args import TrainArgs
 
 __all__ = [
     "ALGORITHMS",

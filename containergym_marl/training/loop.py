@@ -1,10 +1,10 @@
-"""The training loop: :func:`train` turns :class:`~containergym_marl.training.runs.TrainArgs` into a
+"""The training loop: :func:`train` turns :class:`~containergym_marl.training.train_args.TrainArgs` into a
 run directory (see :mod:`containergym_marl.rundir` for its layout).
 
 One callback follows the plant's return of every training episode, keeps the model with the best
 mean return over the last 100 training episodes (``best_model.zip``), appends a metrics row at the
 end of every rollout, takes checkpoints (model, best model, replay buffer, progress) at rollout ends
-once the checkpoint interval has passed, and moves the run's progress bar (:mod:`containergym_marl.progress`;
+once the checkpoint interval has passed, and moves the run's progress bar (:mod:`containergym_marl.progress_bar`;
 on a terminal only), which stops at the budget.
 
 ``--resume`` continues from the newest intact checkpoint: metrics rows after it are dropped, the
@@ -52,7 +52,7 @@ from containergym_marl.rundir import (
     truncate_metrics,
 )
 from containergym_marl.models import load_model
-from containergym_marl.progress import Bar
+from containergym_marl.progress_bar import Bar
 from containergym_marl.training.checkpoints import (
     TrainingProgress,
     atomic_save_model,
@@ -61,7 +61,7 @@ from containergym_marl.training.checkpoints import (
     read_progress,
     save_checkpoint,
 )
-from containergym_marl.training.runs import TrainArgs, memory_estimate, prepare_run_dir
+from containergym_marl.training.train_args import TrainArgs, memory_estimate, prepare_run_dir
 
 
 def no_episode_note(best_name: str = "best_model.zip") -> str:

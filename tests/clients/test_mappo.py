@@ -26,7 +26,7 @@ from containergym_marl.cli import main as cli  # noqa: E402
 from containergym_marl.envs.torchrl_env import GROUP, ContainerAgentsTorchRLEnv  # noqa: E402
 from containergym_marl.evaluation import EvalProtocol, evaluate  # noqa: E402
 from containergym_marl.evaluation import table as tables  # noqa: E402
-from containergym_marl.evaluation.runs import policy_from_run  # noqa: E402
+from containergym_marl.evaluation.run_policies import policy_from_run  # noqa: E402
 from containergym_marl.policies.shared_actor import SharedActor, SharedActorPolicy  # noqa: E402
 from containergym_marl.policies.torchrl_policy import TorchRLAgentsPolicy  # noqa: E402
 from containergym_marl.rundir import METRIC_FIELDS, read_metrics  # noqa: E402
@@ -119,7 +119,7 @@ def test_policy_loads_and_evaluates_without_benchmarl_or_torchrl(trained):
     code = ("import sys\n"
             "for name in ('benchmarl', 'torchrl', 'tensordict'): sys.modules[name] = None  # unimportable\n"
             "from containergym_marl.evaluation import EvalProtocol\n"
-            "from containergym_marl.evaluation.runs import evaluate_run\n"
+            "from containergym_marl.evaluation.run_policies import evaluate_run\n"
             f"r = evaluate_run({str(trained[0])!r}, protocol=EvalProtocol(episodes=1), write=False)\n"
             "assert r.view == 'decentralised' and r.training['samples'] == 6000\n"
             "print('ok', r.policy)\n")
@@ -215,7 +215,7 @@ def test_a_finished_run_is_published_with_its_torch_models(trained, tmp_path):
     assert meta["files"] == {"best": "mappo_best.pt", "median": "mappo_median.pt"} and meta["best_seed"] == 3
     assert "| n5_m2_dt120 | mappo |" in (to / "table.md").read_text()
     # the shipped run, read with torch alone, gives the published evaluation again
-    from containergym_marl.evaluation.runs import evaluate_run
+    from containergym_marl.evaluation.run_policies import evaluate_run
 
     again = evaluate_run(shipped, protocol=EvalProtocol(episodes=2), write=False)
     assert json.loads(again.to_json()) == evaluation

@@ -14,7 +14,7 @@ import pytest
 
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.evaluation.batched import evaluate_batched
-from containergym_marl.evaluation.runs import policy_from_run
+from containergym_marl.evaluation.run_policies import policy_from_run
 
 REPO = Path(__file__).resolve().parents[2]
 RUNS = REPO / "results" / "paper_rows" / "runs"

@@ -11,7 +11,7 @@ import pytest
 from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.batched import evaluate_batched
 from containergym_marl.evaluation.curves import curve_at, iqm_curve, read_curve, run_curve
-from containergym_marl.evaluation.runs import policy_from_run
+from containergym_marl.evaluation.run_policies import policy_from_run
 from containergym_marl.rundir import checkpoints
 from containergym_marl.training import TrainArgs, train
 

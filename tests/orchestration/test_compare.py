@@ -21,7 +21,7 @@ from containergym_marl.orchestration.plan import run_specs
 from containergym_marl.evaluation import table as tables
 from containergym_marl.methods import METHODS, PAIRS
 from containergym_marl.rundir import RunError, RunWarning, measured_rate, small_files
-from containergym_marl.orchestration.progress import Progress
+from containergym_marl.orchestration.sweep_progress import Progress
 from containergym_marl.orchestration.tasks import MetricsReporter, RunSpec, prepare_run
 
 
@@ -278,7 +278,7 @@ def test_samples_per_second_of_the_last_uninterrupted_stretch(tmp_path):
 def test_the_eta_rate_is_the_median_of_the_sweeps_own_runs(tmp_path):
     """estimate_rate reads the SB3 runs of the runs folder; MAPPO runs trained beside them (plant
     steps, ~250/s) do not drag the sweep's estimate down (they did when every metrics.csv counted)."""
-    from containergym_marl.orchestration.progress import DEFAULT_RATE, estimate_rate
+    from containergym_marl.orchestration.sweep_progress import DEFAULT_RATE, estimate_rate
 
     def run(name: str, algo: str, rate: float) -> None:
         folder = tmp_path / name

@@ -29,7 +29,7 @@ from containergym_marl.orchestration.plan import evaluation_fingerprint  # noqa:
 from containergym_marl.orchestration.shipped import shipped_plan  # noqa: E402
 from containergym_marl.evaluation import EvalProtocol  # noqa: E402
 from containergym_marl.methods import METHODS  # noqa: E402
-from containergym_marl.evaluation.runs import evaluate_run  # noqa: E402
+from containergym_marl.evaluation.run_policies import evaluate_run  # noqa: E402
 from containergym_marl.manifest import write_manifest  # noqa: E402
 from containergym_marl.rundir import model_file  # noqa: E402
 from containergym_marl.training import TrainArgs, train  # noqa: E402

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from containergym_marl.evaluation import EvalProtocol
-from containergym_marl.evaluation.runs import evaluate_run
+from containergym_marl.evaluation.run_policies import evaluate_run
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.orchestration import publish as publish_results
 

@@ -144,7 +144,7 @@ def _wait_for_checkpoint(out: Path, run: str, proc: subprocess.Popen) -> int:
 
 def test_a_killed_training_worker_is_retried_and_resumes_the_others_are_identical(tmp_path):
     from containergym_marl.evaluation import EvalProtocol, evaluate
-    from containergym_marl.evaluation.runs import policy_from_run
+    from containergym_marl.evaluation.run_policies import policy_from_run
     from containergym_marl.training import train
     from containergym_marl.models import load_model
 

@@ -17,7 +17,7 @@ from containergym_marl.cli import build_parser  # noqa: E402
 from containergym_marl.cli import main as cli  # noqa: E402
 from containergym_marl.evaluation import EvalProtocol, evaluate  # noqa: E402
 from containergym_marl.evaluation import table as tables  # noqa: E402
-from containergym_marl.evaluation.runs import policy_from_run  # noqa: E402
+from containergym_marl.evaluation.run_policies import policy_from_run  # noqa: E402
 from containergym_marl.policies.shared_actor import SharedActor, SharedActorPolicy  # noqa: E402
 from containergym_marl.training import ALGORITHMS, REGISTRY, TrainArgs, get_algorithm  # noqa: E402
 from containergym_marl.rundir import RunWarning  # noqa: E402

@@ -13,7 +13,7 @@ import torch
 
 from containergym_marl.cli import main as cli_main
 from containergym_marl.evaluation import EvalProtocol
-from containergym_marl.evaluation.runs import evaluate_run, policy_from_run
+from containergym_marl.evaluation.run_policies import evaluate_run, policy_from_run
 from containergym_marl.policies.actor_critic import ActorCritic
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, explained_variance, learn, load_checkpoint, update

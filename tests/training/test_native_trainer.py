@@ -95,9 +95,9 @@ def idle_algorithm(monkeypatch):
 
 
 def test_a_registered_native_trainer_trains_and_its_model_is_evaluated(idle_algorithm, tmp_path, monkeypatch):
-    from containergym_marl.evaluation.runs import evaluate_run
+    from containergym_marl.evaluation.run_policies import evaluate_run
     from containergym_marl.training.loop import train
-    from containergym_marl.training.runs import TrainArgs
+    from containergym_marl.training.train_args import TrainArgs
 
     monkeypatch.chdir(tmp_path)
     args = TrainArgs(algo="idle_agents", config="n5_m2_dt120", seed=3, timesteps=3000, out=str(tmp_path / "run"),
@@ -120,7 +120,7 @@ def test_a_registered_native_trainer_trains_and_its_model_is_evaluated(idle_algo
 
 def test_a_native_trainer_refuses_its_bad_settings_before_anything_is_written(idle_algorithm, tmp_path):
     from containergym_marl.training.loop import train
-    from containergym_marl.training.runs import TrainArgs
+    from containergym_marl.training.train_args import TrainArgs
 
     args = TrainArgs(algo="idle_agents", config="n5_m2_dt120", timesteps=1000, out=str(tmp_path / "run"),
                      progress_bar=False, hyperparams={"learning_rate": 0.1})
@@ -131,7 +131,7 @@ def test_a_native_trainer_refuses_its_bad_settings_before_anything_is_written(id
 
 def test_a_native_trainers_memory_terms_are_checked_before_the_run(idle_algorithm, tmp_path):
     from containergym_marl.training.loop import train
-    from containergym_marl.training.runs import TrainArgs
+    from containergym_marl.training.train_args import TrainArgs
 
     args = TrainArgs(algo="idle_agents", config="n5_m2_dt120", timesteps=1000, out=str(tmp_path / "run"),
                      progress_bar=False, hyperparams={"rollout_steps": 10**12})

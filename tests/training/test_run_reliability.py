@@ -22,7 +22,7 @@ import pytest
 
 from containergym_marl.cli import main as cli_main
 from containergym_marl.evaluation import EvalProtocol
-from containergym_marl.evaluation.runs import evaluate_run, policy_from_run
+from containergym_marl.evaluation.run_policies import evaluate_run, policy_from_run
 from containergym_marl.training import RunError, RunWarning, TrainArgs, train
 from containergym_marl.files import atomic_write_text
 from containergym_marl.rundir import checkpoint_files, checkpoints, read_metrics, read_run_summary, RunLock

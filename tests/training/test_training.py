@@ -12,7 +12,7 @@ from containergym_marl import ConfigError, load_config
 from containergym_marl.cli import main as cli_main
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.policies import CentralisedModelPolicy, SharedModelPolicy
-from containergym_marl.evaluation.runs import evaluate_run
+from containergym_marl.evaluation.run_policies import evaluate_run
 from containergym_marl.training import RunError, TrainArgs, train
 from containergym_marl.rundir import latest_checkpoint, read_metrics
 from containergym_marl.models import load_model

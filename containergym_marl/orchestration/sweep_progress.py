@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 from typing import TextIO
 
-from containergym_marl.progress import Display, format_duration
+from containergym_marl.progress_bar import Display, format_duration
 from containergym_marl.rundir import RunError, measured_rate, run_args
 
 #: Samples per second per CPU assumed for an ETA before any run has reported (PPO, n = 5 or 11, here).
@@ -18,7 +18,7 @@ DEFAULT_RATE = 2_000.0
 class Progress:
     """The sweep's progress: runs done / running / left, evaluations, ETA, samples/s per running run.
 
-    On a terminal (:class:`containergym_marl.progress.Display`): a row for the sweep (runs done of
+    On a terminal (:class:`containergym_marl.progress_bar.Display`): a row for the sweep (runs done of
     the total, evaluations, the ETA of :meth:`eta_s`) and one per running run (its share of the
     budget, samples/s), redrawn in place, with events (a run finished, resumed, retried, failed)
     printed above them. Otherwise plain lines only: the events, and the status line
