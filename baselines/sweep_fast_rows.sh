@@ -25,5 +25,5 @@ for seeds in "1 2 3 4 5" "6 7 8 9 10" "11 12 13 14 15"; do
   $CLI compare --train \
     --configs n11_m2_dt120 n16_m2_dt120 n5_m2_dt120 n11_m11_dt120 n11_m2_dt60 n5_m2_dt60 n5_m5_dt120 n5_m5_dt60 n11_m11_dt60 \
     --methods fast_ppo fast_shared_ppo fast_shared_ppo_team \
-    --seeds $seeds --timesteps paper --runs "$RUNS" --out "$OUT" --no-figures "$@"
+    --seeds $seeds --timesteps paper --runs "$RUNS" --out "$OUT" --no-figures --curves "$@"
 done

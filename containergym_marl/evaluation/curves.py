@@ -1,7 +1,7 @@
 """Sample-efficiency curves: what a run's policy scores on validation episodes as its training goes on.
 
-A run's checkpoints (``checkpoints/ckpt_<S>_steps``, one every tenth of the budget by default) each
-hold the policy at S samples; :func:`run_curve` evaluates each of them and the final model with
+A run's checkpoints (``checkpoints/ckpt_<S>_steps``) each hold the policy at S samples;
+:func:`run_curve` evaluates the newest one at or before each tenth of the budget and the final model with
 :func:`~containergym_marl.evaluation.batched.evaluate_batched` on the validation episodes (seeds
 20000+, never the test or fresh ones) and writes ``RUN/curve.json``, a small file that travels with
 the run when it is published (its checkpoints stay where it trained). :func:`iqm_curve` aggregates
@@ -47,8 +47,9 @@ def _checkpoint_policy(run: Path, path: Path, algo: str):
 
 
 def run_curve(run: str | Path, protocol: EvalProtocol = VALIDATION, write: bool = True) -> dict:
-    """Every checkpoint of a finished run and its final model on ``protocol``'s episodes: a dict with
-    the protocol and ``points``, one per policy by samples: ``samples``, ``return_mean``,
+    """The checkpoints of a finished run that :func:`curve_at` reads (at each tenth of the budget,
+    the newest checkpoint at or before it) and its final model, on ``protocol``'s episodes: a dict
+    with the protocol and ``points``, one per policy by samples: ``samples``, ``return_mean``,
     ``overflow_rate``. Written to ``RUN/curve.json`` unless ``write`` is False."""
     from containergym_marl.evaluation.run_policies import policy_from_run
 
@@ -56,8 +57,15 @@ def run_curve(run: str | Path, protocol: EvalProtocol = VALIDATION, write: bool 
     saved, summary = run_args(run), read_run_summary(run)
     if summary is None:
         raise ValueError(f"{str(run)!r} is not a finished run (no run.json): its curve would stop short")
-    policies = [(steps, _checkpoint_policy(run, path, saved["algo"])) for steps, path in checkpoints(run)
-                if steps < summary["timesteps"]]
+    budget = int(summary["budget"])
+    saved_at = [(steps, path) for steps, path in checkpoints(run) if steps < summary["timesteps"]]
+    chosen = {}
+    for fraction in BUDGET_FRACTIONS:
+        before = [(steps, path) for steps, path in saved_at if steps <= fraction * budget + 1e-9]
+        if before:
+            steps, path = max(before, key=lambda c: c[0])
+            chosen[steps] = path
+    policies = [(steps, _checkpoint_policy(run, path, saved["algo"])) for steps, path in sorted(chosen.items())]
     policies.append((int(summary["timesteps"]), policy_from_run(run, "final")))
     points = []
     for steps, policy in policies:
@@ -77,8 +85,9 @@ def read_curve(run: str | Path) -> dict | None:
 def curve_at(curve: dict, fractions=BUDGET_FRACTIONS) -> np.ndarray:
     """A run's validation return at each fraction of its budget: the last policy evaluated at or
     before it (a step function, as the run had nothing newer to offer); nan before the first."""
-    samples = np.array([p["samples"] for p in curve["points"]], dtype=float)
-    returns = np.array([p["return_mean"] for p in curve["points"]])
+    points = sorted(curve["points"], key=lambda p: p["samples"])  # whatever order the file lists them in
+    samples = np.array([p["samples"] for p in points], dtype=float)
+    returns = np.array([p["return_mean"] for p in points])
     out = np.full(len(fractions), np.nan)
     for k, fraction in enumerate(fractions):
         before = np.flatnonzero(samples <= fraction * curve["budget"] + 1e-9)

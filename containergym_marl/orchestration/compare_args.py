@@ -101,6 +101,9 @@ class CompareArgs:
                                 help="parallel simulations per run (default: the algorithm's)")
     checkpoint_every: int = option(200_000, type=int, group=TRAINING,
                                    help="samples between checkpoints, what an interruption can lose")
+    curves: bool = option(False, action="store_true", group=TRAINING,
+                          help="after training, evaluate each run's checkpoints at every tenth of its budget on "
+                               "the validation episodes into RUN/curve.json (its sample-efficiency curve)")
     hyperparams: dict = option(default_factory=dict, flag="--hp", nargs="*", metavar="KEY=VALUE", group=TRAINING,
                                convert=key_values, help="further settings of every learned method's algorithm")
     address: str | None = option(None, group=EXECUTION,

@@ -40,7 +40,7 @@ def run_specs(args: CompareArgs, runs: Path) -> list[RunSpec]:
             for seed in args.seeds:
                 run = run_name(name, config, seed)
                 specs.append(RunSpec(run, name, method.algo, config, seed, args.budget(config),
-                                     str(runs / run), train))
+                                     str(runs / run), train, curve=args.curves))
     return sorted(specs, key=lambda s: -s.timesteps)
 
 

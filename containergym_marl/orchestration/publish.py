@@ -73,7 +73,7 @@ from containergym_marl.rundir import (
     RunLock,
 )
 
-SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv")
+SMALL_FILES = ("args.json", "run.json", "config.toml", "metrics.csv", "curve.json")
 
 
 def _copy(src: Path, dst: Path, within: Path) -> None:

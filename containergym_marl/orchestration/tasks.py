@@ -58,6 +58,9 @@ class RunSpec:
     timesteps: int
     run_dir: str  # absolute; the same path on every node
     train: dict[str, Any] = field(default_factory=dict)  # further TrainArgs fields (n_envs, reward_mode, …)
+    #: after training, the run's sample-efficiency curve (RUN/curve.json, from its checkpoints, which
+    #: stay on the node): made here, where the checkpoints are, and returned with the small files
+    curve: bool = False
 
     def train_args(self, resume: bool):
         from containergym_marl.training.train_args import TrainArgs
@@ -186,6 +189,11 @@ def _train_locked(spec: RunSpec, run: Path, events, train, lock: RunLock) -> dic
         finally:
             reporter.stop()
     wall = time.perf_counter() - t0
+    if spec.curve:
+        from containergym_marl.evaluation.curves import CURVE_FILE, run_curve  # torch: on the training node
+
+        if not (run / CURVE_FILE).is_file():
+            run_curve(run)
     trained = spec.timesteps - start if state != "finished" else 0
     # samples/s of the training itself (metrics.csv) when the run logged any, else over the whole call
     rate = (measured_rate(run) or trained / wall) if trained and wall > 0 else None

@@ -24,10 +24,36 @@ def test_a_runs_curve_evaluates_each_checkpoint_and_the_final_model(tmp_path):
                           hyperparams={"n_steps": 16, "minibatch_size": 80}, overrides={"episode_length_steps": 20}))
     curve = run_curve(run, SHORT)
     steps = [s for s, _ in checkpoints(run)]
-    assert [p["samples"] for p in curve["points"]] == [s for s in steps if s < 6000] + [6080]
+    assert [p["samples"] for p in curve["points"]] == sorted(s for s in steps if s < 6000) + [6080]  # by samples
     assert read_curve(run) == json.loads(json.dumps(curve)) and curve["protocol"]["first_seed"] == 20_000
     final = evaluate_batched(policy_from_run(run, "final"), "n5_m2_dt120", SHORT).summary()
     assert curve["points"][-1]["return_mean"] == pytest.approx(final["return_mean"])
+
+
+def test_a_runs_curve_reads_one_checkpoint_per_tenth_of_the_budget(tmp_path):
+    """Checkpoints denser than tenths of the budget: the curve evaluates only the newest one at or
+    before each tenth (what curve_at reads), not all of them."""
+    run = train(TrainArgs(algo="fast_shared_ppo", out=str(tmp_path / "r"), timesteps=3200, n_envs=2,
+                          checkpoint_every=160, progress_bar=False,
+                          hyperparams={"n_steps": 16, "minibatch_size": 80}, overrides={"episode_length_steps": 20}))
+    steps = [s for s, _ in checkpoints(run) if s < 3200]
+    assert len(steps) > 10
+    expected = sorted({max(s for s in steps if s <= f * 3200) for f in np.linspace(0.1, 1.0, 10)
+                       if any(s <= f * 3200 for s in steps)})
+    curve = run_curve(run, SHORT, write=False)
+    assert [p["samples"] for p in curve["points"]] == expected + [3200]
+
+
+def test_a_sweep_task_returns_the_runs_curve_with_its_small_files(tmp_path):
+    from containergym_marl.orchestration.tasks import RunSpec, train_run
+
+    spec = RunSpec("fast_shared_ppo_n5_m2_dt120_s1", "fast_shared_ppo", "fast_shared_ppo", "n5_m2_dt120", 1, 3200,
+                   str(tmp_path / "runs" / "r"), {"n_envs": 2, "checkpoint_every": 1600,
+                                                  "hyperparams": {"n_steps": 16, "minibatch_size": 80}}, curve=True)
+    result = train_run(spec)
+    curve = json.loads(result["files"]["curve.json"])
+    assert curve["protocol"]["first_seed"] == 20_000 and curve["points"][-1]["samples"] == 3200
+    assert train_run(spec)["files"]["curve.json"] == result["files"]["curve.json"]  # made once
 
 
 def test_curve_at_takes_the_last_policy_at_or_before_each_fraction():
@@ -35,6 +61,9 @@ def test_curve_at_takes_the_last_policy_at_or_before_each_fraction():
                                         {"samples": 1000, "return_mean": 3.0}]}
     got = curve_at(curve, (0.1, 0.25, 0.4, 0.5, 0.99, 1.0))
     assert np.isnan(got[0]) and got[1:].tolist() == [1.0, 1.0, 2.0, 2.0, 3.0]
+    # the points in another order (newest checkpoint first, as the run directory lists them) read the same
+    shuffled = {**curve, "points": curve["points"][1::-1] + curve["points"][2:]}
+    assert np.array_equal(curve_at(shuffled, (0.1, 0.25, 0.4, 0.5, 0.99, 1.0)), got, equal_nan=True)
 
 
 def test_iqm_curve_over_seeds():
