@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from containergym_marl.files import atomic_write_text
-from containergym_marl.rundir import read_metrics, run_status
+from containergym_marl.rundir import read_metrics, run_name, run_status
 
 @dataclass(frozen=True)
 class Variant:
@@ -89,7 +89,7 @@ ROWS = ("n11_m2_dt60", "n11_m2_dt120")
 
 
 def run_dir(runs: Path, variant: str, row: str, seed: int) -> Path:
-    return runs / variant / f"{VARIANTS[variant].method}_{row}_s{seed}"
+    return runs / variant / run_name(VARIANTS[variant].method, row, seed)
 
 
 def train_one(job: tuple[str, str, int, str, int | None, float | None]) -> tuple[str, str, int, int]:

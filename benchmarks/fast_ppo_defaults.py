@@ -24,7 +24,7 @@ from containergym_marl.evaluation import evaluate
 from containergym_marl.evaluation.protocol import VALIDATION
 from containergym_marl.evaluation.run_policies import policy_from_run
 from containergym_marl.training import TrainArgs, train
-from containergym_marl.rundir import read_run_summary, run_status
+from containergym_marl.rundir import read_run_summary, run_name, run_status
 
 #: The batch shapes tried (``--hp`` settings; 64 simulations each), against a start of 64 steps per
 #: rollout and minibatches of 4096 ("wide"): smaller minibatches (4x and 8x the gradient steps),
@@ -58,7 +58,7 @@ def main(argv=None) -> None:
         for algo in ns.algos:
             for variant in ns.variants:
                 for seed in ns.seeds:
-                    run = Path(ns.runs) / f"{algo}_{variant}_{row}_s{seed}"
+                    run = Path(ns.runs) / run_name(f"{algo}_{variant}", row, seed)
                     status = run_status(run)
                     if status != "finished" and ns.report_only:
                         continue

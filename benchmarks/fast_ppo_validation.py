@@ -31,7 +31,7 @@ from containergym_marl.evaluation import stats as st
 from containergym_marl.evaluation.run_policies import evaluate_run
 from containergym_marl.evaluation.table import bootstrap_rng, load_evaluations
 from containergym_marl.training import TrainArgs, train
-from containergym_marl.rundir import run_status
+from containergym_marl.rundir import run_name, run_status
 
 #: SB3's batch shape on n5_m2_dt120 (containergym_marl.algorithms.rollout_steps).
 PAPER_SHAPE = {"fast_ppo": {"n_steps": 768, "minibatch_size": 64},
@@ -56,7 +56,7 @@ def paper_shape(ns) -> dict:
     for algo, hp in PAPER_SHAPE.items():
         means = {}
         for seed in ns.seeds:
-            run = Path(ns.runs) / f"{algo}_paper_shape_{config}_s{seed}"
+            run = Path(ns.runs) / run_name(f"{algo}_paper_shape", config, seed)
             status = run_status(run)
             if status != "finished" and ns.report_only:
                 continue

@@ -66,7 +66,7 @@ from containergym_marl.config.hyperparams import settings_file, write_settings
 from containergym_marl.files import atomic_write_text
 from containergym_marl.methods import get_method
 from containergym_marl.policies import RuleBasedAgents
-from containergym_marl.rundir import RunLock, checkpoints, read_run_summary, run_status
+from containergym_marl.rundir import RunLock, checkpoints, read_run_summary, run_name, run_status
 
 #: The rows every trial trains on: where the native PPO fell furthest below SB3's (issue 34).
 ROWS = ("n5_m2_dt60", "n5_m2_dt120", "n5_m5_dt60", "n5_m5_dt120", "n11_m11_dt60")
@@ -207,7 +207,7 @@ class Objective:
         scores = []
         for k, (seed, row) in enumerate((s, r) for s in self.seeds for r in self.rows):
             entry = self.known.get((folder.name, row, seed)) or train_and_validate(
-                self.method, row, seed, hp, folder / f"{row}_s{seed}", self.timesteps)
+                self.method, row, seed, hp, folder / run_name(self.method, row, seed), self.timesteps)
             entry["score"] = entry["validation_return"] / self.rule[row]
             entry["half_budget_score"] = entry["half_budget_return"] / self.rule[row]
             trial.set_user_attr(f"run_{k:02d}", entry)

@@ -30,13 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from containergym_marl.config import load_config
+from containergym_marl.orchestration.compare_args import PAPER_ROWS as TABLE_ROWS
 from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import PAPER, EvalProtocol, evaluate
 from containergym_marl.policies import PlannerAgents, RolloutPlanner, RuleBasedAgents, RuleBasedController
 
-ROWS = ("n5_m2_dt60", "n5_m2_dt120", "n5_m5_dt60", "n5_m5_dt120", "n11_m2_dt60", "n11_m2_dt120",
-        "n11_m11_dt60", "n11_m11_dt120", "n16_m2_dt120")
-PAPER_ROWS = ROWS[:8]
+ROWS = TABLE_ROWS
+#: the rows of the paper's Table 1 (n16_m2_dt120 is the package's own)
+PAPER_ROWS = tuple(r for r in ROWS if not r.startswith("n16_"))
 #: the planner every other method's return is divided by in the table's "share" column
 REFERENCE = ("planner_agents", "default")
 

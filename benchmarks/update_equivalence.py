@@ -92,7 +92,9 @@ def train_and_score(job: tuple[str, str, int, int, str, int]) -> dict:
     from containergym_marl.evaluation.run_policies import policy_from_run
     from containergym_marl.training import TrainArgs, train
 
-    run = Path(out) / variant / f"{row}_s{seed}"
+    from containergym_marl.rundir import run_name
+
+    run = Path(out) / variant / run_name("fast_shared_ppo", row, seed)
     cached = run / "score.json"
     if cached.is_file():
         return json.loads(cached.read_text())

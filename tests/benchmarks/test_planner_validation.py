@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from containergym_marl.evaluation import EvalProtocol, evaluate
+from containergym_marl.evaluation.protocol import FRESH
 from containergym_marl.policies import PlannerAgents
 from tests.helpers import load_script
 
@@ -20,17 +21,24 @@ SCRIPT = str(REPO / "benchmarks" / "planner_validation.py")
 
 def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
     out = tmp_path / "out"
+    out.mkdir()
+    # a block of fresh episodes from another seed range (an earlier version's) is dropped, not mixed in
+    stale = {"key": "stale", "part": "fresh", "plant": "n5_m2_dt120", "view": "planner_agents", "settings": {},
+             "first_seed": 50_000, "episodes": 2, "returns": [0.0, 0.0], "overflows": [1, 1], "cpu_s": 0.0, "steps": 2}
+    (out / "validation.json").write_text(json.dumps({"blocks": [stale]}))
     first = subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "2", "--out", str(out)],
                            capture_output=True, text=True, timeout=300, check=True)
+    assert "1 fresh block(s) outside seeds 30000+ dropped" in first.stdout
     assert "8 block(s) to run, 0 reused" in first.stdout
     blocks = json.loads((out / "validation.json").read_text())["blocks"]
     assert {b["part"] for b in blocks} == {"settings", "horizons", "fresh"}
     fresh = [b for b in blocks if b["part"] == "fresh" and b["view"] == "planner_agents"]
-    assert [b["first_seed"] for b in fresh] == [50_000]
-    plain = evaluate(PlannerAgents(), "n5_m2_dt120", EvalProtocol(episodes=2, first_seed=50_000), keep_records=False)
+    assert [b["first_seed"] for b in fresh] == [FRESH.first_seed]  # the one fresh range, 30000+
+    plain = evaluate(PlannerAgents(), "n5_m2_dt120", EvalProtocol(episodes=2, first_seed=FRESH.first_seed),
+                     keep_records=False)
     np.testing.assert_allclose(fresh[0]["returns"], plain.returns)
     text = (out / "validation.md").read_text()
-    assert "| n5_m2 | margin = 2 | 2 |" in text and "## The defaults on fresh episodes (seeds 50000+)" in text
+    assert "| n5_m2 | margin = 2 | 2 |" in text and "## The defaults on fresh episodes (seeds 30000+)" in text
     again = subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "1", "--out", str(out)],
                            capture_output=True, text=True, timeout=300, check=True)
     assert "0 block(s) to run, 8 reused" in again.stdout
@@ -38,11 +46,11 @@ def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
 
 def test_each_overflowing_fresh_episode_is_replayed_with_another_seed_and_more_futures():
     script = load_script("benchmarks/planner_validation.py")
-    rows = [{"part": "fresh", "plant": "n16_m2_dt120", "view": "planner_agents", "overflowing_seeds": [50_007, 50_042]},
+    rows = [{"part": "fresh", "plant": "n16_m2_dt120", "view": "planner_agents", "overflowing_seeds": [30_007, 30_042]},
             {"part": "fresh", "plant": "n5_m2_dt120", "view": "planner", "overflowing_seeds": []},
             {"part": "settings", "plant": "n16_m2_dt120", "view": "planner", "overflowing_seeds": [20_003]}]
     jobs = script.replay_jobs(rows)
     assert [(j[1], j[2], j[4], j[5]) for j in jobs] == [("n16_m2_dt120", "planner_agents", s, 1)
-                                                      for s in (50_007, 50_042) for _ in range(3)]
+                                                      for s in (30_007, 30_042) for _ in range(3)]
     assert [{k: v for k, v in j[3].items() if script.DEFAULTS.get(k) != v} for j in jobs[:3]] == [
         {"seed": 1}, {"seed": 2}, {"futures": 64}]
