@@ -54,6 +54,8 @@ SELECTION = EvalProtocol(episodes=100, first_seed=20_000)
 #: Fresh episodes, for reporting only: every published policy, rule and planner is evaluated on them
 #: beside the test episodes; seeds 30000-30199 serve nothing else (no training, tuning or choice).
 FRESH = EvalProtocol(episodes=200, first_seed=30_000)
+#: The protocols by name, as ``compare --protocol`` names them.
+PROTOCOLS = {"paper": PAPER, "validation": VALIDATION, "fresh": FRESH}
 
 
 class Policy(Protocol):

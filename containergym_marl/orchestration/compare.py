@@ -138,8 +138,8 @@ def compare(args: CompareArgs, stream=None) -> dict:
     if args.shipped is not None:  # 1. from the files alone
         plan = shipped_plan(args, out)
         runs = Path(args.shipped).resolve() / "runs"
-        say(f"compare: the shipped policies of {args.shipped}/, evaluated with the paper's test protocol "
-            f"({args.episodes} episodes each); nothing is trained (--train trains, see --help)")
+        say(f"compare: the shipped policies of {args.shipped}/, evaluated on the {args.protocol} episodes "
+            f"({args.eval_protocol().episodes} each); nothing is trained (--train trains, see --help)")
         for line in plan.shipped.lines(args.methods):
             say(f"  {line}")
         copied = len(plan.shipped.copied)

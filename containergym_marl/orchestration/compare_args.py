@@ -4,11 +4,13 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 from containergym_marl.algorithms import paper_budget
 from containergym_marl.config import list_configs, load_config
+from containergym_marl.evaluation.protocol import PROTOCOLS, EvalProtocol
 from containergym_marl.methods import COMPARABLE, METHODS
 from containergym_marl.options import add_options, flag_of, key_values, option, option_fields, values
 
@@ -83,7 +85,12 @@ class CompareArgs:
         choices=COMPARABLE, metavar="METHOD", group=WHAT, show_default=False,
         help=f"methods to compare, from: {', '.join(COMPARABLE)} (default: {' '.join(PAPER_METHODS)} for the "
              f"shipped policies; rule_based rule_based_agents ppo shared_ppo with --train)")
-    episodes: int = option(15, type=int, group=WHAT, help="test episodes per evaluation")
+    protocol: str = option("paper", choices=("paper", "validation", "fresh"), group=WHAT,
+                           help="the episodes of every evaluation (δ = 120 s, T = 600): paper, the test seeds "
+                                "10000+ (15 episodes); validation, seeds 20000+ for choosing settings (30); fresh, "
+                                "seeds 30000+ for reporting only (200)")
+    episodes: int | None = option(None, type=int, group=WHAT,
+                                  help="episodes per evaluation (default: the protocol's)")
     out: str = option("results/compare", group=WHAT, help="tables, evaluations and figures")
     shipped: str | None = option(
         None, metavar="DIR", group=WHAT,
@@ -151,8 +158,17 @@ class CompareArgs:
             raise ValueError("seeds: at least one training seed is needed")
         if self.timesteps is not None and self.timesteps <= 0:
             raise ValueError(f"timesteps: expected a positive budget, got {self.timesteps}")
-        if self.episodes <= 0:
-            raise ValueError(f"episodes: expected at least one test episode, got {self.episodes}")
+        if self.protocol not in PROTOCOLS:
+            raise ValueError(f"protocol: unknown protocol {self.protocol!r}; choose one of {tuple(PROTOCOLS)}")
+        if self.episodes is not None and (isinstance(self.episodes, bool) or not isinstance(self.episodes, int)
+                                          or self.episodes <= 0):
+            raise ValueError(f"episodes: expected at least one episode, got {self.episodes!r}")
+
+    def eval_protocol(self) -> EvalProtocol:
+        """The episodes every evaluation of the comparison runs: ``protocol``'s, ``episodes`` of them
+        when given."""
+        base = PROTOCOLS[self.protocol]
+        return base if self.episodes is None else dataclasses.replace(base, episodes=int(self.episodes))
 
     def budget(self, config: str) -> int:
         """Samples per training run on ``config``: ``timesteps``, or the paper's budget."""

@@ -11,7 +11,6 @@ import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation import table as tables
 from containergym_marl.evaluation.run_policies import evaluated_files, evaluated_model
 from containergym_marl.manifest import sha256_bytes
@@ -50,7 +49,7 @@ def evaluation_fingerprint(args: CompareArgs, config: str, method: Method, run: 
     """What an evaluation depends on besides the code: stored with it, compared to reuse it.
     ``timesteps``: the run's budget (default: this comparison's budget of ``config``)."""
 
-    plant = EvalProtocol(episodes=args.episodes).plant(config)
+    plant = args.eval_protocol().plant(config)
     if method.learned and timesteps is None:
         timesteps = args.budget(config)
     return {"run": run, "timesteps": timesteps if method.learned else None,
@@ -125,7 +124,7 @@ class Plan:
 def eval_spec(args: CompareArgs, config: str, name: str, seed: int | None):
     """The evaluation task of method ``name`` (seed ``seed`` of a learned one) on ``config``."""
     method = METHODS[name]
-    return EvalSpec(tables.evaluation_key(name, seed), name, config, args.episodes, seed=seed,
+    return EvalSpec(tables.evaluation_key(name, seed), name, config, args.eval_protocol(), seed=seed,
                     arbitration=method.arbitration)
 
 
@@ -144,7 +143,7 @@ def training_plan(args: CompareArgs, out: Path, runs: Path) -> Plan:
     """What the comparison ``args`` has to train and evaluate, from the files in ``runs`` and ``out``:
     finished runs of the same budget are reused, evaluations whose inputs are unchanged too; a finished
     run with another budget is an error (:func:`~containergym_marl.orchestration.tasks.check_budget`)."""
-    protocol = asdict(EvalProtocol(episodes=args.episodes))
+    protocol = asdict(args.eval_protocol())
     specs = run_specs(args, runs)
     finished = {s.name for s in specs if check_budget(s)}  # raises for a finished run with another budget
     by_run = {s.name: s for s in specs}

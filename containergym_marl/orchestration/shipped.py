@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 
-from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write_text
 from containergym_marl.manifest import check as manifest_check
@@ -38,7 +37,7 @@ def shipped_plan(args: CompareArgs, out: Path) -> Plan:
 
     folder = Path(args.shipped)
     manifest = read_manifest(folder)
-    protocol = asdict(EvalProtocol(episodes=args.episodes))
+    protocol = asdict(args.eval_protocol())
     shipped = Shipped(folder)
     plan = Plan([], set(), [], {}, [], shipped=shipped)
 

@@ -214,13 +214,14 @@ def _node_id() -> str | None:
 
 @dataclass(frozen=True)
 class EvalSpec:
-    """One evaluation under the test protocol: a controller (a method of
+    """One evaluation on ``protocol``'s episodes (the paper's test protocol, or validation or fresh
+    episodes: a study is a comparison on those): a controller (a method of
     :mod:`containergym_marl.methods` with one), or a run's best model (its files come with the task)."""
 
     key: str  # the evaluation file's stem: <method>_s<seed> or <method>
     method: str
     config: str
-    episodes: int
+    protocol: Any  # an EvalProtocol (imported where the task runs)
     arbitration: str = DEFAULT_ARBITRATION
     seed: int | None = None
 
@@ -233,9 +234,9 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
 
     torch.set_num_threads(1)
     from containergym_marl.config import load_config
-    from containergym_marl.evaluation import EvalProtocol, evaluate
+    from containergym_marl.evaluation import evaluate
 
-    protocol = EvalProtocol(episodes=spec.episodes)
+    protocol = spec.protocol
     if run is None:
         from containergym_marl.core.params import PlantParams
         from containergym_marl.methods import get_method
