@@ -6,7 +6,7 @@ A file holds one ``[settings]`` table of the trainer's settings (``--hp`` keys: 
 native trainers' ``PPOArgs``) and a ``source`` line saying where they come from (a search's trial,
 or the trainer's defaults)::
 
-    source = "benchmarks/native_ppo_tuning.py, trial 7 (results/ppo_tuning/fast_shared_ppo/trials.md)"
+    source = "studies/native_ppo_tuning.py, trial 7 (results/ppo_tuning/fast_shared_ppo/trials.md)"
 
     [settings]
     learning_rate = 0.0003

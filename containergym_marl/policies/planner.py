@@ -46,12 +46,12 @@ the centralised rule's order (lowest index first).
 probabilities and H base-policy calls on them, C <= n + 1 candidates. With the defaults (K = 16,
 H = 8) that is 8 steps of up to 192 simulations at n = 11, about 1–2 ms of CPU on one core; steps
 without a choice (no free PU, nothing eligible) cost nothing. Doubling K doubles the simulated
-work (the per-step Python overhead stays); doubling H doubles both. ``benchmarks/planner_rows.py``
+work (the per-step Python overhead stays); doubling H doubles both. ``studies/planner_rows.py``
 measures the time per step on every row (``results/planner/rows.md``).
 
 **Choosing the settings.** The defaults were chosen on validation episodes (seeds 20000+, not the
-test seeds); ``benchmarks/planner_sweep.py`` (``results/planner/sweep_n11_m2_dt120.md``) and
-``benchmarks/planner_validation.py`` (``results/planner_validation/validation.md``, 30 episodes per
+test seeds); ``studies/planner_sweep.py`` (``results/planner/sweep_n11_m2_dt120.md``) and
+``studies/planner_validation.py`` (``results/planner_validation/validation.md``, 30 episodes per
 setting on each test plant, both views) hold the runs:
 
 * K = 16 futures suffice for the return: with common random numbers and the computed overflow

@@ -8,7 +8,7 @@ Two registry entries train with it (``containergym-marl train --algo ...``, ``co
   ``fast_shared_ppo``'s trainer (:mod:`~containergym_marl.training.fast_ppo`) from the imitated
   policy for the rest, in the same run and budget, every agent rewarded with the plant's reward
   (``--reward-mode team``, its default; ``individual`` as for ``fast_shared_ppo``). Both defaults
-  were chosen on validation episodes (``benchmarks/dagger_tuning.py``, the ``ppo_*`` variants): with
+  were chosen on validation episodes (``studies/dagger_tuning.py``, the ``ppo_*`` variants): with
   each container's own reward the fine-tuning overflowed about three times as often on n16_m2, and
   with a fifth of the budget imitated it fell below the imitation on n11_m11_dt60.
 
@@ -121,7 +121,7 @@ class DAggerArgs:
     expert_iterations: int = 1  # first iterations in which the planner acts (β = 1), the learner after them (β = 0)
     # the learner acts by its most likely action, as it is evaluated (false: by a sample, as PPO's rollouts),
     # so the data set holds the states the deployed policy meets (DAgger's rule); over 5 seeds on validation
-    # episodes it scored as sampling on n11_m2_dt60 and higher on n11_m2_dt120 (benchmarks/dagger_tuning.py)
+    # episodes it scored as sampling on n11_m2_dt60 and higher on n11_m2_dt120 (studies/dagger_tuning.py)
     greedy: bool = True
     dataset_size: int = 1_000_000  # most recent labelled samples kept (each F float32 + 1 byte)
     hidden: tuple[int, ...] = (64, 64)  # hidden units of the policy and value networks (fast_shared_ppo's)

@@ -21,7 +21,7 @@ of 1024 take 16× fewer gradient steps per sample, each on a batch wide enough f
 units. A shape that grew with n (64 simulations for every plant) gave the shared policy 3-7× fewer
 updates than SB3's on the same budget, and its policy collapsed before it had learned.
 ``--n-envs 8 --hp n_steps=768 minibatch_size=64`` is SB3's centralised shape exactly
-(``benchmarks/fast_ppo_validation.py paper-shape`` runs it). ``benchmarks/native_ppo_tuning.py``
+(``studies/fast_ppo_validation.py paper-shape`` runs it). ``studies/native_ppo_tuning.py``
 searches the settings on validation episodes (``results/ppo_tuning/``).
 
 The gradients are written out (:mod:`~containergym_marl.training.ppo_gradients`: the loss's closed

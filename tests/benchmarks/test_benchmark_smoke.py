@@ -158,14 +158,14 @@ def test_trainer_profile_smoke_accounts_for_the_whole_run(tmp_path):
 
 
 def test_update_equivalence_reference_is_the_autograd_update_and_the_smoke_run_reports(tmp_path):
-    """benchmarks/update_equivalence.py: its ``autograd`` variant's update reaches the weights of the
+    """studies/update_equivalence.py: its ``autograd`` variant's update reaches the weights of the
     trainer's written-out update from the same start (one update of four minibatches, to float
     rounding), and a smoke run trains both variants and writes the comparison."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
+    sys.path.insert(0, str(REPO / "studies"))
     try:
         import update_equivalence
     finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+        sys.path.remove(str(REPO / "studies"))
     import torch
 
     from containergym_marl.policies.actor_critic import ActorCritic
@@ -193,7 +193,7 @@ def test_update_equivalence_reference_is_the_autograd_update_and_the_smoke_run_r
     assert fast_ppo._optimizer is update_equivalence.WRITTEN[1]
 
     out = tmp_path / "eq"
-    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "update_equivalence.py"), "--smoke",
+    proc = subprocess.run([sys.executable, str(REPO / "studies" / "update_equivalence.py"), "--smoke",
                            "--workers", "1", "--out", str(out)], capture_output=True, text=True, timeout=600,
                           check=True, cwd=tmp_path)
     report = json.loads((out / "equivalence.json").read_text())

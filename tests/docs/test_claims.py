@@ -272,8 +272,8 @@ def planner_behaviour():
 
 @cache
 def validation() -> dict[tuple[str, str, str, str], dict]:
-    """benchmarks/planner_validation.py's rows by (part, plant without δ, view, changed setting)."""
-    script = load_script("benchmarks/planner_validation.py")
+    """studies/planner_validation.py's rows by (part, plant without δ, view, changed setting)."""
+    script = load_script("studies/planner_validation.py")
     rows = script.summarise(json.loads(PLANNER_VALIDATION.read_text())["blocks"])
     return {(r["part"], r["plant"].rsplit("_", 1)[0], r["view"], script.changed(r["settings"])): r for r in rows}
 
@@ -319,7 +319,7 @@ def planner_overflows_on_fresh_n16():
 
 
 def tuning(seeds: tuple[int, ...] = (1, 2, 3, 4, 5)) -> dict[tuple[str, str], tuple[float, int, int]]:
-    """benchmarks/dagger_tuning.py's best models of these seeds: (variant, row) -> (mean over seeds,
+    """studies/dagger_tuning.py's best models of these seeds: (variant, row) -> (mean over seeds,
     overflowing episodes, seeds)."""
     out: dict[tuple[str, str], list] = {}
     for e in json.loads((ROOT / "results" / "dagger_tuning" / "tuning.json").read_text())["evaluations"]:

@@ -213,11 +213,11 @@ def test_planner_runs_through_the_parallel_env_and_the_registries(capsys):
 
 
 def _script(name: str, monkeypatch):
-    """A script of benchmarks/ as a module."""
+    """A script of studies/ as a module."""
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py"
+    path = Path(__file__).resolve().parents[2] / "studies" / f"{name}.py"
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     monkeypatch.setitem(sys.modules, name, module)  # dataclasses look their module up
@@ -226,7 +226,7 @@ def _script(name: str, monkeypatch):
 
 
 def test_rows_benchmark_smoke_run(tmp_path, monkeypatch):
-    """benchmarks/planner_rows.py end to end at a tiny size: every method measured, the table written."""
+    """studies/planner_rows.py end to end at a tiny size: every method measured, the table written."""
     script = _script("planner_rows", monkeypatch)
     script.main(script.parse(["--smoke", "--out", str(tmp_path)]))
     data = json.loads((tmp_path / "rows.json").read_text())["evaluations"]

@@ -1,4 +1,4 @@
-"""benchmarks/planner_validation.py at its smoke size: every part runs, blocks of episodes add up to
+"""studies/planner_validation.py at its smoke size: every part runs, blocks of episodes add up to
 what one evaluation of the same episodes gives, and a rerun reuses what is there."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from containergym_marl.policies import PlannerAgents
 from tests.helpers import load_script
 
 REPO = Path(__file__).resolve().parents[2]
-SCRIPT = str(REPO / "benchmarks" / "planner_validation.py")
+SCRIPT = str(REPO / "studies" / "planner_validation.py")
 
 
 def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
@@ -45,7 +45,7 @@ def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
 
 
 def test_each_overflowing_fresh_episode_is_replayed_with_another_seed_and_more_futures():
-    script = load_script("benchmarks/planner_validation.py")
+    script = load_script("studies/planner_validation.py")
     rows = [{"part": "fresh", "plant": "n16_m2_dt120", "view": "planner_agents", "overflowing_seeds": [30_007, 30_042]},
             {"part": "fresh", "plant": "n5_m2_dt120", "view": "planner", "overflowing_seeds": []},
             {"part": "settings", "plant": "n16_m2_dt120", "view": "planner", "overflowing_seeds": [20_003]}]

@@ -1,7 +1,7 @@
 """The imitations of the rollout planner on every row, against ``planner_agents`` (issue 27).
 
-    python benchmarks/dagger_rows.py             # nine rows x 5 seeds x 2 methods at the paper's budgets
-    python benchmarks/dagger_rows.py --smoke     # one row, one seed, 20k samples, 2 episodes (runs/dagger_smoke)
+    python studies/dagger_rows.py             # nine rows x 5 seeds x 2 methods at the paper's budgets
+    python studies/dagger_rows.py --smoke     # one row, one seed, 20k samples, 2 episodes (runs/dagger_smoke)
 
 Trains ``dagger_agents`` and ``dagger_ppo_agents`` with ``containergym-marl compare --train`` (one
 Ray task per run on one core, torch one thread; resumable: rerun the same command to continue), each
@@ -50,7 +50,7 @@ class Args:
     seeds: list[int] = field(default_factory=lambda: [1, 2, 3, 4, 5])
     timesteps: int | None = None  # None: the paper's budget of each row
     episodes: int = 15
-    out: str = "results/dagger"
+    out: str = "results/dagger_rows"  # a study writes only under results/<study>/
     runs: str = "runs/dagger"
     num_cpus: int | None = None
     smoke: bool = False

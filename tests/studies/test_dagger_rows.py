@@ -1,4 +1,4 @@
-"""benchmarks/dagger_rows.py at its smoke size: trains both imitations through compare (Ray, one CPU),
+"""studies/dagger_rows.py at its smoke size: trains both imitations through compare (Ray, one CPU),
 evaluates them beside planner_agents and reports each one's share, training cost and the decision time."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def test_smoke_run_reports_share_cost_and_decision_time(tmp_path):
-    subprocess.run([sys.executable, str(REPO / "benchmarks" / "dagger_rows.py"), "--smoke", "--num-cpus", "1",
+    subprocess.run([sys.executable, str(REPO / "studies" / "dagger_rows.py"), "--smoke", "--num-cpus", "1",
                     "--out", str(tmp_path / "out"), "--runs", str(tmp_path / "runs")],
                    # a guard against a hang, not a speed check: Ray's workers run at nice 15 and take
                    # several times their idle time beside other jobs on a 2-core machine

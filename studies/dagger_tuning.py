@@ -1,9 +1,9 @@
 """Choosing the imitation's settings on validation episodes: ``dagger_agents``' and the PPO
 fine-tuning of ``dagger_ppo_agents`` (issue 27).
 
-    python benchmarks/dagger_tuning.py                       # the variants below, n11_m2 at δ = 60 and 120, seeds 1-2
-    python benchmarks/dagger_tuning.py --variants greedy --rows n11_m2_dt60 --seeds 1 --workers 1
-    python benchmarks/dagger_tuning.py --smoke               # two variants, one row, 20k samples, 2 episodes
+    python studies/dagger_tuning.py                       # the variants below, n11_m2 at δ = 60 and 120, seeds 1-2
+    python studies/dagger_tuning.py --variants greedy --rows n11_m2_dt60 --seeds 1 --workers 1
+    python studies/dagger_tuning.py --smoke               # two variants, one row, 20k samples, 2 episodes
 
 Trains each variant's method once per (variant, row, seed) at the row's own training settings and the
 paper's budget (5M agent samples at n = 11), each run in a process of its own on one core (torch one

@@ -1,8 +1,8 @@
 """The rollout planner's settings on validation episodes, and the planner on fresh episodes (issue 27).
 
-    python benchmarks/planner_validation.py                  # everything below (about 40 CPU-minutes)
-    python benchmarks/planner_validation.py --parts fresh --workers 2
-    python benchmarks/planner_validation.py --smoke          # two episodes of a few settings on one plant
+    python studies/planner_validation.py                  # everything below (about 40 CPU-minutes)
+    python studies/planner_validation.py --parts fresh --workers 2
+    python studies/planner_validation.py --smoke          # two episodes of a few settings on one plant
 
 Both views of the planner (``planner``: centralised, ``planner_agents``: container agents), with the
 paper's test protocol (δ = 120 s, T = 600), on the five test plants (the ``_dt60`` and ``_dt120``
@@ -128,7 +128,7 @@ def changed(settings: dict) -> str:
 
 def report(rows: list[dict], note: str = "") -> str:
     lines = ["# The rollout planner on validation and fresh episodes", "",
-             "`python benchmarks/planner_validation.py`. Paper's test protocol (δ = 120 s, T = 600); "
+             "`python studies/planner_validation.py`. Paper's test protocol (δ = 120 s, T = 600); "
              "return: mean ± standard error over the episodes; overflows: overflowing episodes (their seeds "
              f"in validation.json). Defaults: {', '.join(f'{k} = {v:g}' for k, v in DEFAULTS.items())}.", ""]
     if note:

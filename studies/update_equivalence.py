@@ -1,8 +1,8 @@
 """Do the native PPO's written-out gradients train like autograd's? Seeds trained both ways, side by
 side, compared on validation episodes.
 
-    python benchmarks/update_equivalence.py                         # n5_m2_dt60, seeds 101-105, 1M samples
-    python benchmarks/update_equivalence.py --smoke                 # seconds; numbers meaningless
+    python studies/update_equivalence.py                         # n5_m2_dt60, seeds 101-105, 1M samples
+    python studies/update_equivalence.py --smoke                 # seconds; numbers meaningless
 
 The trainer's update (:func:`containergym_marl.training.fast_ppo.update`) computes the clipped
 loss's gradients in closed form and the networks' backward layer by layer

@@ -1,4 +1,4 @@
-"""benchmarks/overflow_causes.py on a short run: every overflowing episode gets exactly one cause, and
+"""studies/overflow_causes.py on a short run: every overflowing episode gets exactly one cause, and
 the report names the method as the registry does."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ def test_each_overflowing_episode_gets_one_cause(tmp_path):
     run = train(TrainArgs(algo="fast_shared_ppo", reward_mode="team", out=str(tmp_path / "r"), timesteps=4_000,
                           n_envs=2, seed=1, progress_bar=False, overrides={"episode_length_steps": 40}))
     out = tmp_path / "out"
-    subprocess.run([sys.executable, str(REPO / "benchmarks" / "overflow_causes.py"), str(run), "--episodes", "3",
+    subprocess.run([sys.executable, str(REPO / "studies" / "overflow_causes.py"), str(run), "--episodes", "3",
                     "--workers", "1", "--out", str(out)], capture_output=True, text=True, timeout=300, check=True)
     [entry] = json.loads((out / "causes.json").read_text())["entries"]
     assert (entry["method"], entry["row"], entry["episodes"], entry["first_seed"]) == (
@@ -27,6 +27,6 @@ def test_each_overflowing_episode_gets_one_cause(tmp_path):
 
 
 def test_a_run_without_a_best_model_is_refused_before_anything_runs(tmp_path):
-    done = subprocess.run([sys.executable, str(REPO / "benchmarks" / "overflow_causes.py"), str(tmp_path / "nothing"),
+    done = subprocess.run([sys.executable, str(REPO / "studies" / "overflow_causes.py"), str(tmp_path / "nothing"),
                            "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
     assert done.returncode != 0 and "no best_model.pt in" in done.stderr and not (tmp_path / "out").exists()

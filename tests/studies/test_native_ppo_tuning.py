@@ -1,4 +1,4 @@
-"""benchmarks/native_ppo_tuning.py at its smoke size: the default setting is the first trial, every
+"""studies/native_ppo_tuning.py at its smoke size: the default setting is the first trial, every
 trial's runs are scored on validation episodes and recorded in the journal, the tables are generated
 from it, and a trial a kill left running is run again with the same setting."""
 
@@ -17,7 +17,7 @@ optuna = pytest.importorskip("optuna")
 from containergym_marl.rundir import run_name  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
-SCRIPT = str(REPO / "benchmarks" / "native_ppo_tuning.py")
+SCRIPT = str(REPO / "studies" / "native_ppo_tuning.py")
 DEFAULT_TRIAL = {"rollout_samples": 4096, "n_steps": 64, "minibatch_size": 1024, "n_epochs": 10,
                  "learning_rate": 3e-4, "anneal_lr": False, "ent_coef": 0.0, "clip_range": 0.2}
 

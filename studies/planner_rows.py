@@ -1,7 +1,7 @@
 """The rollout planner on every row, with the paper's test protocol, against both rule-based controllers.
 
-    python benchmarks/planner_rows.py            # every row: default setting, strong setting on m = 2 rows
-    python benchmarks/planner_rows.py --smoke    # one row, two short episodes (to runs/planner_smoke)
+    python studies/planner_rows.py            # every row: default setting, strong setting on m = 2 rows
+    python studies/planner_rows.py --smoke    # one row, two short episodes (to runs/planner_smoke)
 
 For each row it evaluates ``rule_based``, ``rule_based_agents``, the planner through both views at the
 default setting (``planner``: centralised, ``planner_agents``: container agents) and, on the

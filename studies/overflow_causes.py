@@ -1,7 +1,7 @@
 """Why learned container agents overflow: each overflowing episode of each run, by cause.
 
-    python benchmarks/overflow_causes.py RUN_DIR ...                  # best models, 30 validation episodes
-    python benchmarks/overflow_causes.py results/paper_rows/runs/dagger_agents_n11_m2_dt120_s* --out results/x
+    python studies/overflow_causes.py RUN_DIR ...                  # best models, 30 validation episodes
+    python studies/overflow_causes.py results/paper_rows/runs/dagger_agents_n11_m2_dt120_s* --out results/x
 
 Evaluates each run's best model (a shared container-agent policy, ``.pt``) with the paper's test
 protocol on the *validation* episodes (seeds 20000+: none of them a test episode, so every seed's
@@ -53,7 +53,7 @@ def run_causes(args: tuple[str, int]) -> dict:
 
 def report(entries: list[dict]) -> str:
     lines = ["# Why learned container agents overflow", "",
-             "`python benchmarks/overflow_causes.py`: each run's best model on validation episodes (δ = 120 s, "
+             "`python studies/overflow_causes.py`: each run's best model on validation episodes (δ = 120 s, "
              "T = 600, seeds 20000+); each overflowing episode sorted by what the overflowing container met in its "
              "last 10 steps: its request *denied* (another agent's request got the free PU), ready with a PU free "
              "and *not requested*, or *no PU free*.", "",

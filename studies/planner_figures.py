@@ -1,8 +1,8 @@
 """What the rollout planner and the learned container agents do on a contended row (m = 2).
 
-    python benchmarks/planner_figures.py                     # n11_m2_dt120, 15 test episodes (~2 min)
-    python benchmarks/planner_figures.py --config n16_m2_dt120 --learned
-    python benchmarks/planner_figures.py --learned dagger_agents=runs/dagger_agents_n11_m2_dt120_s1/best_model.pt
+    python studies/planner_figures.py                     # n11_m2_dt120, 15 test episodes (~2 min)
+    python studies/planner_figures.py --config n16_m2_dt120 --learned
+    python studies/planner_figures.py --learned dagger_agents=runs/dagger_agents_n11_m2_dt120_s1/best_model.pt
 
 Evaluates ``rule_based_agents``, ``planner_agents`` (default setting) and the learned shared
 container-agent policies of ``--learned`` (NAME=PATH of a tensor-only ``.pt`` model; by default the

@@ -1,7 +1,7 @@
 """The planner's return against its look-ahead budget: futures K × horizon H on one row.
 
-    python benchmarks/planner_sweep.py                       # n11_m2_dt120, validation seeds 20000-20004
-    python benchmarks/planner_sweep.py --row n16_m2_dt120 --futures 16 --horizons 4 8 16
+    python studies/planner_sweep.py                       # n11_m2_dt120, validation seeds 20000-20004
+    python studies/planner_sweep.py --row n16_m2_dt120 --futures 16 --horizons 4 8 16
 
 Runs ``planner_agents`` (or ``--view centralised``) for every (K, H) with the paper's δ = 120 s and
 T = 600 on *validation* seeds (default 20000–20004, not the test seeds 10000–10014: this is where the

@@ -1,4 +1,4 @@
-"""benchmarks/planner_figures.py: the learned policies it shows are loaded safely (a published file only
+"""studies/planner_figures.py: the learned policies it shows are loaded safely (a published file only
 while it matches its manifest, container-agent models only), by default the published ones that exist."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from containergym_marl.manifest import write_manifest
 from containergym_marl.policies.actor_critic import ActorCritic
 from tests.helpers import load_script
 
-script = load_script("benchmarks/planner_figures.py")
+script = load_script("studies/planner_figures.py")
 
 
 def _model(view: str, path):

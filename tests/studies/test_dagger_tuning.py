@@ -1,4 +1,4 @@
-"""benchmarks/dagger_tuning.py at its smoke size: trains two variants, evaluates them on validation
+"""studies/dagger_tuning.py at its smoke size: trains two variants, evaluates them on validation
 episodes, and after a deadline that stops a run early still evaluates its best model so far."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-SCRIPT = str(REPO / "benchmarks" / "dagger_tuning.py")
+SCRIPT = str(REPO / "studies" / "dagger_tuning.py")
 
 
 def test_smoke_run_evaluates_each_variant_on_validation_seeds(tmp_path):
