@@ -18,6 +18,7 @@ from containergym_marl.cli import build_parser, main
 from containergym_marl.orchestration import CompareArgs, compare
 from containergym_marl.orchestration.compare_args import args_from_namespace
 from containergym_marl.orchestration.plan import run_specs
+from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation import table as tables
 from containergym_marl.methods import METHODS, PAIRS
 from containergym_marl.rundir import RunError, RunWarning, measured_rate, small_files
@@ -73,7 +74,7 @@ def test_compare_help_shows_the_defaults(capsys):
         main(["compare", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     for expected in ("--timesteps N|paper", "(default with --train: 30000)", "(default: 1 2 3)",
-                     "(default: 15)", "(default: results/compare)", "; n5_m2_dt120 with --train)",
+                     "(default: paper)", "(default: the protocol's)", "(default: results/compare)", "; n5_m2_dt120 with --train)",
                      "(default: results/paper_rows,", "(default: 200000)", "(default: 3)", "(default: 2000)",
                      "$RAY_ADDRESS", "shared_ppo_team"):
         assert expected in text, expected
@@ -188,7 +189,7 @@ def test_a_training_task_returns_what_a_driver_without_shared_storage_needs(tmp_
     assert write_files(driver, result["files"]) == len(result["files"])
     assert write_files(driver, result["files"]) == 0  # same content: nothing rewritten
     assert finished_budget(driver) == 256
-    spec_eval = EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", episodes=1, seed=1)
+    spec_eval = EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", EvalProtocol(episodes=1), seed=1)
     here, sha = evaluate_policy(spec_eval, {"files": small_files(driver)})
     there, _ = evaluate_policy(spec_eval, result)
     assert sha == sha256_bytes(result["files"]["best_model.zip"]) and here.returns.tolist() == there.returns.tolist()

@@ -378,7 +378,8 @@ def test_a_run_without_a_finished_episode_says_so(tmp_path, capsys):
     source = run_files(out)
     assert sorted(source["files"]) == ["args.json", "final_model.zip", "run.json"]
     with pytest.warns(RunWarning, match="no training episode finished"):
-        result, model_sha = evaluate_policy(EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", 1, seed=1), source)
+        spec = EvalSpec("ppo_s1", "ppo", "n5_m2_dt120", EvalProtocol(episodes=1), seed=1)
+        result, model_sha = evaluate_policy(spec, source)
     assert model_sha == sha256_bytes((out / "final_model.zip").read_bytes()) and len(result.returns) == 1
 
 
