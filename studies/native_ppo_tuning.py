@@ -25,7 +25,9 @@ A setting the sampler proposes again after a trial judged it takes that trial's 
 ``(= trial N)`` in the table) without training; each setting counts once in the median. A pruned
 setting may have been stopped by noise when close to the median: ``--finalists K`` queues the K
 settings with the best mean score (over at least one run of every row) again as *finalists*, which
-are never pruned and so are judged on every run, their earlier runs reused.
+are never pruned and so are judged on every run, their earlier runs reused. A new search can start
+from another's results: ``--start-from fast_shared_ppo:3`` queues that search's three best
+settings after the default (``fast_shared_ppo_team`` and ``fast_ppo`` need not search from scratch).
 
 **What is recorded.** Every trial, its settings, state, each run's validation return, overflowing
 validation episodes, the validation return of the checkpoint nearest half the budget, and its
@@ -286,6 +288,25 @@ def enqueue_finalists(study, count: int, min_runs: int) -> list[int]:
     return [row["number"] for row in chosen]
 
 
+def best_settings(study, count: int, min_runs: int) -> list[tuple[int, dict[str, Any]]]:
+    """The ``count`` best distinct settings of a search, (trial number, settings): finished trials by
+    their IQM first, then the others by their mean score over at least ``min_runs`` runs."""
+    optuna = require_optuna()
+    ranked = []
+    for row in trial_rows(study):
+        if row["state"] == optuna.trial.TrialState.COMPLETE.name:
+            ranked.append(((1, row["value"]), row))
+        elif len(row["runs"]) >= min_runs:
+            ranked.append(((0, row["mean_score"]), row))
+    out, seen = [], set()
+    for _, row in sorted(ranked, key=lambda r: r[0], reverse=True):
+        key = json.dumps(row["params"], sort_keys=True)
+        if key not in seen:
+            seen.add(key)
+            out.append((row["number"], dict(row["params"])))
+    return out[:count]
+
+
 def requeue_interrupted(study) -> int:
     """Trials a kill left running: failed, and their settings queued again (their runs are reused)."""
     optuna = require_optuna()
@@ -395,6 +416,9 @@ def main(argv=None) -> None:
     p.add_argument("--finalists", type=int, default=0, metavar="K",
                    help="first queue the K best settings not yet judged on every run (mean score over at least "
                         "one run of every row) as finalists, which the pruner never stops")
+    p.add_argument("--start-from", default=None, metavar="METHOD:K",
+                   help="a new search's first trials after the default: the K best settings of METHOD's search "
+                        "(its journal under --out), e.g. fast_shared_ppo:3 for fast_shared_ppo_team")
     p.add_argument("--write-config", nargs="?", const="", default=None, metavar="PATH",
                    help="train nothing: write the best finished trial's settings as the method's settings file "
                         "(default configs/hyperparams/<method>.toml)")
@@ -416,6 +440,14 @@ def main(argv=None) -> None:
                 print(f"{requeued} interrupted trial(s) queued again")
             if not study.get_trials(deepcopy=False):
                 study.enqueue_trial(DEFAULT_TRIAL, user_attrs={"default": True})
+                if ns.start_from:
+                    other, _, count = ns.start_from.partition(":")
+                    if other == ns.method or not (out.parent / other / "journal.log").is_file():
+                        p.error(f"--start-from: no other search {other!r} under {out.parent}")
+                    source = open_study(other, out.parent / other / "journal.log", sampler_seed=0)
+                    for number, params in best_settings(source, int(count or 3), min_runs=len(rows)):
+                        if params != DEFAULT_TRIAL:
+                            study.enqueue_trial(params, user_attrs={"start_from": f"{other} trial {number}"})
             done = sum(t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
                        for t in study.get_trials(deepcopy=False))
             if ns.finalists:

@@ -111,6 +111,14 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     settings, source = read_settings(tmp_path / "chosen.toml")
     assert settings == best.params and f"trial {best.number} of {len(finished)} finished" in source
 
+    # another method's search starts from this one's best settings after its own default
+    subprocess.run([sys.executable, SCRIPT, "--method", "fast_shared_ppo_team", "--smoke", "--workers", "1",
+                    "--trials", "2", "--start-from", "fast_shared_ppo:2", "--out", str(out), "--runs", str(runs)],
+                   capture_output=True, text=True, timeout=600, check=True)
+    team = json.loads((out / "fast_shared_ppo_team" / "trials.json").read_text())["trials"]
+    shared_best = [t.params for t in sorted(finished, key=lambda t: -t.value) if t.params != DEFAULT_TRIAL]
+    assert [t["params"] for t in team[:2]] == [DEFAULT_TRIAL, shared_best[0]]
+
 
 def _load_script():
     import importlib.util
@@ -216,3 +224,27 @@ def test_a_setting_proposed_again_takes_the_earlier_verdict_without_training(tmp
     assert not runs.exists()  # nothing trained
     rows = {r["number"]: r for r in script.trial_rows(study)}
     assert rows[again[0].number]["duplicate_of"] == complete.number
+
+
+def test_a_search_starts_from_another_searchs_best_distinct_settings():
+    """--start-from: finished trials by IQM first, then the others by mean score over enough runs,
+    each setting once (a finalist repeats a pruned trial's setting)."""
+    script = _load_script()
+    study = optuna.create_study(direction="maximize")
+
+    def trial(x: int, scores: list[float], state, value=None):
+        t = _setting(study, x)
+        for k, score in enumerate(scores):
+            t.set_user_attr(f"run_{k:02d}", {"score": score, "overflowing_episodes": 0,
+                                             "half_budget_score": score, "cpu_s": 1.0})
+        study.tell(t, value, state=state)
+        return t
+
+    pruned, complete = optuna.trial.TrialState.PRUNED, optuna.trial.TrialState.COMPLETE
+    finished = trial(1, [0.8] * 10, complete, value=0.8)
+    near = trial(2, [0.95] * 7, pruned)
+    trial(2, [0.95] * 8, pruned)  # the same setting again
+    trial(3, [0.99] * 3, pruned)  # too few runs
+    lower = trial(4, [0.7] * 7, pruned)
+    assert script.best_settings(study, 5, min_runs=5) == [(finished.number, {"x": 1}), (near.number, {"x": 2}),
+                                                         (lower.number, {"x": 4})]
