@@ -243,13 +243,17 @@ def pruner():
     return MedianOfOthersPruner()
 
 
-def open_study(method: str, journal: Path, sampler_seed: int):
+def open_study(method: str, journal: Path, sampler_seed: int, read_only: bool = False):
+    """The search's study in ``journal``; ``read_only``: an existing study, opened without appending to
+    its journal (``create_study`` appends a line at every opening)."""
     optuna = require_optuna()
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     storage = JournalStorage(JournalFileBackend(str(journal)))
+    if read_only:
+        return optuna.load_study(study_name=method, storage=storage)
     sampler = optuna.samplers.TPESampler(seed=sampler_seed, n_startup_trials=8)
     return optuna.create_study(study_name=method, storage=storage, sampler=sampler, pruner=pruner(),
                                direction="maximize", load_if_exists=True)
@@ -433,7 +437,7 @@ def main(argv=None) -> None:
     rule = rule_returns(rows, out / "rule_based_agents_validation.json")
     journal = out / "journal.log"
     with RunLock(out):  # one search of a method at a time (an OS lock, released however the search ends)
-        study = open_study(ns.method, journal, sampler_seed=0)
+        study = open_study(ns.method, journal, sampler_seed=0, read_only=ns.report and journal.is_file())
         if not ns.report:
             requeued = requeue_interrupted(study)
             if requeued:
@@ -444,7 +448,7 @@ def main(argv=None) -> None:
                     other, _, count = ns.start_from.partition(":")
                     if other == ns.method or not (out.parent / other / "journal.log").is_file():
                         p.error(f"--start-from: no other search {other!r} under {out.parent}")
-                    source = open_study(other, out.parent / other / "journal.log", sampler_seed=0)
+                    source = open_study(other, out.parent / other / "journal.log", 0, read_only=True)
                     for number, params in best_settings(source, int(count or 3), min_runs=len(rows)):
                         if params != DEFAULT_TRIAL:
                             study.enqueue_trial(params, user_attrs={"start_from": f"{other} trial {number}"})
@@ -463,7 +467,7 @@ def main(argv=None) -> None:
                     time.sleep(1)  # the first takes the queued trial before the next asks
                 for proc in procs:
                     proc.join()
-            study = open_study(ns.method, journal, sampler_seed=0)
+            study = open_study(ns.method, journal, sampler_seed=0, read_only=True)
         print(report(ns.method, study, out, rule))
         if ns.write_config is not None:
             path = Path(ns.write_config) if ns.write_config else settings_file(ns.method)

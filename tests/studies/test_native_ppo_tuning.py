@@ -111,13 +111,17 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     settings, source = read_settings(tmp_path / "chosen.toml")
     assert settings == best.params and f"trial {best.number} of {len(finished)} finished" in source
 
-    # another method's search starts from this one's best settings after its own default
+    # another method's search starts from this one's best settings after its own default, reading this
+    # search's journal without writing to it (as --report reads its own)
+    journal = (out / "fast_shared_ppo" / "journal.log").read_bytes()
+    _search(out, runs, "--report")
     subprocess.run([sys.executable, SCRIPT, "--method", "fast_shared_ppo_team", "--smoke", "--workers", "1",
                     "--trials", "2", "--start-from", "fast_shared_ppo:2", "--out", str(out), "--runs", str(runs)],
                    capture_output=True, text=True, timeout=600, check=True)
     team = json.loads((out / "fast_shared_ppo_team" / "trials.json").read_text())["trials"]
     shared_best = [t.params for t in sorted(finished, key=lambda t: -t.value) if t.params != DEFAULT_TRIAL]
     assert [t["params"] for t in team[:2]] == [DEFAULT_TRIAL, shared_best[0]]
+    assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
 
 
 def _load_script():
