@@ -101,7 +101,8 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
         policy = CONTROLLERS[target](PlantParams.from_config(plant))
         bar, on_episode = _episode_bar(protocol.episodes)
         with bar:
-            return evaluate(policy, plant, protocol, arbitration=arbitration or DEFAULT_ARBITRATION, on_episode=on_episode)
+            return evaluate(policy, plant, protocol, arbitration=arbitration or DEFAULT_ARBITRATION,
+                            on_episode=on_episode)
     if Path(target).is_dir():
         from containergym_marl.evaluation.run_policies import evaluate_run
         from containergym_marl.rundir import RunWarning

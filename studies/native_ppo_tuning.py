@@ -235,7 +235,7 @@ def pruner():
                 return False
             # one value per other setting: a setting tried again (queued after a kill, a finalist)
             # reuses its runs, and counting each of its trials would make it the median
-            others = {json.dumps(t.params, sort_keys=True): t.intermediate_values[step]
+            others = {settings_key(t.params): t.intermediate_values[step]
                       for t in study.get_trials(deepcopy=False)
                       if t.params != trial.params and step in t.intermediate_values}
             return bool(others) and trial.intermediate_values[step] < float(np.median(list(others.values())))
@@ -273,15 +273,15 @@ def enqueue_finalists(study, count: int, min_runs: int) -> list[int]:
     on every run, as the default is (a setting pruned by a hair at a few runs gets its full
     comparison). Their runs so far are reused. Returns the numbers of the trials they come from."""
     optuna = require_optuna()
-    complete = {json.dumps(t.params, sort_keys=True) for t in study.get_trials(deepcopy=False)
+    complete = {settings_key(t.params) for t in study.get_trials(deepcopy=False)
                 if t.state == optuna.trial.TrialState.COMPLETE}
     # a queued trial's setting is in its fixed params until a worker takes it
-    queued = {json.dumps(t.params or t.system_attrs.get("fixed_params", {}), sort_keys=True)
+    queued = {settings_key(t.params or t.system_attrs.get("fixed_params", {}))
               for t in study.get_trials(deepcopy=False)
               if t.state in (optuna.trial.TrialState.WAITING, optuna.trial.TrialState.RUNNING)}
     best: dict[str, Any] = {}
     for row in trial_rows(study):
-        key = json.dumps(row["params"], sort_keys=True)
+        key = settings_key(row["params"])
         if key in complete or key in queued or len(row["runs"]) < min_runs:
             continue
         if key not in best or len(row["runs"]) > len(best[key]["runs"]):
@@ -304,7 +304,7 @@ def best_settings(study, count: int, min_runs: int) -> list[tuple[int, dict[str,
             ranked.append(((0, row["mean_score"]), row))
     out, seen = [], set()
     for _, row in sorted(ranked, key=lambda r: r[0], reverse=True):
-        key = json.dumps(row["params"], sort_keys=True)
+        key = settings_key(row["params"])
         if key not in seen:
             seen.add(key)
             out.append((row["number"], dict(row["params"])))

@@ -44,7 +44,8 @@ def run_causes(args: tuple[str, int]) -> dict:
     result = evaluate(policy_from_run(run, "best"), saved["config"], protocol,
                       arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
     params = PlantParams.from_config(protocol.plant(saved["config"]))
-    return {"run": Path(run).name, "method": REGISTRY[saved["algo"]].method_name(saved.get("reward_mode")), "row": saved["config"],
+    return {"run": Path(run).name, "method": REGISTRY[saved["algo"]].method_name(saved.get("reward_mode")),
+            "row": saved["config"],
             "seed": saved["seed"], "episodes": episodes, "first_seed": protocol.first_seed,
             "return_mean": float(result.returns.mean()),
             "overflowing_episodes": int(sum(e.overflow for e in result.episodes)),

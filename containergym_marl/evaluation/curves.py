@@ -69,7 +69,8 @@ def run_curve(run: str | Path, protocol: EvalProtocol = VALIDATION, write: bool 
     policies.append((int(summary["timesteps"]), policy_from_run(run, "final")))
     points = []
     for steps, policy in policies:
-        s = evaluate_batched(policy, saved["config"], protocol, arbitration=saved.get("arbitration", DEFAULT_ARBITRATION)).summary()
+        arbitration = saved.get("arbitration", DEFAULT_ARBITRATION)
+        s = evaluate_batched(policy, saved["config"], protocol, arbitration=arbitration).summary()
         points.append({"samples": int(steps), "return_mean": s["return_mean"], "overflow_rate": s["overflow_rate"]})
     curve = {"protocol": asdict(protocol), "budget": int(summary["budget"]), "points": points}
     if write:

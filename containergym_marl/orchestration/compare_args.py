@@ -136,7 +136,8 @@ class CompareArgs:
         unknown = [m for m in self.methods if m not in METHODS]
         if unknown:
             raise ValueError(f"methods: unknown method(s) {unknown}; choose from {list(COMPARABLE)}")
-        by_script = [f"{m} (trained by {METHODS[m].algorithm.trainer_name})" for m in self.methods if m not in COMPARABLE]
+        by_script = [f"{m} (trained by {METHODS[m].algorithm.trainer_name})" for m in self.methods
+                     if m not in COMPARABLE]
         if by_script:
             raise ValueError(f"methods: compare does not train {', '.join(by_script)}; choose from {list(COMPARABLE)}")
         for what in ("configs", "methods", "seeds"):

@@ -566,8 +566,8 @@ class DAggerTrainer:
                     f"n_steps={hp.n_steps}": shapes.rollout(hp.n_steps, shapes.obs + 8, copies=2),
                     f"minibatch_size={hp.minibatch_size}": shapes.minibatch(hp.minibatch_size, 2 * sum(hp.hidden),
                                                                              hp.n_steps)}
-        if hp.ppo is not None:
-            estimate.update(fast_ppo.TRAINER.memory(dataclasses.replace(hp.ppo, hidden=hp.hidden), shapes, "ppo_"))
+        if hp.ppo is not None:  # the fine-tuning keeps the imitated network
+            estimate.update(fast_ppo.batch_memory(dataclasses.replace(hp.ppo, hidden=hp.hidden), shapes, "ppo_"))
         return estimate
 
     def new_state(self, env, settings: DAggerArgs, view: str, seed: int, meta: dict[str, Any]) -> DAggerState:
@@ -591,5 +591,6 @@ class DAggerTrainer:
 IMITATION = DAggerTrainer(fine_tune=False)
 IMITATION_THEN_PPO = DAggerTrainer(fine_tune=True)
 
-__all__ = ["DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_PPO", "Dataset", "Episodes", "Labeller", "Rollout", "collect", "learn",
+__all__ = ["DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_PPO", "Dataset", "Episodes",
+           "Labeller", "Rollout", "collect", "learn",
            "load_checkpoint", "new_state", "summary", "train", "update"]

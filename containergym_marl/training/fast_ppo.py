@@ -436,6 +436,15 @@ def save_final(state: TrainingState, path: Path) -> None:
     state.model.save(path)
 
 
+def batch_memory(settings: PPOArgs, shapes: MemoryShapes, prefix: str = "") -> dict[str, int]:
+    """Bytes of a rollout and a minibatch at ``settings``, named by setting (``prefix``: the
+    settings' prefix in those names, ``ppo_`` for a fine-tuning's)."""
+    return {f"{prefix}n_steps={settings.n_steps}":
+            shapes.rollout(settings.n_steps, shapes.obs + 8 + shapes.actions * settings.action_mask),
+            f"{prefix}minibatch_size={settings.minibatch_size}":
+            shapes.minibatch(settings.minibatch_size, 2 * sum(settings.hidden), settings.n_steps)}
+
+
 class PPOTrainer:
     """The native PPO as ``train`` runs it (:class:`~containergym_marl.training.native.NativeTrainer`)."""
 
@@ -445,15 +454,8 @@ class PPOTrainer:
     def default_sims(self, settings: PPOArgs, agents_per_sim: int) -> int:
         return settings.num_sims(agents_per_sim)
 
-    def memory(self, settings: PPOArgs, shapes: MemoryShapes, prefix: str = "") -> dict[str, int]:
-        """``prefix``: the settings' prefix in the names (``ppo_`` for a fine-tuning's)."""
-        estimate = {f"{prefix}n_steps={settings.n_steps}":
-                    shapes.rollout(settings.n_steps, shapes.obs + 8 + shapes.actions * settings.action_mask),
-                    f"{prefix}minibatch_size={settings.minibatch_size}":
-                    shapes.minibatch(settings.minibatch_size, 2 * sum(settings.hidden), settings.n_steps)}
-        if not prefix:  # a fine-tuning keeps the network it starts from
-            estimate[f"hidden={list(settings.hidden)}"] = shapes.networks(settings.hidden)
-        return estimate
+    def memory(self, settings: PPOArgs, shapes: MemoryShapes) -> dict[str, int]:
+        return {**batch_memory(settings, shapes), f"hidden={list(settings.hidden)}": shapes.networks(settings.hidden)}
 
     def new_state(self, env, settings: PPOArgs, view: str, seed: int, meta: dict[str, Any]) -> TrainingState:
         return new_state(env, settings, view, seed, meta)
@@ -476,5 +478,6 @@ class PPOTrainer:
 #: The registry's native PPO (``fast_ppo``, ``fast_shared_ppo``).
 TRAINER = PPOTrainer()
 
-__all__ = ["PPOArgs", "PPOTrainer", "TRAINER", "TrainingState", "coerce_setting", "compute_gae", "explained_variance", "learn",
+__all__ = ["PPOArgs", "PPOTrainer", "TRAINER", "TrainingState", "batch_memory", "coerce_setting", "compute_gae",
+           "explained_variance", "learn",
            "load_checkpoint", "log_rollout", "new_state", "save_final", "save_if_best", "state_from_model", "update"]

@@ -74,7 +74,8 @@ def test_compare_help_shows_the_defaults(capsys):
         main(["compare", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     for expected in ("--timesteps N|paper", "(default with --train: 30000)", "(default: 1 2 3)",
-                     "(default: paper)", "(default: the protocol's)", "(default: results/compare)", "; n5_m2_dt120 with --train)",
+                     "(default: paper)", "(default: the protocol's)", "(default: results/compare)",
+                     "; n5_m2_dt120 with --train)",
                      "(default: results/paper_rows,", "(default: 200000)", "(default: 3)", "(default: 2000)",
                      "$RAY_ADDRESS", "shared_ppo_team"):
         assert expected in text, expected

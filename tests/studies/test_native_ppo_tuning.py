@@ -53,7 +53,8 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     folders = sorted(p.name for p in (runs / "fast_shared_ppo").iterdir())
     assert len(folders) == 2
     for folder in folders:
-        args = json.loads((runs / "fast_shared_ppo" / folder / run_name("fast_shared_ppo", "n5_m2_dt120", 101) / "args.json").read_text())
+        run = runs / "fast_shared_ppo" / folder / run_name("fast_shared_ppo", "n5_m2_dt120", 101)
+        args = json.loads((run / "args.json").read_text())
         assert args["hyperparams"] in [t["params"] for t in trials] and args["seed"] == 101
     assert "| 0 | complete | 4096 | 64 | 1024 | 10 | 0.0003 | false | 0.0 | 0.2 | 1 |" in \
         (out / "fast_shared_ppo" / "trials.md").read_text()
@@ -91,7 +92,8 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert script.suggest(stale) == setting
     key = script.settings_key(setting)
     entry = script.train_and_validate("fast_shared_ppo", "n5_m2_dt120", 101, setting,
-                                      runs / "fast_shared_ppo" / key / run_name("fast_shared_ppo", "n5_m2_dt120", 101), 8192)
+                                      runs / "fast_shared_ppo" / key / run_name("fast_shared_ppo", "n5_m2_dt120", 101),
+                                      8192)
     entry.update(score=entry["validation_return"] / rule, half_budget_score=entry["half_budget_return"] / rule)
     stale.set_user_attr("folder", key)
     stale.set_user_attr("run_00", entry)
