@@ -123,11 +123,6 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
     )
 
 
-def _share(x: float, width: int = 0) -> str:
-    """A share with two decimals; "–" where it is undefined (no emptying action), as in the table."""
-    return f"{'–' if x != x else f'{x:.2f}':>{width}}"
-
-
 def _overflowed(record) -> str:
     """The containers whose overflow ended the episode, each with its volume after the reset."""
     if record is None:
@@ -137,20 +132,23 @@ def _overflowed(record) -> str:
 
 
 def _print_evaluation(result, json_path: str | None) -> int:
+    from containergym_marl.evaluation import metrics
+    from containergym_marl.evaluation import table as tables
+
     s = result.summary()
+    shown = metrics.shown_in("cli")
+    widths = [max(len(m.short), 6) for m in shown]
     print(f"{result.policy} on {result.config} ({result.view} view), {s['episodes']} episodes, "
           f"delta={result.protocol.timestep_s:g} s, T={result.protocol.episode_length_steps}")
-    print(f"{'seed':>6} {'return':>9} {'steps':>6} {'overflow':>9} {'emptyings':>10} {'r>=0.75':>8} "
-          f"{'r<0':>6} {'denied':>7} {'PU busy':>8}  overflowed (volume at the start)")
+    print(f"{'seed':>6} {'return':>9} " + " ".join(f"{m.short:>{w}}" for m, w in zip(shown, widths))
+          + "  overflowed (volume at the start)")
     records = result.records if len(result.records) == len(result.episodes) else [None] * len(result.episodes)
     for e, record in zip(result.episodes, records):
-        print(f"{e.seed:>6} {e.cumulative_reward:>9.2f} {e.steps:>6} {str(e.overflow):>9} {e.emptyings:>10} "
-              f"{_share(e.good_emptying_share, 8)} {_share(e.negative_emptying_share, 6)} {e.denied_requests:>7} "
-              f"{e.pu_utilisation:>8.2f}  {_overflowed(record)}".rstrip())
-    print(f"cumulative reward {s['return_mean']:.2f} ± {s['return_std']:.2f}; overflow rate "
-          f"{s['overflow_rate']:.2f}; emptyings/episode {s['emptyings_mean']:.1f}; share r>=0.75 "
-          f"{_share(s['good_emptying_share'])}, r<0 {_share(s['negative_emptying_share'])}; denied/episode "
-          f"{s['denied_requests_mean']:.1f}; PU utilisation {s['pu_utilisation']:.2f}")
+        print(f"{e.seed:>6} {e.cumulative_reward:>9.2f} "
+              + " ".join(f"{m.episode_text(e.values[m.name]):>{w}}" for m, w in zip(shown, widths))
+              + f"  {_overflowed(record)}".rstrip())
+    print(f"cumulative reward {s['return_mean']:.2f} ± {s['return_std']:.2f}; mean over episodes: "
+          + ", ".join(f"{m.label} {tables.format_value(s[m.summary], m.fmt)}" for m in shown))
     if json_path:
         from containergym_marl.files import atomic_write_text
 

@@ -19,8 +19,8 @@ from containergym_marl.config import PlantConfig
 from containergym_marl.core.observations import agent_observations
 from containergym_marl.core.simulator import PlantSimulator
 from containergym_marl.envs.vector import _agent_requests, _centralised_requests
+from containergym_marl.evaluation.metrics import BatchTotals, Steps
 from containergym_marl.evaluation.protocol import (
-    GOOD_REWARD,
     PAPER,
     EpisodeMetrics,
     EvalProtocol,
@@ -46,9 +46,7 @@ def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol =
     _check_fits(policy, sim, plant)
 
     active = np.ones(episodes, dtype=bool)  # the episode of simulation b has not ended yet
-    totals = {k: np.zeros(episodes) for k in ("reward", "steps", "granted", "requested", "denied", "good",
-                                              "negative", "busy")}
-    overflow = np.zeros(episodes, dtype=bool)
+    totals, returns = BatchTotals(episodes), np.zeros(episodes)
     while active.any():
         free = sim.free_pu_count() > 0
         if policy.view == "centralised":
@@ -61,31 +59,16 @@ def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol =
             masks = np.stack([np.ones(episodes * n, dtype=bool), np.repeat(free, n)], axis=1)
             requests = _agent_requests(np.asarray(policy.act_batch(obs, masks)), episodes, n)
         out = sim.step(requests)
-        w = active.astype(float)  # what this step adds to the episodes still running
-        totals["reward"] += w * out.plant_reward
-        totals["steps"] += w
-        totals["granted"] += w * out.granted.sum(1)
-        totals["requested"] += w * out.requested.sum(1)
-        totals["denied"] += w * out.denied.sum(1)
-        totals["good"] += w * (out.requested & (out.container_reward >= GOOD_REWARD)).sum(1)
-        totals["negative"] += w * (out.requested & (out.container_reward < 0)).sum(1)
-        totals["busy"] += w * (sim.state.pu_timers_s > 0).mean(1)
+        returns += active * out.plant_reward  # only the episodes still running
+        totals.add(Steps(requested=out.requested, granted=out.granted, denied=out.denied,
+                         container_reward=out.container_reward, pu_busy=sim.state.pu_timers_s > 0,
+                         terminated=out.terminated), active)
         done = out.terminated | out.truncated
-        overflow |= active & out.terminated
         active &= ~done
         if done.any():
             sim.reset(sims=np.flatnonzero(done))  # a simulation whose episode ended steps on for nothing
 
-    metrics = []
-    for b, seed in enumerate(protocol.seeds):
-        actions = totals["requested"][b]
-        metrics.append(EpisodeMetrics(
-            seed=seed, cumulative_reward=float(totals["reward"][b]), steps=int(totals["steps"][b]),
-            overflow=bool(overflow[b]), emptyings=int(totals["granted"][b]), emptying_actions=int(actions),
-            good_emptying_share=float(totals["good"][b] / actions) if actions else float("nan"),
-            negative_emptying_share=float(totals["negative"][b] / actions) if actions else float("nan"),
-            denied_requests=int(totals["denied"][b]),
-            pu_utilisation=float(totals["busy"][b] / totals["steps"][b])))
+    metrics = [EpisodeMetrics(seed, float(returns[b]), totals.values(b)) for b, seed in enumerate(protocol.seeds)]
     return EvaluationResult(policy.name, policy.view, plant.name, protocol, metrics)
 
 

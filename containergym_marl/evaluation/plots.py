@@ -44,7 +44,7 @@ from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.dynamics import emptying_rewards
 from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation.records import EpisodeRecord
-from containergym_marl.evaluation.protocol import GOOD_REWARD
+from containergym_marl.evaluation.metrics import GOOD_REWARD
 from containergym_marl.render import container_colors
 
 __all__ = [

@@ -19,11 +19,12 @@ import numpy as np
 
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.config import PAPER_TEST_PROTOCOL, PlantConfig, load_config
+from containergym_marl.evaluation.metrics import Steps, episode_values
+from containergym_marl.evaluation.metrics import summary as metric_summary
 from containergym_marl.evaluation.records import EpisodeRecord, EpisodeRecorder
 
 #: First evaluation seed; training runs use seeds far below it.
 EVAL_SEED_BASE = 10_000
-GOOD_REWARD = 0.75  # the paper's "close to optimal" band [0.75, 1]
 
 
 @dataclass(frozen=True)
@@ -69,33 +70,31 @@ class Policy(Protocol):
 
 @dataclass
 class EpisodeMetrics:
+    """One episode's seed, return and every metric of :data:`~containergym_marl.evaluation.metrics.METRICS`
+    (``values``, by name; also read as attributes: ``m.denied_requests``)."""
+
     seed: int
     cumulative_reward: float
-    steps: int
-    overflow: bool
-    emptyings: int  # containers actually emptied
-    emptying_actions: int  # requests to empty, granted or denied (no free PU)
-    good_emptying_share: float  # share of emptying actions with reward >= 0.75
-    negative_emptying_share: float  # share of emptying actions with reward < 0
-    denied_requests: int
-    pu_utilisation: float  # share of (step, PU) pairs with the PU busy after the step
+    values: dict[str, float | int | bool]
+
+    def __getattr__(self, name: str):
+        values = self.__dict__.get("values", {})
+        if name in values:
+            return values[name]
+        raise AttributeError(f"{type(self).__name__!r} has no metric or attribute {name!r}")
 
     @classmethod
     def from_record(cls, rec: EpisodeRecord) -> "EpisodeMetrics":
-        r = rec.emptying_action_rewards()
-        busy = rec.pu_timers_s[1:] > 0
-        return cls(
-            seed=int(rec.seed) if rec.seed is not None else -1,
-            cumulative_reward=rec.cumulative_reward,
-            steps=rec.steps,
-            overflow=rec.terminated,
-            emptyings=int(rec.granted.sum()),
-            emptying_actions=int(rec.requested.sum()),
-            good_emptying_share=float((r >= GOOD_REWARD).mean()) if r.size else float("nan"),
-            negative_emptying_share=float((r < 0).mean()) if r.size else float("nan"),
-            denied_requests=int(rec.denied.sum()),
-            pu_utilisation=float(busy.mean()) if busy.size else 0.0,
-        )
+        terminated = np.zeros(rec.steps, dtype=bool)
+        terminated[-1:] = rec.terminated
+        steps = Steps(requested=rec.requested, granted=rec.granted, denied=rec.denied,
+                      container_reward=rec.container_reward, pu_busy=rec.pu_timers_s[1:] > 0, terminated=terminated)
+        return cls(int(rec.seed) if rec.seed is not None else -1, rec.cumulative_reward, episode_values(steps))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The episode as the evaluation files hold it: seed, return, then each metric (NaN as None)."""
+        return {"seed": self.seed, "cumulative_reward": self.cumulative_reward,
+                **{k: None if isinstance(v, float) and math.isnan(v) else v for k, v in self.values.items()}}
 
 
 @dataclass
@@ -119,25 +118,10 @@ class EvaluationResult:
         return np.array([e.cumulative_reward for e in self.episodes])
 
     def summary(self) -> dict[str, float]:
-        def mean(key):
-            vals = np.array([getattr(e, key) for e in self.episodes], dtype=float)
-            vals = vals[~np.isnan(vals)]
-            return float(vals.mean()) if vals.size else float("nan")
-
+        """Episodes, the return's mean and std, and each metric's mean (its summary key)."""
         r = self.returns
-        return {
-            "episodes": len(self.episodes),
-            "return_mean": float(r.mean()),
-            "return_std": float(r.std()),
-            "overflow_rate": mean("overflow"),
-            "steps_mean": mean("steps"),
-            "emptyings_mean": mean("emptyings"),
-            "emptying_actions_mean": mean("emptying_actions"),
-            "good_emptying_share": mean("good_emptying_share"),
-            "negative_emptying_share": mean("negative_emptying_share"),
-            "denied_requests_mean": mean("denied_requests"),
-            "pu_utilisation": mean("pu_utilisation"),
-        }
+        return {"episodes": len(self.episodes), "return_mean": float(r.mean()), "return_std": float(r.std()),
+                **metric_summary([e.values for e in self.episodes])}
 
     def to_json(self) -> str:
         def clean(x):
@@ -150,7 +134,7 @@ class EvaluationResult:
                 "config": self.config,
                 "protocol": asdict(self.protocol),
                 "summary": {k: clean(v) for k, v in self.summary().items()},
-                "episodes": [{k: clean(v) for k, v in asdict(e).items()} for e in self.episodes],
+                "episodes": [e.to_dict() for e in self.episodes],
                 **({"training": self.training} if self.training is not None else {}),
             },
             indent=2,

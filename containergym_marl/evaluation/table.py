@@ -46,6 +46,7 @@ from typing import Any, Iterable, Sequence, TextIO
 
 import numpy as np
 
+from containergym_marl.evaluation import metrics
 from containergym_marl.evaluation import stats as st
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.methods import PAIRS
@@ -65,12 +66,20 @@ PAPER_TABLE_1 = {
 #: Root seed of every bootstrap stream of the table (see the module docstring).
 TABLE_SEED = 0
 
-#: Columns of table.csv (and keys of the rows in table.json), in order.
-COLUMNS = ("config", "method", "view", "seeds", "best_mean", "best_std", "median_mean", "median_std",
-           "best_fresh_mean", "best_fresh_std", "median_fresh_mean", "median_fresh_std", "iqm",
-           "iqm_low", "iqm_high", "fresh_iqm", "fresh_iqm_low", "fresh_iqm_high", "fresh_overflow_rate",
-           "fresh_episodes", "overflow_rate", "emptyings", "good_share", "denied", "pu_utilisation",
-           "best_seed", "selected_on", "samples")
+#: Columns of table.csv (and keys of the rows in table.json) before and after the best policy's metrics
+#: (:func:`containergym_marl.evaluation.metrics.table_columns`); :func:`columns` gives them all, in order.
+_LEADING_COLUMNS = ("config", "method", "view", "seeds", "best_mean", "best_std", "median_mean", "median_std",
+                    "best_fresh_mean", "best_fresh_std", "median_fresh_mean", "median_fresh_std", "iqm",
+                    "iqm_low", "iqm_high", "fresh_iqm", "fresh_iqm_low", "fresh_iqm_high", "fresh_overflow_rate",
+                    "fresh_episodes")
+_TRAILING_COLUMNS = ("best_seed", "selected_on", "samples")
+
+
+def columns() -> tuple[str, ...]:
+    """Columns of table.csv (and keys of the rows in table.json), in order."""
+    return (*_LEADING_COLUMNS, *metrics.table_columns(), *_TRAILING_COLUMNS)
+
+
 #: Where a published folder keeps the evaluations of its policies on fresh episodes
 #: (``<folder>/fresh/<config>/<method>_s<seed>.json``, or ``<method>.json`` for a policy without
 #: training seeds; containergym-marl publish writes them).
@@ -277,7 +286,7 @@ def _budget(group: MethodEvaluations) -> int | None:
 
 
 def table_rows(groups: Sequence[MethodEvaluations], reps: int = 2000) -> list[dict[str, Any]]:
-    """One row per (config, method), keys :data:`COLUMNS`."""
+    """One row per (config, method), keys :func:`columns`."""
     rows = []
     for g in groups:
         best, median = g.best, g.median
@@ -303,9 +312,7 @@ def table_rows(groups: Sequence[MethodEvaluations], reps: int = 2000) -> list[di
             "fresh_iqm": fresh[0], "fresh_iqm_low": fresh[1], "fresh_iqm_high": fresh[2],
             "fresh_overflow_rate": None if fresh_overflows is None else float(fresh_overflows.mean()),
             "fresh_episodes": None if fb is None else len(fb),
-            "overflow_rate": _summary_value(e, "overflow_rate"), "emptyings": _summary_value(e, "emptyings_mean"),
-            "good_share": _summary_value(e, "good_emptying_share"),
-            "denied": _summary_value(e, "denied_requests_mean"), "pu_utilisation": _summary_value(e, "pu_utilisation"),
+            **{m.column: _summary_value(e, m.summary) for m in metrics.shown_in("table")},
             "best_seed": g.seeds[best] if g.seeds else None,
             "selected_on": g.selected_on if g.seeds else None, "samples": _budget(g),
         })
@@ -330,7 +337,8 @@ def improvements(groups: Sequence[MethodEvaluations], pairs: Iterable[tuple[str,
 
 
 # ---- formatting -----------------------------------------------------------------------------------
-def _num(x: float | None, fmt: str = ".2f") -> str:
+def format_value(x: float | None, fmt: str = ".2f") -> str:
+    """A table cell: ``x`` in ``fmt``, "–" where it is missing or undefined (NaN)."""
     return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
 
 
@@ -383,20 +391,28 @@ def _fresh_cell(mean: float | None, std: float | None) -> str:
     return "–" if mean is None else f"{mean:.2f} ± {std:.2f}"
 
 
+def _best_policy_columns() -> str:
+    """The best policy's metric columns, named for the caption: "overflow rate … PU busy"."""
+    shown = metrics.shown_in("table")
+    return "" if not shown else shown[0].label.capitalize() if len(shown) == 1 else (
+        f"{shown[0].label.capitalize()} … {shown[-1].label}")
+
+
 def markdown(rows: Sequence[dict], imps: Sequence[dict], groups: Sequence[MethodEvaluations] = ()) -> str:
     """The Markdown table (one block for all configs) and the probabilities of improvement."""
+    shown = metrics.shown_in("table")
+    headers = ["config", "method", "view", "seeds", "best", "best, fresh", "median", "median, fresh", "IQM [95 % CI]",
+               "IQM, fresh [95 % CI]", "overflow, fresh", *(m.label for m in shown), "samples"]
     lines = [
         f"Test cumulative reward ({_protocol_text(groups)}). Best / median: the best and the median policy "
         f"over training seeds{_selection_text(groups)}, mean ± std over test episodes." + _fresh_text(groups)
         + " IQM: interquartile mean "
-        "of the per-seed mean returns [95 % stratified-bootstrap CI]. Overflow rate … PU busy: of the best policy. "
+        f"of the per-seed mean returns [95 % stratified-bootstrap CI]. {_best_policy_columns()}: of the best policy. "
         "Samples: training budget per run, one sample per decision of the trained policy (a plant step "
         "for a centralised method, an agent step for a decentralised one: n per plant step).",
         "",
-        "| config | method | view | seeds | best | best, fresh | median | median, fresh | IQM [95 % CI] | "
-        "IQM, fresh [95 % CI] | overflow, fresh | overflow rate | emptyings | r ≥ 0.75 | denied req. | PU busy | "
-        "samples |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| " + " | ".join(headers) + " |",
+        "|" + "---|" * len(headers),
     ]
     configs = list(dict.fromkeys(r["config"] for r in rows))
     for config in configs:
@@ -407,13 +423,12 @@ def markdown(rows: Sequence[dict], imps: Sequence[dict], groups: Sequence[Method
                 f"{r['median_mean']:.2f} ± {r['median_std']:.2f} | "
                 f"{_fresh_cell(r['median_fresh_mean'], r['median_fresh_std'])} | "
                 f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}] | {_fresh_iqm_cell(r)} | "
-                f"{_num(r['fresh_overflow_rate'])} | {_num(r['overflow_rate'])} | "
-                f"{_num(r['emptyings'], '.1f')} | {_num(r['good_share'])} | {_num(r['denied'], '.1f')} | "
-                f"{_num(r['pu_utilisation'])} | {_samples(r['samples'])} |")
+                f"{format_value(r['fresh_overflow_rate'])} | "
+                + "".join(f"{format_value(r[m.column], m.fmt)} | " for m in shown) + f"{_samples(r['samples'])} |")
         for algo, (best, median) in PAPER_TABLE_1.get(config, {}).items():
             lines.append(f"| {config} | paper {algo.upper()} (15 seeds) | centralised | 15 | "
-                         f"{best[0]:.2f} ± {best[1]:.2f} | – | {median[0]:.2f} ± {median[1]:.2f} | – | – | – | – | – | – | "
-                         f"– | – | – | {'2M' if config.startswith('n5_') else '5M'} |")
+                         f"{best[0]:.2f} ± {best[1]:.2f} | – | {median[0]:.2f} ± {median[1]:.2f} | "
+                         + "– | " * (len(headers) - 8) + f"{'2M' if config.startswith('n5_') else '5M'} |")
     if imps:
         lines += ["", "Probability of improvement (decentralised over centralised) [95 % bootstrap CI]:", ""]
         for i in imps:
@@ -438,7 +453,7 @@ class Table:
 
         def write_csv(tmp: Path) -> None:
             with tmp.open("w", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=COLUMNS)
+                w = csv.DictWriter(f, fieldnames=columns())
                 w.writeheader()
                 w.writerows(self.rows)
 
@@ -495,7 +510,9 @@ def _rich_table(table: Table, shipped: bool, narrow: bool):
 
     out = RichTable(title=f"Test cumulative reward ({table.protocol or 'paper protocol'})", box=box.SIMPLE_HEAD,
                     title_justify="left", caption_justify="left", pad_edge=False)
-    columns = ["config", "method", "view", "seeds", "best", "median", "IQM [95 % CI]", "overflow", "samples"]
+    shown = metrics.shown_in("terminal")
+    columns = ["config", "method", "view", "seeds", "best", "median", "IQM [95 % CI]", *(m.short for m in shown),
+               "samples"]
     if narrow:
         columns = [c for c in columns if c not in ("view", "median", "samples")]
     for name in columns:
@@ -511,19 +528,20 @@ def _rich_table(table: Table, shipped: bool, narrow: bool):
                  "seeds": str(r["seeds"] or "–"), "best": f"{r['best_mean']:.2f} ± {r['best_std']:.2f}",
                  "median": f"{r['median_mean']:.2f} ± {r['median_std']:.2f}",
                  "IQM [95 % CI]": f"{r['iqm']:.2f} [{r['iqm_low']:.2f}, {r['iqm_high']:.2f}]" if r["seeds"] else "–",
-                 "overflow": _num(r["overflow_rate"]), "samples": _samples(r["samples"])})
+                 **{m.short: format_value(r[m.column], m.fmt) for m in shown}, "samples": _samples(r["samples"])})
         if "ppo" in PAPER_TABLE_1.get(config, {}):
             best, median = PAPER_TABLE_1[config]["ppo"]
             add({"config": "", "method": "paper PPO", "view": "centralised", "seeds": "15",
                  "best": f"{best[0]:.2f} ± {best[1]:.2f}", "median": f"{median[0]:.2f} ± {median[1]:.2f}",
-                 "IQM [95 % CI]": "–", "overflow": "–", "samples": "2M" if config.startswith("n5_") else "5M"},
+                 "IQM [95 % CI]": "–", **{m.short: "–" for m in shown},
+                 "samples": "2M" if config.startswith("n5_") else "5M"},
                 style="dim")
         if i < len(configs) - 1:
             out.add_section()
     out.caption = (
         "best / median: the best and the median policy over training seeds (by mean test return), mean ± std over "
-        "the test episodes; IQM: interquartile mean of the per-seed means; overflow: share of the best policy's "
-        "test episodes that end in an overflow; "
+        "the test episodes; IQM: interquartile mean of the per-seed means; "
+        + "".join(f"{m.short}: the best policy's {m.label} over the test episodes; " for m in shown)
         + ("" if narrow else "samples: training budget per run (plant steps for centralised methods, agent steps "
                              "for decentralised ones). ")
         + "Paper PPO: Table 1 of the paper ("
@@ -532,6 +550,7 @@ def _rich_table(table: Table, shipped: bool, narrow: bool):
            "published evaluation) is evaluated now, the other seeds' numbers are their published evaluations."
            if shipped and any(r["seeds"] for r in table.rows) else ""))
     return out
+
 
 def markdown_table(results: str | Path, reps: int = 2000) -> str:
     """The Markdown table of the evaluation files under ``results`` (see :func:`load_evaluations`)."""

@@ -54,6 +54,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
+from containergym_marl.evaluation import metrics
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text, open_file, refuse_links, refuse_links_in
 from containergym_marl.manifest import check_file, is_covered, read_manifest, write_manifest
@@ -364,9 +365,11 @@ def row_block(to: Path, config: str) -> str:
     behaviour, the paper's PPO and the probabilities of improvement."""
     data = _table_json(to)
     groups = {g.method: g for g in tables.load_evaluations(to / "evaluations") if g.config == config}
-    lines = ["| method | view | seeds | IQM [95 % CI] | median seed | lowest – highest seed | seeds with an "
-             "overflowing test episode | best seed: overflow rate | emptyings | r ≥ 0.75 | denied req. |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    shown = metrics.shown_in("row")
+    headers = ["method", "view", "seeds", "IQM [95 % CI]", "median seed", "lowest – highest seed",
+               "seeds with an overflowing test episode", *(("best seed: " if i == 0 else "") + m.label
+                                                           for i, m in enumerate(shown))]
+    lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
     for r in (r for r in data["rows"] if r["config"] == config):
         g = groups[r["method"]]
         means = g.seed_means
@@ -377,7 +380,7 @@ def row_block(to: Path, config: str) -> str:
             + f" | {r['median_mean']:.2f} | "
             + (f"{means.min():.2f} – {means.max():.2f}" if seeded else "–") + " | "
             + (f"{_overflowing_seeds(g)} of {len(means)}" if seeded else "–")
-            + f" | {r['overflow_rate']:.2f} | {r['emptyings']:.1f} | {r['good_share']:.2f} | {r['denied']:.1f} |")
+            + "".join(f" | {tables.format_value(r[m.column], m.fmt)}" for m in shown) + " |")
     paper = tables.PAPER_TABLE_1.get(config, {}).get("ppo")
     if paper:
         lines += ["", f"The paper's PPO on this row (15 seeds): best seed {paper[0][0]:.2f}, median seed {paper[1][0]:.2f}."]

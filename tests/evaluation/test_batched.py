@@ -14,6 +14,7 @@ import pytest
 
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.evaluation.batched import evaluate_batched
+from containergym_marl.evaluation.metrics import METRICS
 from containergym_marl.evaluation.run_policies import policy_from_run
 
 REPO = Path(__file__).resolve().parents[2]
@@ -32,12 +33,14 @@ def test_batched_evaluation_equals_the_one_environment_evaluation(run):
     batched = evaluate_batched(policy, config, EPISODES)
     assert [e.seed for e in batched.episodes] == EPISODES.seeds
     for a, b in zip(one.episodes, batched.episodes):
-        for field in dataclasses.fields(a):
-            x, y = getattr(a, field.name), getattr(b, field.name)
+        assert b.values.keys() == a.values.keys() == {m.name for m in METRICS}
+        for name, x, y in [("cumulative_reward", a.cumulative_reward, b.cumulative_reward),
+                           *((k, a.values[k], b.values[k]) for k in a.values)]:
+            assert type(y) is type(x), (run, a.seed, name)
             if isinstance(x, float) and np.isnan(x):
-                assert np.isnan(y), (run, a.seed, field.name)
+                assert np.isnan(y), (run, a.seed, name)
             else:
-                assert y == pytest.approx(x, rel=1e-9, abs=1e-9), (run, a.seed, field.name)
+                assert y == pytest.approx(x, rel=1e-9, abs=1e-9), (run, a.seed, name)
     assert batched.summary() == pytest.approx(one.summary(), nan_ok=True)
 
 
