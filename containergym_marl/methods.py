@@ -29,6 +29,8 @@ class Method:
     ``controller``: the policy class of a rule or a planner, built as ``controller(params)``;
     ``algo`` and ``reward_mode``: the algorithm and reward mode of a learned method;
     ``counterpart``: the centralised method the table compares this (decentralised) one with;
+    ``twin``: the same algorithm in another implementation (SB3's for the package's own PPO), which
+    this one should learn at least as well as;
     ``arbitration``: the rule that assigns free PUs to the decentralised view's requests."""
 
     name: str
@@ -37,6 +39,7 @@ class Method:
     algo: str | None = None
     reward_mode: str | None = None
     counterpart: str | None = None
+    twin: str | None = None
     arbitration: str = DEFAULT_ARBITRATION
 
     @property
@@ -73,10 +76,11 @@ def _controller(cls: type, kind: str, counterpart: str | None = None) -> Method:
     return Method(cls.name, kind, controller=cls, counterpart=counterpart)
 
 
-def _learned(algo: str, reward_mode: str | None = None, counterpart: str | None = None) -> Method:
+def _learned(algo: str, reward_mode: str | None = None, counterpart: str | None = None,
+             twin: str | None = None) -> Method:
     """A learned method, named by its algorithm's rule (``shared_ppo`` + team = ``shared_ppo_team``)."""
     return Method(get_algorithm(algo).method_name(reward_mode), "learned", algo=algo, reward_mode=reward_mode,
-                  counterpart=counterpart)
+                  counterpart=counterpart, twin=twin)
 
 
 #: Every method, by name, in the order of the table's columns.
@@ -91,9 +95,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     _learned("maskable_ppo"),
     _learned("shared_ppo", "individual", counterpart="ppo"),
     _learned("shared_ppo", "team", counterpart="ppo"),
-    _learned("fast_ppo"),
-    _learned("fast_shared_ppo", "individual", counterpart="fast_ppo"),
-    _learned("fast_shared_ppo", "team", counterpart="fast_ppo"),
+    _learned("fast_ppo", twin="ppo"),
+    _learned("fast_shared_ppo", "individual", counterpart="fast_ppo", twin="shared_ppo"),
+    _learned("fast_shared_ppo", "team", counterpart="fast_ppo", twin="shared_ppo_team"),
     # imitation of planner_agents: the centralised planner is their counterpart, as planner_agents'
     _learned("dagger_agents", counterpart="planner"),
     _learned("dagger_ppo_agents", "team", counterpart="planner"),
@@ -105,6 +109,8 @@ CONTROLLERS: dict[str, type] = {m.name: m.controller for m in METHODS.values() i
 COMPARABLE: tuple[str, ...] = tuple(m.name for m in METHODS.values() if not m.learned or m.trained_here)
 #: (decentralised, centralised) pairs whose probability of improvement the table reports.
 PAIRS: tuple[tuple[str, str], ...] = tuple((m.name, m.counterpart) for m in METHODS.values() if m.counterpart)
+#: (method, twin) pairs: the package's own implementation of an algorithm and another one of it.
+TWINS: tuple[tuple[str, str], ...] = tuple((m.name, m.twin) for m in METHODS.values() if m.twin)
 
 
 def get_method(name: str) -> Method:
@@ -115,4 +121,4 @@ def get_method(name: str) -> Method:
         raise ValueError(f"method: unknown method {name!r}; choose one of {tuple(METHODS)}") from None
 
 
-__all__ = ["COMPARABLE", "CONTROLLERS", "KINDS", "METHODS", "PAIRS", "Method", "get_method"]
+__all__ = ["COMPARABLE", "CONTROLLERS", "KINDS", "METHODS", "PAIRS", "TWINS", "Method", "get_method"]

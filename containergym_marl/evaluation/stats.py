@@ -38,6 +38,8 @@ Functions
 - :func:`stratified_bootstrap_ci`: ``(point, low, high)`` for any aggregate.
 - :func:`probability_of_improvement` and :func:`probability_of_improvement_ci`.
 - :func:`performance_profile` and :func:`performance_profile_ci`: rliable's run-score distribution.
+- :func:`performance_profile_ci_per_task` and :func:`probability_of_improvement_ci_per_task`: the
+  same for tasks with different numbers of runs (one array per task).
 - :func:`summarise` and :func:`format_ci` for tables.
 """
 
@@ -58,8 +60,10 @@ __all__ = [
     "median",
     "performance_profile",
     "performance_profile_ci",
+    "performance_profile_ci_per_task",
     "probability_of_improvement",
     "probability_of_improvement_ci",
+    "probability_of_improvement_ci_per_task",
     "stratified_bootstrap_ci",
     "stratified_bootstrap_samples",
     "summarise",
@@ -333,6 +337,59 @@ def performance_profile_ci(scores: Any, taus: Any, reps: int = 2000, confidence:
     alpha = 1.0 - confidence
     low, high = np.percentile(values, [100.0 * alpha / 2.0, 100.0 * (1.0 - alpha / 2.0)], axis=0)
     return _profile_batch(arr[None], grid)[0], low, high
+
+
+# --------------------------------------------------------------------------- tasks with different run counts
+
+
+def _tasks(tasks: Any, name: str) -> list[np.ndarray]:
+    arrays = [_as_scores(t, f"{name}[{k}]") for k, t in enumerate(tasks)]
+    if not arrays:
+        raise ValueError(f"{name} holds no task")
+    if any(a.shape[1] != 1 for a in arrays):
+        raise ValueError(f"{name}: each task is a 1-D array of its runs' scores")
+    return arrays
+
+
+def _per_task_interval(points: list[np.ndarray], replicates: list[np.ndarray], confidence: float):
+    values = np.mean(replicates, axis=0)
+    alpha = 1.0 - confidence
+    low, high = np.percentile(values, [100.0 * alpha / 2.0, 100.0 * (1.0 - alpha / 2.0)], axis=0)
+    return np.mean(points, axis=0), low, high
+
+
+def performance_profile_ci_per_task(tasks: Any, taus: Any, reps: int = 2000, confidence: float = 0.95,
+                                    rng: RngLike = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`performance_profile_ci` for tasks with different numbers of runs: ``tasks`` is one 1-D
+    array of run scores per task. Each replicate resamples every task's runs (stratified, as there)
+    and averages the tasks' profiles; with equal run counts the point is :func:`performance_profile`'s."""
+    arrays, grid = _tasks(tasks, "tasks"), np.asarray(taus, dtype=np.float64).reshape(-1)
+    _check_bootstrap_args(reps, confidence)
+    gen = _as_generator(rng)
+    points = [_profile_batch(a[None], grid)[0] for a in arrays]
+    replicates = [np.concatenate([_profile_batch(_resample(a, size, gen), grid)
+                                  for size in _chunk_sizes(reps, a.size * grid.size)]) for a in arrays]
+    return _per_task_interval(points, replicates, confidence)
+
+
+def probability_of_improvement_ci_per_task(x_tasks: Any, y_tasks: Any, reps: int = 2000, confidence: float = 0.95,
+                                           rng: RngLike = 0) -> Interval:
+    """:func:`probability_of_improvement_ci` for tasks with different numbers of runs (per task and
+    per method): ``x_tasks`` and ``y_tasks`` hold one 1-D array of run scores per task, the same
+    tasks in the same order."""
+    xs, ys = _tasks(x_tasks, "x_tasks"), _tasks(y_tasks, "y_tasks")
+    if len(xs) != len(ys):
+        raise ValueError(f"x and y must be scored on the same tasks: x has {len(xs)} task(s), y has {len(ys)}")
+    _check_bootstrap_args(reps, confidence)
+    gen = _as_generator(rng)
+    points = [_poi_batch(x[None], y[None])[0] for x, y in zip(xs, ys)]
+    replicates = []
+    for x, y in zip(xs, ys):
+        per_rep = x.shape[0] * y.shape[0] + x.size + y.size
+        replicates.append(np.concatenate([_poi_batch(_resample(x, size, gen), _resample(y, size, gen))
+                                          for size in _chunk_sizes(reps, per_rep)]))
+    point, low, high = _per_task_interval(points, replicates, confidence)
+    return Interval(float(point), float(low), float(high))
 
 
 # --------------------------------------------------------------------------- tables

@@ -58,7 +58,7 @@ from containergym_marl.evaluation import metrics
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text, open_file, refuse_links, refuse_links_in
 from containergym_marl.manifest import check_file, is_covered, read_manifest, write_manifest
-from containergym_marl.methods import PAIRS
+from containergym_marl.methods import PAIRS, TWINS
 from containergym_marl.options import option
 from containergym_marl.rundir import (
     checkpoint_files,
@@ -153,7 +153,9 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
 def republish(to: Path, min_seeds: int = 3, readme: Path | None = None, pages: tuple[Path, ...] = ()) -> dict:
     """What ``publish`` does once the runs and evaluations are in ``to``: every published policy on
     the validation episodes (where missing or its model changed), the best and median models picked
-    there, every policy on the fresh episodes, the table, the compute note, the manifest and the pages."""
+    there, every policy on the fresh episodes, the table, its figures over seeds and rows
+    (:func:`~containergym_marl.evaluation.aggregate_plots.draw_aggregate_figures`, in ``figures/``),
+    the compute note, the manifest and the pages."""
     refuse_links_in(to)
     done = {"models": [], "validation": evaluate_selection(to, min_seeds)}  # where best and median are picked
     for group in tables.load_evaluations(to):
@@ -183,6 +185,9 @@ def republish(to: Path, min_seeds: int = 3, readme: Path | None = None, pages: t
     done["fresh"] = evaluate_fresh(to, min_seeds)
     table = tables.build_table(tables.load_evaluations(to), PAIRS)
     table.write(to, {"source": "containergym-marl publish"})
+    from containergym_marl.evaluation.aggregate_plots import draw_aggregate_figures  # matplotlib: only here
+
+    done["figures"] = [str(p.relative_to(to)) for p in draw_aggregate_figures(to, pairs=TWINS + PAIRS)]
     atomic_write_text(to / "compute.md", training_compute(to / "runs"))
     write_manifest(to)
     if readme is not None or pages:

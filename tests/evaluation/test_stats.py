@@ -18,8 +18,11 @@ from containergym_marl.evaluation.stats import (
     iqm,
     mean,
     median,
+    performance_profile,
+    performance_profile_ci_per_task,
     probability_of_improvement,
     probability_of_improvement_ci,
+    probability_of_improvement_ci_per_task,
     stratified_bootstrap_ci,
     stratified_bootstrap_samples,
     summarise,
@@ -361,3 +364,33 @@ def test_performance_profile_interval_brackets_the_point_and_narrows_with_more_r
     many = rng.uniform(size=(200, 2))
     _, low_many, high_many = performance_profile_ci(many, taus, reps=500, rng=0)
     assert (high_many - low_many)[3:8].mean() < (high - low)[3:8].mean()
+
+
+# ---- tasks with different numbers of runs -----------------------------------------------------------
+def test_per_task_profile_and_improvement_with_equal_runs_match_the_array_forms():
+    rng = np.random.default_rng(5)
+    scores = rng.normal(size=(6, 3))
+    other = rng.normal(0.3, 1.0, size=(4, 3))
+    taus = np.linspace(-2, 2, 9)
+    point, low, high = performance_profile_ci_per_task([scores[:, t] for t in range(3)], taus, reps=300)
+    np.testing.assert_allclose(point, performance_profile(scores, taus))
+    assert np.all(low <= point + 1e-12) and np.all(point <= high + 1e-12)
+    p, lo, hi = probability_of_improvement_ci_per_task([other[:, t] for t in range(3)],
+                                                       [scores[:, t] for t in range(3)], reps=300)
+    assert p == pytest.approx(probability_of_improvement(other, scores), rel=1e-12)
+    assert lo <= p <= hi
+
+
+def test_per_task_forms_weigh_every_task_the_same_whatever_its_runs():
+    # task 0: 2 runs, both above 1; task 1: 5 runs, one above 1 -> share above 1 = (1 + 1/5) / 2
+    tasks = [np.array([2.0, 3.0]), np.array([0.0, 0.5, 0.2, 0.1, 4.0])]
+    point, _, _ = performance_profile_ci_per_task(tasks, [1.0], reps=50)
+    assert point[0] == pytest.approx(0.6)
+    # P(X > Y) on task 0 is 1 (every x beats every y), on task 1 it is 0.5 (ties only) -> 0.75
+    p, low, high = probability_of_improvement_ci_per_task([np.array([5.0, 6.0, 7.0]), np.array([1.0])],
+                                                          [np.array([0.0]), np.array([1.0, 1.0])], reps=200)
+    assert (p, low, high) == pytest.approx((0.75, 0.75, 0.75))  # no resample can change a sure win or a tie
+    with pytest.raises(ValueError, match="same tasks"):
+        probability_of_improvement_ci_per_task([np.ones(2)], [np.ones(2), np.ones(3)])
+    with pytest.raises(ValueError, match="1-D"):
+        performance_profile_ci_per_task([np.ones((2, 2))], [0.5])
