@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from containergym_marl.files import atomic_write_text
+from containergym_marl.orchestration.compare_args import PAPER_ROWS
 
-ROWS = ("n5_m2_dt60", "n5_m2_dt120", "n5_m5_dt60", "n5_m5_dt120", "n11_m2_dt60", "n11_m2_dt120",
-        "n11_m11_dt60", "n11_m11_dt120", "n16_m2_dt120")
+ROWS = PAPER_ROWS
 METHODS = ("dagger_agents", "dagger_ppo_agents")
 REFERENCE = "planner_agents"
 #: the row on which the decision time is measured (n = 11)

@@ -400,8 +400,9 @@ def write_config(method: str, study, path: Path) -> dict[str, Any]:
     if not done:
         raise ValueError(f"--write-config: no trial of {method}'s search has finished yet; nothing to write")
     best = max(done, key=lambda t: t.value)
-    source = (f"studies/native_ppo_tuning.py: trial {best.number} of {len(done)} finished, IQM share of "
-              f"rule_based_agents {best.value:.3f} on validation episodes (results/ppo_tuning/{method}/trials.md)")
+    source = (f"studies/native_ppo_tuning.py: trial {best.number}, the best of the {len(done)} trials judged on "
+              f"every run (the others were pruned), IQM share of rule_based_agents {best.value:.3f} on validation "
+              f"episodes (results/ppo_tuning/{method}/trials.md)")
     write_settings(path, dict(best.params), source)
     return dict(best.params)
 

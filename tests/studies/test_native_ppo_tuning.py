@@ -111,7 +111,7 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     finished = [t for t in _study(out).get_trials() if t.state == optuna.trial.TrialState.COMPLETE]
     best = max(finished, key=lambda t: t.value)
     settings, source = read_settings(tmp_path / "chosen.toml")
-    assert settings == best.params and f"trial {best.number} of {len(finished)} finished" in source
+    assert settings == best.params and f"trial {best.number}, the best of the {len(finished)} trials judged" in source
 
     # another method's search starts from this one's best settings after its own default, reading this
     # search's journal without writing to it (as --report reads its own)

@@ -22,7 +22,9 @@ from containergym_marl.training.checkpoints import read_progress
 from tests.helpers import train_until_killed
 
 # 2 simulations, rollouts of 16 steps, training episodes of T = 20 steps (they finish)
-TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 32},
+# the trainer's own defaults for the rest, whatever a method's settings file chooses
+TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 32, "learning_rate": 3e-4,
+                                                       "ent_coef": 0.0},
             overrides={"episode_length_steps": 20})
 SHORT = EvalProtocol(episodes=2, episode_length_steps=60)
 
@@ -157,10 +159,11 @@ def test_explained_variance_by_hand():
                                                 ("fast_shared_ppo", "n16_m2_dt120", 4),
                                                 ("fast_ppo", "n16_m2_dt120", 64)])
 def test_samples_per_update_do_not_grow_with_the_plant(algo, config, sims, tmp_path):
-    """By default a run steps as many simulations as make about 4096 samples per 64-step rollout:
-    4096 / (64 x n) for the container agents (n = 5: 12.8 -> 13, n = 11: 5.8 -> 6, n = 16: 4), 64 for
-    the controller; the metrics rows are one rollout apart."""
+    """A run steps as many simulations as make about ``rollout_samples`` (here 4096) samples per
+    64-step rollout: 4096 / (64 x n) for the container agents (n = 5: 12.8 -> 13, n = 11: 5.8 -> 6,
+    n = 16: 4), 64 for the controller; the metrics rows are one rollout apart."""
     run = train(TrainArgs(algo=algo, config=config, out=str(tmp_path / "r"), timesteps=1, progress_bar=False,
+                          hyperparams={"rollout_samples": 4096, "n_steps": 64},
                           overrides={"episode_length_steps": 20}))
     assert run_args(run)["n_envs"] == sims
     n = int(config.split("_")[0][1:]) if algo == "fast_shared_ppo" else 1
