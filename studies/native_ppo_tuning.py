@@ -41,6 +41,11 @@ left running is marked failed when the search starts again and its setting is qu
 finished runs are reused, from the journal where their folders are gone (another machine). One search per method at a time (a lock on its folder); the ``--workers``
 processes share the journal.
 
+**Regression guards.** ``--guards`` trains the default and the best finished trial's setting on
+:data:`GUARD_ROWS` (the contended rows, where the published native PPO does well) with the same
+seeds, validates them the same way and adds their table to trials.md (``guards.json``): a chosen
+setting must not lose there what it gains on the search rows.
+
 **What is chosen.** ``--write-config`` writes the best finished trial's settings (highest value) as the
 method's settings file, ``configs/hyperparams/<method>.toml``, which ``train`` and ``compare`` read
 (:mod:`containergym_marl.config.hyperparams`).
@@ -74,6 +79,9 @@ from containergym_marl.rundir import RunLock, checkpoints, read_run_summary, run
 ROWS = ("n5_m2_dt60", "n5_m2_dt120", "n5_m5_dt60", "n5_m5_dt120", "n11_m11_dt60")
 #: Training seeds of the search; the published runs use 1-15.
 SEEDS = (101, 102, 103, 104, 105)
+#: The regression guards: the contended rows, where the published native PPO does well, on which the
+#: chosen setting is checked against the default with the same seeds (``--guards``).
+GUARD_ROWS = ("n11_m2_dt120", "n16_m2_dt120")
 #: Runs before the pruner may stop a trial: every n = 5 row of the first seed.
 WARMUP_RUNS = 4
 #: The searched settings: a list of choices, or (low, high) for a log-uniform float.
@@ -344,6 +352,73 @@ def _nanmean(values) -> float | None:
     return float(np.mean(values)) if values else None
 
 
+def guard_settings(study) -> list[tuple[str, dict[str, Any]]]:
+    """(label, settings) the guards compare: the default and the best finished trial's setting."""
+    optuna = require_optuna()
+    done = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE]
+    if not done:
+        raise ValueError("--guards: no trial has finished yet; nothing to guard")
+    best = max(done, key=lambda t: t.value)
+    chosen = [("default", dict(DEFAULT_TRIAL))]
+    if best.params != DEFAULT_TRIAL:
+        chosen.append((f"trial {best.number}", dict(best.params)))
+    return chosen
+
+
+def _guard_task(method: str, runs: str, label: str, hp: dict[str, Any], row: str, seed: int,
+                timesteps: int | None) -> tuple[str, dict[str, Any]]:
+    run = Path(runs) / settings_key(hp) / run_name(method, row, seed)
+    return label, train_and_validate(method, row, seed, hp, run, timesteps)
+
+
+def run_guards(method: str, study, runs: Path, out: Path, rows, seeds, timesteps: int | None, workers: int) -> dict:
+    """Train and validate the default and the chosen setting on the guard rows with the search's
+    seeds (resumable: finished runs are reused), on ``workers`` processes; writes ``out``/guards.json
+    after every run."""
+    settings = guard_settings(study)
+    rule = rule_returns(rows, out / "rule_based_agents_validation.json")
+    result = {"rows": list(rows), "seeds": list(seeds), "rule_based_agents_validation_return": rule,
+              "settings": {label: {"params": hp, "runs": []} for label, hp in settings}}
+    tasks = [(method, str(runs), label, hp, row, seed, timesteps) for label, hp in settings
+             for seed in seeds for row in rows]
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Pool(max(workers, 1), maxtasksperchild=1) as pool:
+        for label, entry in pool.imap_unordered(_star_guard, tasks):
+            entry = {**entry, "score": entry["validation_return"] / rule[entry["row"]]}
+            result["settings"][label]["runs"].append(entry)
+            result["settings"][label]["runs"].sort(key=lambda e: (e["seed"], e["row"]))
+            atomic_write_text(out / "guards.json", json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def _star_guard(task):
+    return _guard_task(*task)
+
+
+def guards_report(out: Path) -> str:
+    """The guards' table (``out``/guards.json), or "" when none ran."""
+    path = out / "guards.json"
+    if not path.is_file():
+        return ""
+    data = json.loads(path.read_text())
+    lines = ["", "## Regression guards", "",
+             f"The default and the chosen setting on {', '.join(data['rows'])} with seeds {data['seeds'][0]}-"
+             f"{data['seeds'][-1]} at the paper's budget, scored as above (`--guards`).", "",
+             "| setting | row | runs | IQM share | mean share | half budget | overflowing episodes |",
+             "|---|---|---|---|---|---|---|"]
+    for label, entry in data["settings"].items():
+        for row in data["rows"]:
+            runs = [e for e in entry["runs"] if e["row"] == row]
+            if not runs:
+                continue
+            scores = [e["score"] for e in runs]
+            half = _nanmean([e["half_budget_return"] / data["rule_based_agents_validation_return"][row] for e in runs])
+            lines.append(f"| {label} | {row} | {len(runs)} | {iqm(scores):.3f} | {np.mean(scores):.3f} | "
+                         f"{'–' if half is None else f'{half:.3f}'} | "
+                         f"{sum(e['overflowing_episodes'] for e in runs)} |")
+    return "\n".join(lines) + "\n"
+
+
 def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
     rows = trial_rows(study)
     # a run reused by a trial queued again (the same setting) is counted once
@@ -380,7 +455,7 @@ def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
         lines.append(f"| {r['number']} | {state} | " + " | ".join(cells) +
                      f" | {len(r['runs'])} | {fmt(r['value'])} | {fmt(r['mean_score'])} | "
                      f"{fmt(r['half_budget_score'])} | {r['overflowing_episodes']} | {r['cpu_s'] / 3600:.2f} |")
-    text = "\n".join(lines) + "\n"
+    text = "\n".join(lines) + "\n" + guards_report(out)
     atomic_write_text(out / "trials.md", text)
     return text
 
@@ -424,6 +499,9 @@ def main(argv=None) -> None:
     p.add_argument("--start-from", default=None, metavar="METHOD:K",
                    help="a new search's first trials after the default: the K best settings of METHOD's search "
                         "(its journal under --out), e.g. fast_shared_ppo:3 for fast_shared_ppo_team")
+    p.add_argument("--guards", action="store_true",
+                   help="train nothing new for the search: train and validate the default and the best finished "
+                        f"trial's setting on the regression guards ({', '.join(GUARD_ROWS)}) with the same seeds")
     p.add_argument("--write-config", nargs="?", const="", default=None, metavar="PATH",
                    help="train nothing: write the best finished trial's settings as the method's settings file "
                         "(default configs/hyperparams/<method>.toml)")
@@ -438,8 +516,12 @@ def main(argv=None) -> None:
     rule = rule_returns(rows, out / "rule_based_agents_validation.json")
     journal = out / "journal.log"
     with RunLock(out):  # one search of a method at a time (an OS lock, released however the search ends)
-        study = open_study(ns.method, journal, sampler_seed=0, read_only=ns.report and journal.is_file())
-        if not ns.report:
+        study = open_study(ns.method, journal, sampler_seed=0,
+                           read_only=(ns.report or ns.guards) and journal.is_file())
+        if ns.guards:
+            guard_rows = rows[:1] if ns.smoke else GUARD_ROWS
+            run_guards(ns.method, study, runs, out, guard_rows, seeds, timesteps, ns.workers)
+        elif not ns.report:
             requeued = requeue_interrupted(study)
             if requeued:
                 print(f"{requeued} interrupted trial(s) queued again")

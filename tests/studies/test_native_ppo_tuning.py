@@ -113,6 +113,21 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     settings, source = read_settings(tmp_path / "chosen.toml")
     assert settings == best.params and f"trial {best.number}, the best of the {len(finished)} trials judged" in source
 
+    # the regression guards (at smoke size: the search's own row and seed) compare the default with
+    # the chosen setting, reusing the runs the search trained, and leave the journal alone
+    journal = (out / "fast_shared_ppo" / "journal.log").read_bytes()
+    _search(out, runs, "--guards")
+    guards = json.loads((out / "fast_shared_ppo" / "guards.json").read_text())
+    expected = {"default": DEFAULT_TRIAL} | ({} if best.params == DEFAULT_TRIAL else {f"trial {best.number}": best.params})
+    assert {label: g["params"] for label, g in guards["settings"].items()} == expected
+    searched = {(t.params == DEFAULT_TRIAL, e["row"], e["seed"]): e["validation_return"]
+                for t in finished for k, e in t.user_attrs.items() if k.startswith("run_")}
+    for label, g in guards["settings"].items():
+        (entry,) = g["runs"]
+        assert entry["validation_return"] == searched[(label == "default", entry["row"], entry["seed"])]
+    assert "## Regression guards" in (out / "fast_shared_ppo" / "trials.md").read_text()
+    assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
+
     # another method's search starts from this one's best settings after its own default, reading this
     # search's journal without writing to it (as --report reads its own)
     journal = (out / "fast_shared_ppo" / "journal.log").read_bytes()
