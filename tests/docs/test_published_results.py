@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from containergym_marl.evaluation import table as tables
 from containergym_marl.orchestration import publish as publish_results
 
@@ -54,13 +56,14 @@ def test_compact_table_has_one_row_per_config_and_the_iqm_of_each_method(tmp_pat
     to.mkdir()
     rows = [{"config": "n5_m2_dt120", "method": "rule_based", "seeds": 0, "iqm": 58.855},
             {"config": "n5_m2_dt120", "method": "ppo", "seeds": 5, "iqm": 50.11},
-            {"config": "n11_m2_dt120", "method": "rule_based", "seeds": 0, "iqm": 76.8}]
+            {"config": "n11_m2_dt120", "method": "rule_based", "seeds": 0, "iqm": 76.8},
+            {"config": "n11_m2_dt120", "method": "planner_agents", "seeds": 0, "iqm": 96.84}]
     (to / "table.json").write_text(json.dumps({"rows": rows}))
     lines = publish_results.compact_table(to).splitlines()
-    assert lines[0] == "| row | `rule_based` | `ppo` |"
-    assert lines[2] == "| `n5_m2_dt120` | 58.9 | 50.1 (5) |"
-    assert lines[3] == "| `n11_m2_dt120` | 76.8 | – |"
-    assert "(5 evaluated policies)" in lines[5]
+    assert lines[0] == "| row | `rule_based` | `ppo` | `planner_agents` |"  # the planner: the last column
+    assert lines[2] == "| `n5_m2_dt120` | 58.9 | 50.1 (5) | – |"
+    assert lines[3] == "| `n11_m2_dt120` | 76.8 | – | 96.8 |"
+    assert "(5 evaluated policies)" in lines[5] and "rule-based controllers and the rollout planner" in lines[5]
 
 
 def test_fill_page_replaces_known_blocks_and_refuses_unknown_ones():
@@ -118,3 +121,18 @@ def test_readme_block_is_replaced_in_place_and_a_missing_marker_is_named(tmp_pat
     else:
         raise AssertionError("a README without markers was accepted")
     assert readme.read_text() == "no markers\n"  # untouched
+
+
+def test_the_published_planner_is_the_planner_study_s_default_setting():
+    """The rollout planner's rows of the table (evaluated like the rules by compare) are the numbers
+    studies/planner_rows.py found for its default setting on the same test episodes."""
+    import json
+
+    study = {(e["row"], e["method"]): e["return_mean"]
+             for e in json.loads((ROOT / "results" / "planner" / "rows.json").read_text())["evaluations"]
+             if e["setting"] == "default"}
+    rows = [r for r in json.loads((PUBLISHED / "table.json").read_text())["rows"] if r["method"].startswith("planner")]
+    assert {(r["config"], r["method"]) for r in rows} == set(study)
+    for r in rows:
+        assert r["best_mean"] == pytest.approx(study[(r["config"], r["method"])], rel=1e-12), r["config"]
+        assert r["fresh_episodes"] == 200 and r["seeds"] == 0
