@@ -339,7 +339,8 @@ def trial_rows(study) -> list[dict[str, Any]]:
         runs = [v for k, v in sorted(t.user_attrs.items()) if k.startswith("run_")]
         out.append({"number": t.number, "state": t.state.name, "duplicate_of": t.user_attrs.get("duplicate_of"),
                     "finalist_of": t.user_attrs.get("finalist_of"),
-                    "params": t.params, "value": t.value,
+                    # a queued trial's settings are Optuna's fixed parameters until a worker takes it
+                    "params": t.params or dict(t.system_attrs.get("fixed_params", {})), "value": t.value,
                     "runs": runs, "mean_score": float(np.mean([r["score"] for r in runs])) if runs else None,
                     "overflowing_episodes": sum(r["overflowing_episodes"] for r in runs),
                     "half_budget_score": _nanmean([r["half_budget_score"] for r in runs]),
