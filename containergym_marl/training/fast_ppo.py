@@ -269,8 +269,9 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
     best_file = run / "best_model.pt"
 
     while state.num_timesteps < budget:
-        # ---- rollout: n_steps steps of every slot with the current policy
-        with torch.no_grad():
+        # ---- rollout: n_steps steps of every slot with the current policy (inference mode: no
+        # autograd bookkeeping on the rollout's small tensors; the buffers are ordinary tensors)
+        with torch.inference_mode():
             for t in range(n_steps):
                 masks = torch.from_numpy(env.action_masks()) if mask_buf is not None else None
                 logits, values = nets.forward(obs, keep=False)

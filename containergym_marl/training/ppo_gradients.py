@@ -104,6 +104,9 @@ class MLPGradients:
 
     def __init__(self, model: ActorCritic, optimizer=None):
         self.layers = [[m for m in net if isinstance(m, torch.nn.Linear)] for net in (model.net.actor, model.net.critic)]
+        # each layer's (weight, bias) Parameters, looked up once: a module attribute lookup costs about
+        # as much as the rollout's small matrix product (the Parameters persist when their data moves)
+        self.params = [[(linear.weight, linear.bias) for linear in layers] for layers in self.layers]
         params = list(model.net.parameters())
         self.flat_grad = optimizer.flat_grad if isinstance(optimizer, FlatAdam) else torch.zeros(
             sum(p.numel() for p in params))
@@ -114,33 +117,38 @@ class MLPGradients:
     def forward(self, obs: torch.Tensor, keep: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
         """The raw logits [B, A] and values [B] of observations [B, F]; with ``keep``, the
         activations for :meth:`backward` (without: the rollout's forward, no module calls)."""
+        if torch.is_grad_enabled():
+            with torch.no_grad():
+                return self._forward(obs, keep)
+        return self._forward(obs, keep)  # the rollout runs in inference mode: no context to enter
+
+    def _forward(self, obs: torch.Tensor, keep: bool) -> tuple[torch.Tensor, torch.Tensor]:
         outputs = []
-        with torch.no_grad():
-            for k, layers in enumerate(self.layers):
-                inputs, x = [], obs
-                for i, linear in enumerate(layers):
-                    inputs.append(x)
-                    x = torch.addmm(linear.bias, x, linear.weight.t())
-                    if i < len(layers) - 1:
-                        x = _tanh_(x)
-                if keep:
-                    self._inputs[k] = inputs
-                outputs.append(x)
+        for k, layers in enumerate(self.params):
+            inputs, x, last = [], obs, len(layers) - 1
+            for i, (weight, bias) in enumerate(layers):
+                inputs.append(x)
+                x = torch.addmm(bias, x, weight.t())
+                if i < last:
+                    x = _tanh_(x)
+            if keep:
+                self._inputs[k] = inputs
+            outputs.append(x)
         return outputs[0], outputs[1].squeeze(-1)
 
     def backward(self, g_logits: torch.Tensor, g_values: torch.Tensor) -> None:
         with torch.no_grad():
-            for layers, inputs, g in zip(self.layers, self._inputs, (g_logits, g_values[:, None])):
+            for layers, inputs, g in zip(self.params, self._inputs, (g_logits, g_values[:, None])):
                 for i in reversed(range(len(layers))):
-                    linear, x = layers[i], inputs[i]
-                    linear.bias.grad.copy_(g.sum(0))
+                    (weight, bias), x = layers[i], inputs[i]
+                    bias.grad.copy_(g.sum(0))
                     # dW = gᵀ x, the product taken with the narrower side as its rows (F = 7: 5× faster)
                     if x.shape[1] < g.shape[1]:
-                        linear.weight.grad.copy_(x.t().mm(g).t())
+                        weight.grad.copy_(x.t().mm(g).t())
                     else:
-                        torch.mm(g.t(), x, out=linear.weight.grad)
+                        torch.mm(g.t(), x, out=weight.grad)
                     if i > 0:  # through the layer, then through the tanh that made x: (1 − x²)
-                        g = g.mm(linear.weight)
+                        g = g.mm(weight)
                         g = torch.addcmul(g, g * x, x, value=-1.0)
             self._inputs = [[], []]
 

@@ -169,3 +169,16 @@ def test_threads_smoke_times_both_layouts(tmp_path):
     assert [m["threads"] for m in data["measured"]["two threads"]] == [2]
     assert all(m["samples_per_wall_s"] > 0 and m["cpu_s"] > 0 for ms in data["measured"].values() for m in ms)
     assert len(data["ratios"]) == 1
+
+
+def test_trainer_ab_compares_a_checkout_with_itself(tmp_path):
+    """Two checkouts of the same code train the same model (the hash check can pass) and the table
+    has both sides."""
+    out = tmp_path / "ab.json"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "trainer_ab.py"), "--other", str(REPO),
+                           "--samples", "5000", "--rounds", "1", "--json", str(out)],
+                          capture_output=True, text=True, timeout=600, check=True)
+    report = json.loads(out.read_text())
+    assert report["identical_models"] is True
+    assert {r["samples"] for side in report["runs"].values() for r in side} == {report["runs"]["this"][0]["samples"]}
+    assert "final models identical" in proc.stdout and "| this (" in proc.stdout and "| other (" in proc.stdout
