@@ -366,8 +366,9 @@ def guard_settings(study) -> list[tuple[str, dict[str, Any]]]:
     return chosen
 
 
-def _guard_task(method: str, runs: str, label: str, hp: dict[str, Any], row: str, seed: int,
-                timesteps: int | None) -> tuple[str, dict[str, Any]]:
+def _guard_task(task: tuple) -> tuple[str, dict[str, Any]]:
+    """One guard run: (method, runs folder, label, settings, row, seed, timesteps) -> (label, its entry)."""
+    method, runs, label, hp, row, seed, timesteps = task
     run = Path(runs) / settings_key(hp) / run_name(method, row, seed)
     return label, train_and_validate(method, row, seed, hp, run, timesteps)
 
@@ -384,16 +385,12 @@ def run_guards(method: str, study, runs: Path, out: Path, rows, seeds, timesteps
              for seed in seeds for row in rows]
     ctx = multiprocessing.get_context("spawn")
     with ctx.Pool(max(workers, 1), maxtasksperchild=1) as pool:
-        for label, entry in pool.imap_unordered(_star_guard, tasks):
+        for label, entry in pool.imap_unordered(_guard_task, tasks):
             entry = {**entry, "score": entry["validation_return"] / rule[entry["row"]]}
             result["settings"][label]["runs"].append(entry)
             result["settings"][label]["runs"].sort(key=lambda e: (e["seed"], e["row"]))
             atomic_write_text(out / "guards.json", json.dumps(result, indent=1) + "\n")
     return result
-
-
-def _star_guard(task):
-    return _guard_task(*task)
 
 
 def guards_report(out: Path) -> str:

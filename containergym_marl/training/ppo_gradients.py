@@ -103,10 +103,10 @@ class MLPGradients:
     """
 
     def __init__(self, model: ActorCritic, optimizer=None):
-        self.layers = [[m for m in net if isinstance(m, torch.nn.Linear)] for net in (model.net.actor, model.net.critic)]
         # each layer's (weight, bias) Parameters, looked up once: a module attribute lookup costs about
         # as much as the rollout's small matrix product (the Parameters persist when their data moves)
-        self.params = [[(linear.weight, linear.bias) for linear in layers] for layers in self.layers]
+        self.params = [[(m.weight, m.bias) for m in net if isinstance(m, torch.nn.Linear)]
+                       for net in (model.net.actor, model.net.critic)]
         params = list(model.net.parameters())
         self.flat_grad = optimizer.flat_grad if isinstance(optimizer, FlatAdam) else torch.zeros(
             sum(p.numel() for p in params))
