@@ -119,22 +119,17 @@ METRICS: tuple[Metric, ...] = (
 )
 
 
-def metrics() -> tuple[Metric, ...]:
-    """The metrics, read at each call (so every renderer sees the same list)."""
-    return METRICS
-
-
 def shown_in(renderer: str) -> list[Metric]:
     """The metrics a renderer shows, in order."""
     if renderer not in RENDERERS:
         raise ValueError(f"unknown renderer {renderer!r}; known: {sorted(RENDERERS)}")
-    return [m for m in metrics() if renderer in m.shows]
+    return [m for m in METRICS if renderer in m.shows]
 
 
 def finish(totals: dict[str, float]) -> dict[str, float | int | bool]:
     """Each metric's episode value from its summed counts (``totals``: by name, with ``"steps"``)."""
     values: dict[str, float | int | bool] = {}
-    for m in metrics():
+    for m in METRICS:
         total = totals[m.name]
         if m.per is not None:
             base = totals[m.per]
@@ -145,19 +140,19 @@ def finish(totals: dict[str, float]) -> dict[str, float | int | bool]:
 
 def episode_values(steps: Steps) -> dict[str, float | int | bool]:
     """Every metric of one episode whose steps are the leading axis of ``steps``."""
-    return finish({m.name: float(np.sum(m.count(steps))) for m in metrics()})
+    return finish({m.name: float(np.sum(m.count(steps))) for m in METRICS})
 
 
 class BatchTotals:
     """Every metric's sum over the steps of B simulations' episodes, one batched step at a time."""
 
     def __init__(self, sims: int):
-        self.totals = {m.name: np.zeros(sims) for m in metrics()}
+        self.totals = {m.name: np.zeros(sims) for m in METRICS}
 
     def add(self, steps: Steps, active: np.ndarray) -> None:
         """Add one step of every simulation whose episode is still running (``active``)."""
         weight = active.astype(float)
-        for m in metrics():
+        for m in METRICS:
             self.totals[m.name] += weight * m.count(steps)
 
     def values(self, sim: int) -> dict[str, float | int | bool]:
@@ -167,7 +162,7 @@ class BatchTotals:
 def summary(episodes: list[dict]) -> dict[str, float]:
     """Each metric's mean over the episodes where it is defined, by summary key (NaN where none is)."""
     out = {}
-    for m in metrics():
+    for m in METRICS:
         vals = np.array([e[m.name] for e in episodes], dtype=float)
         vals = vals[~np.isnan(vals)]
         out[m.summary] = float(vals.mean()) if vals.size else float("nan")
