@@ -309,11 +309,13 @@ def short_horizons_best():
                for p in ("n11_m2", "n16_m2"))
 
 
-def planner_overflows_on_fresh_n16():
+def planner_overflows_on_fresh():
     fresh = [setting("n16_m2", v, "defaults", "fresh") for v in VIEWS]
     replays = [r for k, r in validation().items() if k[0] == "replay" and k[1] == "n16_m2"]
     overflowed = sum(r["overflowing_episodes"] for r in fresh)
+    n11 = [setting("n11_m2", v, "defaults", "fresh") for v in VIEWS]
     return (all(r["episodes"] >= 200 and 0.02 <= r["overflowing_episodes"] / r["episodes"] <= 0.03 for r in fresh)
+            and all(r["episodes"] >= 200 and 0.01 <= r["overflowing_episodes"] / r["episodes"] <= 0.015 for r in n11)
             and len(replays) == 6 and all(r["overflowing_episodes"] <= 1 for r in replays)
             and sum(r["episodes"] for r in replays) == 3 * overflowed)
 
@@ -464,9 +466,9 @@ PLANNER_CLAIMS = {
         min_reward_zero_safe,
     "In the container agents' view, H = 4–8 scores above every longer horizon on both contended plants.":
         short_horizons_best,
-    "The planner is not overflow-free: on `n16_m2` both views overflow in 2–3 % of the fresh episodes. Replayed "
-    "with another planner seed or with 64 futures, almost none of those episodes overflows again":
-        planner_overflows_on_fresh_n16,
+    "The planner is not overflow-free: on `n16_m2` both views overflow in 2–3 % of the fresh episodes, on `n11_m2` "
+    "in 1–1.5 %. Replayed with another planner seed or with 64 futures, almost none of those episodes overflows again":
+        planner_overflows_on_fresh,
     "over five seeds each, greedy acting scored within 0.2 of sampling on `n11_m2_dt60` and 1.7 higher on "
     "`n11_m2_dt120`.": greedy_against_sampled,
     "On the two seeds tried, keeping every labelled sample instead of the latest million, or a wider network, did "
