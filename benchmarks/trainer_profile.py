@@ -37,6 +37,7 @@ import torch
 
 from containergym_marl.algorithms import get_algorithm
 from containergym_marl.config import load_config
+from containergym_marl.config.hyperparams import method_settings
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, new_state
 from containergym_marl.training.ppo_gradients import MLPGradients, ppo_loss_gradients
@@ -63,8 +64,9 @@ def _env(spec, plant, sims):
 def profile(algo: str, config: str, samples: int, repeats: int) -> dict:
     torch.set_num_threads(1)
     spec, plant = get_algorithm(algo), load_config(config)
-    hp = PPOArgs()
-    sims = spec.default_sims(plant.n_containers)
+    # the settings the run trains with (its method's file), so the phases are timed at the run's shape
+    hp = PPOArgs.from_hyperparams(method_settings(spec.method_name(None)))
+    sims = spec.default_sims(plant.n_containers, settings=hp)
     env = _env(spec, plant, sims)
     slots, steps = env.num_envs, hp.n_steps
     rollout = slots * steps
