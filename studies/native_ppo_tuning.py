@@ -46,6 +46,12 @@ processes share the journal.
 seeds, validates them the same way and adds their table to trials.md (``guards.json``): a chosen
 setting must not lose there what it gains on the search rows.
 
+**The discount at δ = 60 s.** ``--discount`` trains the best finished trial's setting with γ = 0.995
+per decision (:data:`DT60_GAMMA`; or the γ given) on the search's δ = 60 s rows with the same seeds
+and sets it beside the same setting's own runs at γ = 0.99 (``discount.json``, a table in trials.md):
+γ = 0.99 per 60-s decision halves the horizon in plant time. The result is a labelled variant; the
+settings file keeps the paper's γ.
+
 **What is chosen.** ``--write-config`` writes the best finished trial's settings (highest value) as the
 method's settings file, ``configs/hyperparams/<method>.toml``, which ``train`` and ``compare`` read
 (:mod:`containergym_marl.config.hyperparams`).
@@ -82,6 +88,9 @@ SEEDS = (101, 102, 103, 104, 105)
 #: The regression guards: the contended rows, where the published native PPO does well, on which the
 #: chosen setting is checked against the default with the same seeds (``--guards``).
 GUARD_ROWS = ("n11_m2_dt120", "n16_m2_dt120")
+#: The discount every trial trains with (the paper's, per decision), and the labelled variant for δ = 60 s:
+#: 0.995 per decision of 60 s is about 0.99 per 120 s, the horizon in plant time of the δ = 120 s rows.
+GAMMA, DT60_GAMMA = 0.99, 0.995
 #: Runs before the pruner may stop a trial: every n = 5 row of the first seed.
 WARMUP_RUNS = 4
 #: The searched settings: a list of choices, or (low, high) for a log-uniform float.
@@ -153,9 +162,10 @@ def recorded_runs(study) -> dict[tuple[str, str, int], dict[str, Any]]:
 
 
 def train_and_validate(method: str, row: str, seed: int, hp: dict[str, Any], run: Path,
-                       timesteps: int | None) -> dict[str, Any]:
-    """Train (or resume, or reuse) one run and evaluate its best model, and the checkpoint nearest
-    half its budget, on the validation episodes; cached in ``run``/validation.json."""
+                       timesteps: int | None, gamma: float = GAMMA) -> dict[str, Any]:
+    """Train (or resume, or reuse) one run, discounting by ``gamma``, and evaluate its best model,
+    and the checkpoint nearest half its budget, on the validation episodes; cached in
+    ``run``/validation.json."""
     from containergym_marl.evaluation.run_policies import policy_from_run
     from containergym_marl.policies.actor_critic import policy_for
     from containergym_marl.training import TrainArgs, train
@@ -174,7 +184,7 @@ def train_and_validate(method: str, row: str, seed: int, hp: dict[str, Any], run
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # a resume's notes
                 train(TrainArgs(algo=spec.algo, config=row, seed=seed, out=str(run), timesteps=timesteps,
-                                resume=status == "interrupted", hyperparams=dict(hp), progress_bar=False,
+                                resume=status == "interrupted", hyperparams=dict(hp), progress_bar=False, gamma=gamma,
                                 **spec.train_settings()))
         finally:
             cpu += time.process_time() - start
@@ -353,55 +363,96 @@ def _nanmean(values) -> float | None:
     return float(np.mean(values)) if values else None
 
 
-def guard_settings(study) -> list[tuple[str, dict[str, Any]]]:
-    """(label, settings) the guards compare: the default and the best finished trial's setting."""
+def best_trial(study, option: str):
+    """The finished trial with the highest value; a ValueError naming ``option`` when none has finished."""
     optuna = require_optuna()
     done = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE]
     if not done:
-        raise ValueError("--guards: no trial has finished yet; nothing to guard")
-    best = max(done, key=lambda t: t.value)
-    chosen = [("default", dict(DEFAULT_TRIAL))]
+        raise ValueError(f"{option}: no trial has finished yet")
+    return max(done, key=lambda t: t.value)
+
+
+def guard_settings(study) -> list[tuple[str, dict[str, Any], float]]:
+    """(label, settings, γ) the guards compare: the default and the best finished trial's setting."""
+    best = best_trial(study, "--guards")
+    chosen = [("default", dict(DEFAULT_TRIAL), GAMMA)]
     if best.params != DEFAULT_TRIAL:
-        chosen.append((f"trial {best.number}", dict(best.params)))
+        chosen.append((f"trial {best.number}", dict(best.params), GAMMA))
     return chosen
 
 
-def _guard_task(task: tuple) -> tuple[str, dict[str, Any]]:
-    """One guard run: (method, runs folder, label, settings, row, seed, timesteps) -> (label, its entry)."""
-    method, runs, label, hp, row, seed, timesteps = task
-    run = Path(runs) / settings_key(hp) / run_name(method, row, seed)
-    return label, train_and_validate(method, row, seed, hp, run, timesteps)
+def discount_settings(study, gamma: float) -> list[tuple[str, dict[str, Any], float]]:
+    """(label, settings, γ) of the discount variant: the best finished trial's setting with the
+    search's γ and with ``gamma``."""
+    best = best_trial(study, "--discount")
+    return [(f"trial {best.number}, γ = {GAMMA}", dict(best.params), GAMMA),
+            (f"trial {best.number}, γ = {gamma}", dict(best.params), gamma)]
 
 
-def run_guards(method: str, study, runs: Path, out: Path, rows, seeds, timesteps: int | None, workers: int) -> dict:
-    """Train and validate the default and the chosen setting on the guard rows with the search's
-    seeds (resumable: finished runs are reused), on ``workers`` processes; writes ``out``/guards.json
-    after every run."""
-    settings = guard_settings(study)
-    rule = rule_returns(rows, out / "rule_based_agents_validation.json")
+def comparison_folder(hp: dict[str, Any], gamma: float) -> str:
+    """The runs' folder of a setting trained with ``gamma`` (the search's own for its γ)."""
+    return settings_key(hp if gamma == GAMMA else {**hp, "gamma": gamma})
+
+
+def _comparison_task(task: tuple) -> tuple[str, dict[str, Any]]:
+    """One run of a comparison: (method, runs folder, label, settings, γ, row, seed, timesteps) -> (label, its entry)."""
+    method, runs, label, hp, gamma, row, seed, timesteps = task
+    run = Path(runs) / comparison_folder(hp, gamma) / run_name(method, row, seed)
+    return label, train_and_validate(method, row, seed, hp, run, timesteps, gamma)
+
+
+def run_comparison(method: str, settings, runs: Path, path: Path, rows, seeds, timesteps: int | None,
+                   workers: int, rule: dict[str, float], known: dict) -> dict:
+    """Train and validate each (label, settings, γ) of ``settings`` on ``rows`` with ``seeds``
+    (resumable: finished runs are reused, from the journal (``known``) where the search ran them), on
+    ``workers`` processes; writes ``path`` (JSON) after every run."""
     result = {"rows": list(rows), "seeds": list(seeds), "rule_based_agents_validation_return": rule,
-              "settings": {label: {"params": hp, "runs": []} for label, hp in settings}}
-    tasks = [(method, str(runs), label, hp, row, seed, timesteps) for label, hp in settings
-             for seed in seeds for row in rows]
-    ctx = multiprocessing.get_context("spawn")
-    with ctx.Pool(max(workers, 1), maxtasksperchild=1) as pool:
-        for label, entry in pool.imap_unordered(_guard_task, tasks):
-            entry = {**entry, "score": entry["validation_return"] / rule[entry["row"]]}
-            result["settings"][label]["runs"].append(entry)
-            result["settings"][label]["runs"].sort(key=lambda e: (e["seed"], e["row"]))
-            atomic_write_text(out / "guards.json", json.dumps(result, indent=1) + "\n")
+              "settings": {label: {"params": hp, "gamma": gamma, "runs": []} for label, hp, gamma in settings}}
+
+    def record(label, entry):
+        entry = {**entry, "score": entry["validation_return"] / rule[entry["row"]]}
+        result["settings"][label]["runs"].append(entry)
+        result["settings"][label]["runs"].sort(key=lambda e: (e["seed"], e["row"]))
+        atomic_write_text(path, json.dumps(result, indent=1) + "\n")
+
+    tasks = []
+    for label, hp, gamma in settings:
+        for seed in seeds:
+            for row in rows:
+                entry = known.get((comparison_folder(hp, gamma), row, seed))
+                if entry is not None:
+                    record(label, {k: v for k, v in entry.items() if k not in ("score", "half_budget_score")})
+                else:
+                    tasks.append((method, str(runs), label, hp, gamma, row, seed, timesteps))
+    if tasks:
+        ctx = multiprocessing.get_context("spawn")
+        with ctx.Pool(max(workers, 1), maxtasksperchild=1) as pool:
+            for label, entry in pool.imap_unordered(_comparison_task, tasks):
+                record(label, entry)
     return result
 
 
-def guards_report(out: Path) -> str:
-    """The guards' table (``out``/guards.json), or "" when none ran."""
-    path = out / "guards.json"
+#: The comparisons beside the search: option, file, title, what the table says it is
+COMPARISONS = {
+    "guards": ("guards.json", "Regression guards",
+               "The default and the chosen setting on {rows} with seeds {seeds} at the paper's budget, scored as "
+               "above (`--guards`)."),
+    "discount": ("discount.json", "Discount for δ = 60 s (a labelled variant)",
+                 "The chosen setting on the search's δ = 60 s rows ({rows}) with seeds {seeds}, with the search's "
+                 "γ and with γ per decision that keeps the δ = 120 s horizon in plant time (`--discount`); its "
+                 "γ = 0.99 runs are the search's own. A variant to cite as such, never a silent default."),
+}
+
+
+def comparison_report(out: Path, which: str) -> str:
+    """A comparison's table (``out``/guards.json or discount.json), or "" when it has not run."""
+    filename, title, text = COMPARISONS[which]
+    path = out / filename
     if not path.is_file():
         return ""
     data = json.loads(path.read_text())
-    lines = ["", "## Regression guards", "",
-             f"The default and the chosen setting on {', '.join(data['rows'])} with seeds {data['seeds'][0]}-"
-             f"{data['seeds'][-1]} at the paper's budget, scored as above (`--guards`).", "",
+    lines = ["", f"## {title}", "",
+             text.format(rows=", ".join(data["rows"]), seeds=f"{data['seeds'][0]}-{data['seeds'][-1]}"), "",
              "| setting | row | runs | IQM share | mean share | half budget | overflowing episodes |",
              "|---|---|---|---|---|---|---|"]
     for label, entry in data["settings"].items():
@@ -453,7 +504,7 @@ def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
         lines.append(f"| {r['number']} | {state} | " + " | ".join(cells) +
                      f" | {len(r['runs'])} | {fmt(r['value'])} | {fmt(r['mean_score'])} | "
                      f"{fmt(r['half_budget_score'])} | {r['overflowing_episodes']} | {r['cpu_s'] / 3600:.2f} |")
-    text = "\n".join(lines) + "\n" + guards_report(out)
+    text = "\n".join(lines) + "\n" + "".join(comparison_report(out, which) for which in COMPARISONS)
     atomic_write_text(out / "trials.md", text)
     return text
 
@@ -469,10 +520,8 @@ def write_config(method: str, study, path: Path) -> dict[str, Any]:
     as ``method``'s settings file, read by ``train`` and ``compare``; a ValueError when no trial has
     finished."""
     optuna = require_optuna()
+    best = best_trial(study, "--write-config")
     done = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE]
-    if not done:
-        raise ValueError(f"--write-config: no trial of {method}'s search has finished yet; nothing to write")
-    best = max(done, key=lambda t: t.value)
     source = (f"studies/native_ppo_tuning.py: trial {best.number}, the best of the {len(done)} trials judged on "
               f"every run (the others were pruned), IQM share of rule_based_agents {best.value:.3f} on validation "
               f"episodes (results/ppo_tuning/{method}/trials.md)")
@@ -500,6 +549,10 @@ def main(argv=None) -> None:
     p.add_argument("--guards", action="store_true",
                    help="train nothing new for the search: train and validate the default and the best finished "
                         f"trial's setting on the regression guards ({', '.join(GUARD_ROWS)}) with the same seeds")
+    p.add_argument("--discount", nargs="?", const=DT60_GAMMA, default=None, type=float, metavar="GAMMA",
+                   help="train nothing new for the search: train the best finished trial's setting with discount "
+                        f"GAMMA (default {DT60_GAMMA}) on the search's δ = 60 s rows with the same seeds, beside its own "
+                        f"runs at γ = {GAMMA}: a labelled variant")
     p.add_argument("--write-config", nargs="?", const="", default=None, metavar="PATH",
                    help="train nothing: write the best finished trial's settings as the method's settings file "
                         "(default configs/hyperparams/<method>.toml)")
@@ -515,10 +568,18 @@ def main(argv=None) -> None:
     journal = out / "journal.log"
     with RunLock(out):  # one search of a method at a time (an OS lock, released however the search ends)
         study = open_study(ns.method, journal, sampler_seed=0,
-                           read_only=(ns.report or ns.guards) and journal.is_file())
-        if ns.guards:
-            guard_rows = rows[:1] if ns.smoke else GUARD_ROWS
-            run_guards(ns.method, study, runs, out, guard_rows, seeds, timesteps, ns.workers)
+                           read_only=(ns.report or ns.guards or ns.discount is not None) and journal.is_file())
+        if ns.guards or ns.discount is not None:
+            if ns.guards:
+                which, chosen, compared = "guards", guard_settings(study), rows[:1] if ns.smoke else GUARD_ROWS
+            else:
+                if not 0 < ns.discount <= 1:
+                    p.error(f"--discount: expected a discount factor in (0, 1], got {ns.discount}")
+                which, chosen = "discount", discount_settings(study, ns.discount)
+                compared = rows if ns.smoke else tuple(r for r in rows if r.endswith("_dt60"))
+            run_comparison(ns.method, chosen, runs, out / COMPARISONS[which][0], compared, seeds, timesteps,
+                           ns.workers, rule_returns(compared, out / "rule_based_agents_validation.json"),
+                           recorded_runs(study))
         elif not ns.report:
             requeued = requeue_interrupted(study)
             if requeued:

@@ -128,6 +128,20 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert "## Regression guards" in (out / "fast_shared_ppo" / "trials.md").read_text()
     assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
 
+    # the discount variant: the chosen setting again with γ = 0.995 beside its own search runs (γ = 0.99,
+    # taken from the journal, not trained again), the journal left alone
+    _search(out, runs, "--discount")
+    discount = json.loads((out / "fast_shared_ppo" / "discount.json").read_text())
+    (same, other) = discount["settings"].values()
+    assert same["params"] == other["params"] == best.params and (same["gamma"], other["gamma"]) == (0.99, 0.995)
+    assert same["runs"][0]["validation_return"] == searched[(best.params == DEFAULT_TRIAL, "n5_m2_dt120", 101)]
+    (variant_run,) = [p for p in (runs / "fast_shared_ppo").glob("*/*") if json.loads(
+        (p / "args.json").read_text())["gamma"] == 0.995]
+    assert json.loads((variant_run / "args.json").read_text())["hyperparams"] == best.params
+    assert other["runs"][0]["samples"] >= 8192
+    assert "## Discount for δ = 60 s (a labelled variant)" in (out / "fast_shared_ppo" / "trials.md").read_text()
+    assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
+
     # another method's search starts from this one's best settings after its own default, reading this
     # search's journal without writing to it (as --report reads its own)
     journal = (out / "fast_shared_ppo" / "journal.log").read_bytes()
