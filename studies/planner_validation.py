@@ -16,6 +16,10 @@ rows of a plant are evaluated on the same plant: the training δ does not concer
   nothing but reporting, on which the published tables evaluate every policy too; disjoint from the
   test seeds 10000–10014 and the validation seeds 20000+): the planner held to its claim of never
   overflowing, on episodes that chose nothing.
+* ``wide``: the look-ahead widened on uncertain decisions (``max_futures``: more futures where a
+  candidate is within two standard errors of the best) on the contended plants, 200 validation
+  episodes (seeds 20000–20199) per setting: whether the sampling error the replays point at can be
+  removed where it decides, and at what cost per step (issue 38).
 * ``replay``: every fresh episode that overflowed, again with the planner's own seed changed
   (``seed`` = 1, 2) and with K = 64 futures: whether the overflow is the look-ahead's sampling error
   (a diagnosis, not a choice: the defaults stay those chosen on validation episodes). Runs after
@@ -48,9 +52,11 @@ DEFAULTS = {"futures": 16, "horizon": 8, "overflow_penalty": 10.0, "margin": 1.0
 #: each setting varied alone; the default is evaluated once
 VARIED = {"overflow_penalty": (0.0, 3.0, 30.0, 100.0), "margin": (0.0, 2.0, 4.0), "min_reward": (-1.0, 0.25, 0.5)}
 HORIZONS = (4, 8, 16, 24, 32, 48)
+#: futures of an uncertain decision (the planner's ``max_futures``), the defaults' K first
+WIDE = (16, 64, 128)
 VALIDATION_SEED, FRESH_SEED = 20_000, FRESH.first_seed
 BLOCK = 10
-PARTS = ("settings", "horizons", "fresh", "replay")
+PARTS = ("settings", "horizons", "wide", "fresh", "replay")
 #: how the overflowing fresh episodes are replayed
 REPLAYS = ({"seed": 1}, {"seed": 2}, {"futures": 64})
 
@@ -62,6 +68,9 @@ def settings_for(part: str) -> list[tuple[str, dict]]:
         return [(plant, s) for plant in PLANTS for s in variants]
     if part == "horizons":
         return [(plant, {**DEFAULTS, "horizon": h}) for plant in CONTENDED for h in HORIZONS]
+    if part == "wide":
+        return [(plant, dict(DEFAULTS) if k == DEFAULTS["futures"] else {**DEFAULTS, "max_futures": k})
+                for plant in CONTENDED for k in WIDE]
     return [(plant, dict(DEFAULTS)) for plant in PLANTS]
 
 
@@ -135,6 +144,8 @@ def report(rows: list[dict], note: str = "") -> str:
         lines += ["Where it ran: " + note, ""]
     titles = {"settings": f"## Settings varied one at a time (validation seeds {VALIDATION_SEED}+)",
               "horizons": f"## Look-ahead H with K = 16 on the contended plants (validation seeds {VALIDATION_SEED}+)",
+              "wide": "## More futures on uncertain decisions, on the contended plants (validation seeds "
+                      f"{VALIDATION_SEED}+)",
               "fresh": f"## The defaults on fresh episodes (seeds {FRESH_SEED}+)"}
     for part, title in titles.items():
         mine = [r for r in rows if r["part"] == part and part != "replay"]
@@ -182,16 +193,18 @@ def main(argv=None) -> None:
     p.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS)
     p.add_argument("--validation-episodes", type=int, default=30)
     p.add_argument("--fresh-episodes", type=int, default=200)
+    p.add_argument("--wide-episodes", type=int, default=200)
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     p.add_argument("--out", default="results/planner_validation")
     p.add_argument("--note", default=None, help="where it ran (kept in validation.json, shown in validation.md)")
     p.add_argument("--smoke", action="store_true", help="two episodes per setting, one plant")
     ns = p.parse_args(argv)
-    episodes = {"settings": ns.validation_episodes, "horizons": ns.validation_episodes, "fresh": ns.fresh_episodes}
-    global PLANTS, CONTENDED, VARIED, HORIZONS
+    episodes = {"settings": ns.validation_episodes, "horizons": ns.validation_episodes, "wide": ns.wide_episodes,
+                "fresh": ns.fresh_episodes}
+    global PLANTS, CONTENDED, VARIED, HORIZONS, WIDE
     if ns.smoke:
         episodes = dict.fromkeys(episodes, 2)
-        PLANTS, CONTENDED, VARIED, HORIZONS = ("n5_m2_dt120",), ("n5_m2_dt120",), {"margin": (2.0,)}, (4,)
+        PLANTS, CONTENDED, VARIED, HORIZONS, WIDE = ("n5_m2_dt120",), ("n5_m2_dt120",), {"margin": (2.0,)}, (4,), (32,)
         ns.out = ns.out if ns.out != p.get_default("out") else "runs/planner_validation_smoke"
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -72,12 +72,14 @@ setting on each test plant, both views) hold the runs:
 * ``min_reward`` = 0 (and 0.25) overflow nowhere; −1 (every container a candidate) overflows on
   ``n11_m2``, 0.5 on ``n16_m2``.
 
-**Not overflow-free.** On 200 fresh episodes per plant (seeds 50000+) neither view overflows on
-n = 5 or on ``n11_m11``; on ``n11_m2`` the container agents do not and the centralised planner
-overflows in 2, and on ``n16_m2`` the planner overflows in 4 and the container agents in 6. Those
-are the look-ahead's sampling error, not doomed episodes: replayed with the planner's seed changed
-(1, 2) or with 64 futures, at most 1 of these 12 episodes overflows again
-(``results/planner_validation/validation.md``).
+**Not overflow-free.** On 200 fresh episodes per plant (seeds 30000+) neither view overflows on
+n = 5 or on ``n11_m11``; on ``n11_m2`` the centralised planner overflows in 2 and the container
+agents in 3, on ``n16_m2`` in 5 and 6. Those are mostly the look-ahead's sampling error, not doomed
+episodes: replayed with the planner's seed changed (1, 2) or with 64 futures, at most 1 of these 16
+episodes overflows again under each change (``results/planner_validation/validation.md``).
+``max_futures`` spends more futures where that error decides: on the steps where another candidate
+is within ``confidence`` standard errors of the best (``studies/planner_validation.py --parts wide``
+measures it on validation episodes).
 
 **Randomness.** The planner draws its futures from its own generator, seeded per episode from
 ``(episode seed, seed)`` by :meth:`reset` (which :func:`~containergym_marl.evaluation.evaluate`
@@ -154,6 +156,12 @@ class RolloutPlanner:
         min_reward: containers earning at least this if emptied now are candidates too.
         overflow_penalty: cost of an overflow on top of r_min and the estimated rest-of-episode reward.
         seed: combined with each episode's seed to seed the planner's generator.
+        max_futures: futures of an *uncertain* decision (default: ``futures``, never more). When a
+            candidate's mean value is within ``confidence`` standard errors of the best one's (on the
+            same futures: the paired differences), the planner draws ``max_futures − futures`` more
+            futures and decides on all of them, so the look-ahead's sampling error is small where it
+            decides, at the cost of more simulations on those steps only.
+        confidence: the standard errors of that test.
     """
 
     name = "planner"
@@ -162,23 +170,30 @@ class RolloutPlanner:
 
     def __init__(self, params: PlantParams | None = None, *, futures: int = 16, horizon: int = 8,
                  base: str = "fullest", margin: float = 1.0, min_reward: float = 0.0,
-                 overflow_penalty: float = 10.0, seed: int = 0):
+                 overflow_penalty: float = 10.0, seed: int = 0, max_futures: int | None = None,
+                 confidence: float = 2.0):
         if base not in BASE_POLICIES:
             raise ValueError(f"base: unknown base policy {base!r}; choose one of {tuple(BASE_POLICIES)}")
-        for label, value in (("futures", futures), ("horizon", horizon)):
+        max_futures = futures if max_futures is None else max_futures
+        for label, value in (("futures", futures), ("horizon", horizon), ("max_futures", max_futures)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{label}: expected an integer >= 1, got {value!r}")
+        if max_futures < futures:
+            raise ValueError(f"max_futures: expected at least futures ({futures}), got {max_futures}")
+        if not (isinstance(confidence, (int, float)) and np.isfinite(confidence) and confidence >= 0):
+            raise ValueError(f"confidence: expected a finite number >= 0, got {confidence!r}")
         self.params = params
         self.futures, self.horizon, self.base = int(futures), int(horizon), base
         self.margin, self.min_reward = float(margin), float(min_reward)
         self.overflow_penalty = float(overflow_penalty)
         self.seed = int(seed)
+        self.max_futures, self.confidence = int(max_futures), float(confidence)
         self._base = BASE_POLICIES[base]
         self._rng: np.random.Generator | None = None
         self._seeded_by_reset = False
         self._plant: tuple[PlantParams, np.ndarray, float] | None = None
-        #: decisions taken / planned (with a look-ahead) since construction
-        self.decisions = self.planned = 0
+        #: decisions taken / planned (with a look-ahead) / planned again with max_futures, since construction
+        self.decisions = self.planned = self.widened = 0
 
     # ---- episode control --------------------------------------------------------------------
     def reset(self, seed: int | None = None) -> None:
@@ -228,12 +243,31 @@ class RolloutPlanner:
         if len(candidates) == 1:
             return candidates[0]
         self.planned += 1
+        values = self._values(state, params, candidates, self.futures)
+        if self.max_futures > self.futures and self.uncertain(values, self.confidence):
+            self.widened += 1
+            values = np.concatenate([values, self._values(state, params, candidates,
+                                                          self.max_futures - self.futures)], axis=1)
+        return candidates[int(np.argmax(values.mean(axis=1)))]  # the first best: the base decision on ties
+
+    def _values(self, state: PlantState, params: PlantParams, candidates: np.ndarray, futures: int) -> np.ndarray:
+        """(C, K) values of ``futures`` new futures of every candidate (the same streams for each)."""
+        n = params.n_containers
         max_requests = n if self.max_requests is None else self.max_requests
-        futures = simulate_futures(
+        simulated = simulate_futures(
             state, 0, candidates, lambda s, p: self._base(s, p, max_requests, self.margin), params,
-            self._rng.standard_normal((self.horizon, self.futures, n)))
-        values = self.future_values(futures, params, int(state.step_count[0])).mean(axis=1)
-        return candidates[int(np.argmax(values))]  # the first best: the base decision on ties
+            self._rng.standard_normal((self.horizon, futures, n)))
+        return self.future_values(simulated, params, int(state.step_count[0]))
+
+    @staticmethod
+    def uncertain(values: np.ndarray, confidence: float) -> bool:
+        """Whether some candidate's mean value is within ``confidence`` standard errors of the best
+        one's, the error that of the mean of their paired differences ((C, K) ``values``, the same
+        futures in a column); a candidate whose every future is worth the same is not uncertain."""
+        best = int(np.argmax(values.mean(axis=1)))
+        gaps = values[best] - np.delete(values, best, axis=0)  # (C - 1, K)
+        error = gaps.std(axis=1, ddof=1) / np.sqrt(values.shape[1])
+        return bool(np.any((error > 0) & (gaps.mean(axis=1) <= confidence * error)))
 
     @staticmethod
     def _candidates(base: np.ndarray, eligible: np.ndarray, limit: int, fullness: np.ndarray) -> np.ndarray:

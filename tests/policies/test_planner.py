@@ -245,3 +245,51 @@ def test_sweep_script_smoke_run(tmp_path, monkeypatch):
     data = json.loads((tmp_path / "sweep_n5_m2_dt120.json").read_text())
     assert [(e["futures"], e["horizon"]) for e in data["settings"]] == [(2, 2), (2, 3)]
     assert "| 2 | " in (tmp_path / "sweep_n5_m2_dt120.md").read_text()
+
+
+def test_uncertain_compares_the_paired_gap_with_its_standard_error():
+    rng = np.random.default_rng(0)
+    common = rng.normal(0.0, 5.0, 16)  # what every candidate's futures share: cancels in the gaps
+    clear = np.stack([common + 10.0 + rng.normal(0, 0.1, 16), common + rng.normal(0, 0.1, 16)])
+    assert not RolloutPlanner.uncertain(clear, 2.0)  # a gap of 10, its error about 0.04
+    close = np.stack([common + 0.05 + rng.normal(0, 1.0, 16), common + rng.normal(0, 1.0, 16)])
+    gaps = close[0] - close[1]
+    z = abs(gaps.mean()) / (gaps.std(ddof=1) / 4.0)
+    assert RolloutPlanner.uncertain(close, z + 0.01) and not RolloutPlanner.uncertain(close, z - 0.01)
+    same = np.stack([common, common, common - 1.0])  # equal futures: no sampling error in their gap
+    assert not RolloutPlanner.uncertain(same, 2.0)
+
+
+def test_a_wider_look_ahead_only_on_uncertain_steps():
+    """With max_futures the planner plans some steps again on more futures, the others as the default
+    does: until its first widened step its decisions are the default planner's, step for step."""
+    cfg = load_config("n11_m2_dt120", episode_length_steps=120)
+    default, wide = RolloutPlanner(), RolloutPlanner(max_futures=64)
+    env = ContainerGymEnv(cfg)
+    env.reset(seed=20_000)
+    default.reset(seed=20_000)
+    wide.reset(seed=20_000)
+    sim = env.simulator
+    widened_at = None
+    for step in range(120):
+        a, b = default.decide(sim.state, sim.params), wide.decide(sim.state, sim.params)
+        if wide.widened and widened_at is None:
+            widened_at = step
+        if widened_at is None:
+            np.testing.assert_array_equal(a, b)
+        elif not np.array_equal(a, b):
+            break
+        _, _, terminated, truncated, _ = env.step(int(np.flatnonzero(b)[0]) + 1 if b.any() else 0)
+        if terminated or truncated:
+            break
+    assert widened_at is not None and 0 < wide.widened <= wide.planned
+    assert default.widened == 0
+
+
+@pytest.mark.parametrize("kwargs, field", [({"futures": 16, "max_futures": 8}, "max_futures"),
+                                           ({"max_futures": 0}, "max_futures"),
+                                           ({"confidence": -1.0}, "confidence"),
+                                           ({"confidence": float("nan")}, "confidence")])
+def test_bad_look_ahead_settings_are_named(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        PlannerAgents(**kwargs)

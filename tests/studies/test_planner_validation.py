@@ -29,19 +29,20 @@ def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
     first = subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "2", "--out", str(out)],
                            capture_output=True, text=True, timeout=300, check=True)
     assert "1 fresh block(s) outside seeds 30000+ dropped" in first.stdout
-    assert "8 block(s) to run, 0 reused" in first.stdout
+    assert "10 block(s) to run, 0 reused" in first.stdout
     blocks = json.loads((out / "validation.json").read_text())["blocks"]
-    assert {b["part"] for b in blocks} == {"settings", "horizons", "fresh"}
+    assert {b["part"] for b in blocks} == {"settings", "horizons", "wide", "fresh"}
     fresh = [b for b in blocks if b["part"] == "fresh" and b["view"] == "planner_agents"]
     assert [b["first_seed"] for b in fresh] == [FRESH.first_seed]  # the one fresh range, 30000+
     plain = evaluate(PlannerAgents(), "n5_m2_dt120", EvalProtocol(episodes=2, first_seed=FRESH.first_seed),
                      keep_records=False)
     np.testing.assert_allclose(fresh[0]["returns"], plain.returns)
     text = (out / "validation.md").read_text()
+    assert "| n5_m2 | max_futures = 32 | 2 |" in text  # the widened look-ahead's part
     assert "| n5_m2 | margin = 2 | 2 |" in text and "## The defaults on fresh episodes (seeds 30000+)" in text
     again = subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "1", "--out", str(out)],
                            capture_output=True, text=True, timeout=300, check=True)
-    assert "0 block(s) to run, 8 reused" in again.stdout
+    assert "0 block(s) to run, 10 reused" in again.stdout
 
 
 def test_each_overflowing_fresh_episode_is_replayed_with_another_seed_and_more_futures():
