@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The paper's protocol with the native PPO: fast_ppo, fast_shared_ppo and fast_shared_ppo_team,
 # 15 seeds on each of the nine rows at the paper's budget (2M samples for n = 5, 5M for n >= 11),
-# evaluated with the paper's test protocol: 405 runs, about 11 core-hours (6 hours on 2 cores).
+# evaluated with the paper's test protocol: 405 runs. Training alone costs about 28 core-hours (14 hours
+# on 2 cores) at the settings files' shapes: the tuning runs (results/ppo_tuning/) took about 130 CPU-s
+# per 2M-sample n = 5 run and 290-370 per 5M-sample n >= 11 run, one core each.
 # The seeds go in three batches (1-5, 6-10, 11-15), so an interrupted sweep leaves every row with
 # the same number of seeds. Resumable: rerun it to continue (finished runs and evaluations are
 # reused, interrupted runs resume from their last checkpoint).
