@@ -4,6 +4,7 @@ phase of a training run, one torch thread.
     python benchmarks/trainer_profile.py                          # fast_shared_ppo on n11_m2_dt120
     python benchmarks/trainer_profile.py --algo fast_ppo --config n5_m2_dt120
     python benchmarks/trainer_profile.py --smoke                  # seconds; numbers meaningless
+    python benchmarks/trainer_profile.py --md benchmarks/profile/fast_shared_ppo_n11_m2_dt120.md  # docs/performance.md's
 
 A whole ``train`` run of ``--samples`` samples is measured first (this process's CPU time). Then the
 trainer's own functions are run one by one at the run's shape (the same simulations, rollout length,
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import tempfile
 import time
 import warnings
@@ -41,6 +43,7 @@ from containergym_marl.config.hyperparams import method_settings
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, new_state
 from containergym_marl.training.ppo_gradients import MLPGradients, ppo_loss_gradients
+from throughput import _cpu_name, _load  # benchmarks/, this script's folder
 
 
 def _cpu(fn, repeats: int) -> float:
@@ -148,9 +151,14 @@ def main(argv=None) -> dict:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--smoke", action="store_true", help="a run of one rollout, one repeat")
     p.add_argument("--json", default=None)
+    p.add_argument("--md", default=None, help="also write the table, with the machine and its load, to this file")
     ns = p.parse_args(argv)
+    load_before, started = _load(), time.strftime("%Y-%m-%d %H:%M", time.gmtime())
     result = profile(ns.algo, ns.config, 1 if ns.smoke else ns.samples, 1 if ns.smoke else ns.repeats)
     lines = [f"# {ns.algo} on {ns.config}: CPU µs per sample, one torch thread", "",
+             f"`python benchmarks/trainer_profile.py --algo {ns.algo} --config {ns.config} --samples {ns.samples} "
+             f"--repeats {ns.repeats}` · {started} UTC · {_cpu_name()} · {os.cpu_count()} CPUs · load average before "
+             f"{load_before}, after {_load()} (a busy machine inflates every phase; compare the shares)", "",
              f"{result['simulations']} simulations, {result['samples_per_update']} samples per update, "
              f"{result['minibatches']} minibatches x {result['epochs']} epochs; whole run: {result['run_samples']:,} "
              f"samples in {result['run_cpu_s']:.1f} CPU-s.", "", "| phase | CPU µs per sample | share |", "|---|---|---|"]
@@ -159,6 +167,9 @@ def main(argv=None) -> dict:
         lines.append(f"| {name} | {us:.2f} | {us / whole:.0%} |")
     lines.append(f"| **whole run** | **{whole:.2f}** | 100% |")
     print("\n".join(lines))
+    if ns.md:
+        Path(ns.md).parent.mkdir(parents=True, exist_ok=True)
+        Path(ns.md).write_text("\n".join(lines) + "\n")
     if ns.json:
         Path(ns.json).write_text(json.dumps(result, indent=1) + "\n")
     return result

@@ -143,18 +143,27 @@ def test_trainer_throughput_smoke_prints_both_ratios(tmp_path):
 
 def test_trainer_profile_smoke_accounts_for_the_whole_run(tmp_path):
     """benchmarks/trainer_profile.py end to end at one rollout: every phase of the native trainer is
-    timed at its default shape (6 simulations of 11 agents x 64 steps), and the phases and the rest add
-    up to the whole run (structure, not speed)."""
-    out_json = tmp_path / "profile.json"
+    timed at the shape the run trains with (its method's settings file), the whole run is that one
+    rollout, and the phases and the rest add up to it (structure, not speed)."""
+    from containergym_marl.config.hyperparams import method_settings
+
+    out_json, out_md = tmp_path / "profile.json", tmp_path / "profile" / "table.md"
     proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "trainer_profile.py"), "--smoke",
-                           "--json", str(out_json)], capture_output=True, text=True, timeout=300, check=True,
-                          cwd=tmp_path)
+                           "--json", str(out_json), "--md", str(out_md)], capture_output=True, text=True,
+                          timeout=300, check=True, cwd=tmp_path)
     result = json.loads(out_json.read_text())
-    assert (result["simulations"], result["samples_per_update"], result["minibatches"]) == (6, 4224, 4)
+    settings = method_settings("fast_shared_ppo")
+    n_steps = settings.get("n_steps", 64)
+    sims = max(1, round(settings.get("rollout_samples", 4096) / (n_steps * 11)))  # 11 agents per simulation
+    samples = sims * 11 * n_steps
+    assert (result["simulations"], result["samples_per_update"]) == (sims, samples)
+    assert result["minibatches"] == max(1, round(samples / settings.get("minibatch_size", 1024)))
+    assert result["run_samples"] == samples  # the whole run: one rollout of the same shape
     phases = result["us_per_sample"]
     assert {"env step", "GAE", "update: backward", "update: Adam"} <= set(phases)
     assert sum(phases.values()) == pytest.approx(result["whole_us_per_sample"])
     assert "| **whole run** |" in proc.stdout
+    assert out_md.read_text().strip() in proc.stdout and "load average before" in out_md.read_text()
 
 
 def test_threads_smoke_times_both_layouts(tmp_path):
