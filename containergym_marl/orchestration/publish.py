@@ -17,7 +17,9 @@ seeds, every seed's policy is evaluated on 100 validation episodes (``<to>/valid
 model of its best and of its median seed by mean validation return (the table's rule) goes to
 ``<to>/models/<config>/<method>_{best,median}.zip`` (``.pt`` for MAPPO) with
 ``<method>.json`` naming the seeds and their returns (git stores each of these once: they are the
-runs' own files). Every seed's policy and every rule-based controller is then evaluated on 200 fresh
+runs' own files), each with a model card (``<method>_{best,median}.md``, Hugging Face's format) and,
+for a native actor-critic, its weights as ``.safetensors`` (:mod:`~containergym_marl.orchestration.model_cards`).
+Every seed's policy and every rule-based controller is then evaluated on 200 fresh
 episodes (``<to>/fresh/``, seeds 30000-30199, used for nothing else). Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
 (``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same), ``<to>/compute.md``
 sums the finished runs' training wall times per row. With ``--readme README.md`` the README shows a
@@ -60,6 +62,7 @@ from containergym_marl.files import atomic_write, atomic_write_text, open_file, 
 from containergym_marl.manifest import check_file, is_covered, read_manifest, write_manifest
 from containergym_marl.methods import PAIRS, TWINS
 from containergym_marl.options import option
+from containergym_marl.orchestration import model_cards
 from containergym_marl.rundir import (
     checkpoint_files,
     checkpoints,
@@ -158,6 +161,7 @@ def republish(to: Path, min_seeds: int = 3, readme: Path | None = None, pages: t
     the compute note, the manifest and the pages."""
     refuse_links_in(to)
     done = {"models": [], "validation": evaluate_selection(to, min_seeds)}  # where best and median are picked
+    to_card = []  # (card file, what it describes) of every shipped model
     for group in tables.load_evaluations(to):
         if len(group.seeds) < min_seeds:
             continue  # a rule-based controller (nothing to ship), or a row still training
@@ -167,22 +171,34 @@ def republish(to: Path, min_seeds: int = 3, readme: Path | None = None, pages: t
         means = group.seed_means
         picked = {"best": group.best, "median": group.median}
         folder = to / "models" / group.config
-        files = {}
+        files, weights, cards = {}, {}, {}
         for which, i in picked.items():
             model = runs_of[i] / model_file(runs_of[i], "best")
             if not model.is_file():  # no training episode finished: the evaluation used the final model
                 model = runs_of[i] / model_file(runs_of[i], "final")
             files[which] = f"{group.method}_{which}{model.suffix}"
             _copy(model, folder / files[which], to)
+            shipped = {"model": files[which]}
+            if model_cards.is_actor_critic(run_args(runs_of[i])["algo"]):
+                weights[which] = f"{group.method}_{which}.safetensors"
+                model_cards.write_safetensors(folder / files[which], folder / weights[which])
+                shipped["safetensors"] = weights[which]
+            cards[which] = f"{group.method}_{which}.md"
+            to_card.append((folder / cards[which], {
+                "method": group.method, "config": group.config, "view": group.view, "which": which,
+                "seed": group.seeds[i], "seeds": len(group.seeds), "picked_on": group.selected_on,
+                "run": runs_of[i], "files": shipped}))
         atomic_write_text(folder / f"{group.method}.json", json.dumps({
             "config": group.config, "method": group.method, "view": group.view,
             "best_seed": group.seeds[picked["best"]], "median_seed": group.seeds[picked["median"]],
             "seed_mean_returns": {str(s): float(m) for s, m in zip(group.seeds, means)},
             "picked_on": group.selected_on,
-            "files": files,
+            "files": files, **({"safetensors": weights} if weights else {}), "cards": cards,
         }, indent=2) + "\n", within=to)
         done["models"].append(f"{group.config}/{group.method}")
     done["fresh"] = evaluate_fresh(to, min_seeds)
+    for path, fields in to_card:  # after the fresh episodes, whose numbers the cards show
+        model_cards.write_card(to, path, **fields)
     table = tables.build_table(tables.load_evaluations(to), PAIRS)
     table.write(to, {"source": "containergym-marl publish"})
     from containergym_marl.evaluation.aggregate_plots import draw_aggregate_figures  # matplotlib: only here

@@ -19,6 +19,12 @@ The file (``torch.save`` of plain containers)::
      "state_dict": {"actor.0.weight": ..., ..., "critic.4.bias": ...},
      "meta": {...}}                       # where it came from (algorithm, config, seed, samples)
 
+The same model as safetensors (:meth:`ActorCritic.save_safetensors`, ``.safetensors``: a format
+that holds tensors and a string header, never code): the state dict's tensors, and the other fields
+as the header's metadata (``format``, ``version``, ``view``, ``observation_size``, ``n_actions``,
+``hidden``, ``action_mask``, ``meta``; numbers, lists and ``meta`` as JSON text).
+:meth:`ActorCritic.load` reads either by the file's suffix, with the same checks.
+
 The network is Stable-Baselines3's ``MlpPolicy`` for a discrete action: separate policy and value
 MLPs (``hidden`` units, tanh), a linear action head (logits) and a linear value head, orthogonal
 initialisation (gain √2 for the hidden layers, 0.01 for the action head, 1 for the value head).
@@ -30,6 +36,7 @@ container are masked while no PU is free, as in training; then the mode of the d
 
 from __future__ import annotations
 
+import json
 import math
 import operator
 import zipfile
@@ -145,6 +152,18 @@ class ActorCritic:
         """Write the file crash-safe (temporary file, then rename)."""
         return save_tensors(path, self.to_dict())
 
+    def save_safetensors(self, path: str | Path) -> Path:
+        """Write the model as safetensors (see the module doc), crash-safe."""
+        from containergym_marl.files import atomic_write
+
+        data = self.to_dict()
+        metadata = {"format": data["format"], "version": str(data["version"]), "view": data["view"],
+                    "observation_size": str(data["observation_size"]), "n_actions": str(data["n_actions"]),
+                    "hidden": json.dumps(list(data["hidden"])), "action_mask": json.dumps(bool(data["action_mask"])),
+                    "meta": json.dumps(data["meta"], sort_keys=True)}
+        blob = _safetensors_torch().save({k: v.contiguous() for k, v in data["state_dict"].items()}, metadata)
+        return atomic_write(path, lambda tmp: tmp.write_bytes(blob))
+
     @classmethod
     def load(cls, path: str | Path) -> "ActorCritic":
         """Read a saved actor-critic (tensors and plain containers only: ``weights_only=True``), with
@@ -152,7 +171,46 @@ class ActorCritic:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"model file {str(path)!r} does not exist")
-        return cls.from_dict(load_tensors(path), f"model file {str(path)!r}")
+        data = read_safetensors(path) if path.suffix == SAFETENSORS_SUFFIX else load_tensors(path)
+        return cls.from_dict(data, f"model file {str(path)!r}")
+
+
+SAFETENSORS_SUFFIX = ".safetensors"
+
+
+def _safetensors_torch():
+    try:
+        import safetensors.torch
+    except ImportError as error:
+        raise missing_extra("the native PPO models' .safetensors files", "train", error) from error
+    return safetensors.torch
+
+
+def read_safetensors(path: str | Path) -> dict[str, Any]:
+    """A ``.safetensors`` file of :meth:`ActorCritic.save_safetensors` as :meth:`ActorCritic.to_dict`'s
+    layout (checked by :meth:`ActorCritic.from_dict`); a ValueError naming the file when it is broken or
+    its header lacks or garbles a field."""
+    _torch()
+    _safetensors_torch()
+    from safetensors import safe_open
+
+    source = f"model file {str(path)!r}"
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            metadata = f.metadata() or {}
+            tensors = {name: f.get_tensor(name) for name in f.keys()}
+    except Exception as exc:  # noqa: BLE001 - safetensors raises its own kinds for a cut or foreign file
+        raise ValueError(f"cannot read {source}: the file is broken or not safetensors ({type(exc).__name__}: "
+                         f"{exc})") from exc
+    try:
+        return {"format": metadata.get("format"), "version": int(metadata.get("version", "")),
+                "view": metadata.get("view"), "observation_size": int(metadata["observation_size"]),
+                "n_actions": int(metadata["n_actions"]), "hidden": json.loads(metadata["hidden"]),
+                "action_mask": json.loads(metadata["action_mask"]), "state_dict": tensors,
+                "meta": json.loads(metadata.get("meta", "{}"))}
+    except (KeyError, ValueError, TypeError) as exc:
+        raise ValueError(f"{source}: its safetensors header lacks or garbles a field of the "
+                         f"{FORMAT!r} format ({type(exc).__name__}: {exc})") from exc
 
 
 #: What reading a broken zip archive raises besides BadZipFile: an encrypted member, an unknown

@@ -147,3 +147,66 @@ def test_published_native_ppo_runs_are_shipped_policies_of_the_main_job(tmp_path
     assert plan.seeds[(config, "fast_shared_ppo")] == [1, 2]
     to_evaluate = [(spec, source) for spec, source in plan.to_evaluate]
     assert to_evaluate and all("best_model.pt" in source["files"] for _, source in to_evaluate)
+
+
+def test_shipped_native_models_get_safetensors_and_a_model_card_of_their_fresh_numbers(tmp_path):
+    """Each shipped native model: the same weights as safetensors (read by the same loader, listed in
+    the manifest) and a Hugging Face model card whose metric is the mean ± std of its fresh episodes."""
+    import torch
+
+    from containergym_marl.manifest import read_manifest
+    from containergym_marl.policies.actor_critic import ActorCritic
+
+    runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
+    config = "n5_m2_dt120"
+    for seed in (1, 2, 3):
+        run = train(TrainArgs(algo="fast_shared_ppo", config=config, seed=seed, timesteps=2000, n_envs=2,
+                              out=str(runs / f"fast_shared_ppo_{config}_s{seed}"), progress_bar=False,
+                              hyperparams={"n_steps": 16, "minibatch_size": 64}, overrides={"episode_length_steps": 20}))
+        result = evaluate_run(run, protocol=EvalProtocol(episodes=2, episode_length_steps=30), write=False)
+        path = out / "evaluations" / config / f"fast_shared_ppo_s{seed}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(result.to_json())
+    publish_results.publish(runs, out, to)
+    folder = to / "models" / config
+    meta = json.loads((folder / "fast_shared_ppo.json").read_text())
+    listed = read_manifest(to)
+    for which in ("best", "median"):
+        seed = meta[f"{which}_seed"]
+        pt, st = folder / meta["files"][which], folder / meta["safetensors"][which]
+        a, b = ActorCritic.load(pt), ActorCritic.load(st)
+        assert a.to_dict()["meta"] == b.to_dict()["meta"] and (a.view, a.hidden) == (b.view, b.hidden)
+        for name, tensor in a.net.state_dict().items():
+            assert torch.equal(tensor, b.net.state_dict()[name])
+        assert f"models/{config}/{st.name}" in listed and f"models/{config}/{meta['cards'][which]}" in listed
+        text = (folder / meta["cards"][which]).read_text()
+        front, body = text.split("---\n")[1], text.split("---\n", 2)[2]
+        fresh = json.loads((to / "fresh" / config / f"fast_shared_ppo_s{seed}.json").read_text())["episodes"]
+        returns = np.array([e["cumulative_reward"] for e in fresh])
+        assert len(returns) == 200
+        assert f"      value: {returns.mean():.2f} +/- {returns.std():.2f}\n" in front
+        assert "library_name: containergym-marl\n" in front and "- multi-agent\n" in front
+        assert "- reinforcement-learning\n" in front and "- containergym_marl.container_agents_v0\n" in front
+        overflow = np.mean([e["overflow"] for e in fresh])
+        assert f"overflows in {overflow:.1%} of the fresh episodes" in body
+        assert f"--seed {seed}" in body and f'load_model("{st.name}", algo="fast_shared_ppo")' in body
+        args = json.loads((to / "runs" / f"fast_shared_ppo_{config}_s{seed}" / "args.json").read_text())
+        assert json.dumps(args["hyperparams"], sort_keys=True) in body
+        assert "on 100 validation episodes (seeds 20000+)" in body
+        # the card's code, run in the model's folder (but its 200-episode evaluation): the policy it
+        # loads from the safetensors file acts as the .pt's does
+        import os
+
+        from containergym_marl.evaluation.run_policies import policy_from_run
+
+        code = body.split("```python\n")[1].split("```")[0]
+        assert code.rstrip().splitlines()[-1].startswith("print(evaluate(policy,")
+        scope, cwd = {}, os.getcwd()
+        os.chdir(folder)
+        try:
+            exec(code.rstrip().rsplit("\n", 1)[0], scope)
+        finally:
+            os.chdir(cwd)
+        obs = np.random.default_rng(0).normal(size=(32, a.observation_size)).astype(np.float32)
+        original = policy_from_run(to / "runs" / f"fast_shared_ppo_{config}_s{seed}")
+        np.testing.assert_array_equal(scope["policy"].act_batch(obs, None), original.act_batch(obs, None))
