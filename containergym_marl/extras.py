@@ -13,6 +13,7 @@ INSTALL = {
     "train": "pip install 'containergym-marl[train]'",  # torch, SB3, sb3-contrib, SuperSuit
     "sweep": "pip install 'containergym-marl[train,sweep]'",  # Ray, for compare's sweeps
     "clients": "pip install 'containergym-marl[clients]'",  # TorchRL, BenchMARL, Tianshou, RLlib
+    "notebook": "pip install 'containergym-marl[notebook]'",  # ipywidgets, for progress rows in Jupyter
 }
 
 

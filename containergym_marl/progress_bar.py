@@ -2,22 +2,28 @@
 
 On a terminal a :class:`Display` draws one row per task: its description, a bar, the percentage,
 done/total, the rate, the ETA and a status text; lines printed meanwhile (:meth:`Display.say`, or
-``print``) appear above the rows. When the stream is not a terminal (a log file, a pipe, a captured
-test stream) nothing is drawn and nothing is written: no carriage returns, no escape codes. A caller
-that wants something in a log (the sweep) writes plain lines itself.
+``print``) appear above the rows. In a Jupyter notebook (a kernel: Jupyter, JupyterLab, VS Code,
+Colab) the same rows are drawn in an output widget under the cell, redrawn in place, which needs
+ipywidgets (the ``notebook`` extra; without it a warning names the extra and nothing is drawn). When
+the stream is neither (a log file, a pipe, a captured test stream) nothing is drawn and nothing is
+written: no carriage returns, no escape codes. A caller that wants something in a log (the sweep)
+writes plain lines itself.
 
-This module depends on rich and the standard library only.
+This module depends on rich and the standard library only (ipywidgets in a notebook).
 """
 
 from __future__ import annotations
 
 import sys
+import warnings
 from typing import Any, TextIO
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, ProgressColumn, Task, TaskID, TaskProgressColumn, TextColumn
 from rich.table import Column
 from rich.text import Text
+
+from containergym_marl.extras import INSTALL
 
 
 def format_duration(seconds: float | None) -> str:
@@ -40,6 +46,25 @@ def is_terminal(stream: Any) -> bool:
         return bool(isatty and isatty())
     except ValueError:  # a closed stream
         return False
+
+
+def in_notebook() -> bool:
+    """Whether this process is a Jupyter kernel running a notebook (Jupyter, JupyterLab, VS Code,
+    Colab), where rich draws its rows in an output widget. IPython in a terminal is not one."""
+    ipython_module = sys.modules.get("IPython")  # never imported here: a kernel has it loaded
+    shell = ipython_module.get_ipython() if ipython_module is not None else None
+    return shell is not None and (type(shell).__name__ == "ZMQInteractiveShell" or "google.colab" in str(type(shell)))
+
+
+def _notebook_widgets() -> bool:
+    """Whether ipywidgets (rich's notebook display) can be imported; a warning naming the extra if not."""
+    try:
+        import ipywidgets  # noqa: F401
+    except ImportError:
+        warnings.warn("progress rows in a notebook need ipywidgets, which is not installed; install the notebook "
+                      f"extra: {INSTALL['notebook']}", stacklevel=3)
+        return False
+    return True
 
 
 def _count(n: float) -> str:
@@ -96,13 +121,17 @@ class _EtaColumn(ProgressColumn):
 
 class Display:
     """Rows of tasks on ``stream`` (default stderr: stdout stays for results) while it is a terminal
-    and ``show`` holds; otherwise :attr:`live` is False and nothing is written. Use as a context
-    manager (or call :meth:`close`), so that the terminal's cursor comes back even after an exception."""
+    and ``show`` holds, or in an output widget in a notebook (:attr:`notebook`); otherwise :attr:`live`
+    is False and nothing is written. Use as a context manager (or call :meth:`close`), so that the
+    terminal's cursor comes back even after an exception."""
 
     def __init__(self, stream: TextIO | None = None, show: bool = True):
         stream = stream or sys.stderr
-        self.live = show and is_terminal(stream)
-        self.console = Console(file=stream, force_terminal=self.live, highlight=False)
+        terminal = is_terminal(stream)
+        self.notebook = show and not terminal and in_notebook() and _notebook_widgets()
+        self.live = show and (terminal or self.notebook)
+        self.console = Console(file=stream, force_terminal=self.live and not self.notebook,
+                               force_jupyter=self.notebook, highlight=False)
         self.progress = Progress(
             TextColumn("{task.description}", markup=False, table_column=_cell()), BarColumn(bar_width=20),
             TaskProgressColumn(), _CountColumn(_cell()), _RateColumn(_cell()), _EtaColumn(_cell()),
