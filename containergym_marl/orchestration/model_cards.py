@@ -60,6 +60,10 @@ def card(to: Path, method: str, config: str, view: str, which: str, seed: int, s
     ``models/<config>/`` (``model``, and ``safetensors`` where written)."""
     args = run_args(run)
     algo = args["algo"]
+    spec = get_algorithm(algo)
+    mode = args.get("reward_mode") if spec.reward_modes else None  # a centralised one trains on the plant's
+    command = (f"`containergym-marl train --algo {algo} --config {config} --seed {seed}"
+               + (f" --reward-mode {mode}" if mode else "") + "`") if spec.trained_here else f"`{spec.trainer_name}`"
     summary = read_run_summary(run) or {}
     fresh = _summary(json.loads((to / "fresh" / config / f"{method}_s{seed}.json").read_text()))
     test = _summary(json.loads((to / "evaluations" / config / f"{method}_s{seed}.json").read_text()))
@@ -69,7 +73,7 @@ def card(to: Path, method: str, config: str, view: str, which: str, seed: int, s
     if chosen_on is not None and chosen_on.is_file():
         validation = _summary(json.loads(chosen_on.read_text()))
         picked = f"{validation['episodes']} validation episodes (seeds {validation['first_seed']}+)"
-    library = "stable-baselines3" if get_algorithm(algo).sb3 else "containergym-marl"
+    library = "stable-baselines3" if spec.sb3 else "containergym-marl"
     name = f"{method}-{config}-{which}"
     tags = ["reinforcement-learning", env, "containergym", config] + (["multi-agent"] if view == "decentralised" else [])
     load_file = files.get("safetensors", files["model"])
@@ -82,10 +86,9 @@ def card(to: Path, method: str, config: str, view: str, which: str, seed: int, s
              f"      name: mean_reward on {fresh['episodes']} fresh episodes", "      verified: false", "---"]
     body = [
         "", f"# `{method}` on `{config}` ({which} of {seeds} seeds)", "",
-        f"A policy of the containergym-marl benchmark ({ROLES[view]}), trained by `containergym-marl train --algo {algo} --config {config} --seed {seed}"
-        + (f" --reward-mode {args['reward_mode']}" if args.get("reward_mode") else "") + "`.", "",
+        f"A policy of the containergym-marl benchmark ({ROLES[view]}), trained by {command}.", "",
         "## Training", "",
-        f"- method: `{method}` (algorithm `{algo}`" + (f", reward mode {args['reward_mode']}" if args.get("reward_mode") else "") + ")",
+        f"- method: `{method}` (algorithm `{algo}`" + (f", reward mode {mode}" if mode else "") + ")",
         f"- plant: `{config}`; budget {int(args['timesteps']):,} samples, {int(summary.get('timesteps', 0)):,} trained; seed {seed}",
         "- settings: " + (f"`{json.dumps(settings, sort_keys=True)}` (the method's settings file, "
                           f"`configs/hyperparams/{method}.toml`, as it was then, and `--hp`)" if settings
