@@ -136,3 +136,40 @@ def test_the_published_planner_is_the_planner_study_s_default_setting():
     for r in rows:
         assert r["best_mean"] == pytest.approx(study[(r["config"], r["method"])], rel=1e-12), r["config"]
         assert r["fresh_episodes"] == 200 and r["seeds"] == 0
+
+
+def test_every_shipped_model_has_a_card_of_its_fresh_numbers_and_native_ones_their_safetensors():
+    """Each model in models/<row>/ has its card, whose metric and overflow share are recomputed here
+    from the seed's fresh evaluation file, and each native actor-critic its safetensors copy with the
+    same weights; all are in the manifest."""
+    import json
+
+    import numpy as np
+    import torch
+
+    from containergym_marl.manifest import read_manifest
+    from containergym_marl.policies.actor_critic import ActorCritic
+
+    listed = read_manifest(PUBLISHED)
+    metas = sorted((PUBLISHED / "models").glob("*/*.json"))
+    assert metas
+    natives = 0
+    for path in metas:
+        meta = json.loads(path.read_text())
+        for which in ("best", "median"):
+            seed = meta[f"{which}_seed"]
+            fresh = json.loads((PUBLISHED / "fresh" / meta["config"] / f"{meta['method']}_s{seed}.json").read_text())
+            returns = np.array([e["cumulative_reward"] for e in fresh["episodes"]])
+            card = (path.parent / meta["cards"][which]).read_text()
+            assert f"value: {returns.mean():.2f} +/- {returns.std():.2f}\n" in card, (path, which)
+            overflow = np.mean([e["overflow"] for e in fresh["episodes"]])
+            assert f"overflows in {overflow:.1%} of the fresh episodes" in card
+            assert f"models/{meta['config']}/{meta['cards'][which]}" in listed
+            model = path.parent / meta["files"][which]
+            if model.suffix == ".pt" and meta["method"] != "mappo":
+                natives += 1
+                weights = path.parent / meta["safetensors"][which]
+                assert f"models/{meta['config']}/{weights.name}" in listed
+                a, b = ActorCritic.load(model).net.state_dict(), ActorCritic.load(weights).net.state_dict()
+                assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert natives > 0
