@@ -118,6 +118,7 @@ def card(to: Path, method: str, config: str, view: str, which: str, seed: int, s
 
 
 def write_card(to: Path, path: Path, **kwargs) -> Path:
+    """Write :func:`card` (``kwargs``: its arguments) to ``path`` inside ``to``, crash-safe."""
     return atomic_write_text(path, card(to, **kwargs), within=to)
 
 
