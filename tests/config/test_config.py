@@ -678,12 +678,14 @@ def test_reward_peaks_are_bounded(tmp_path):
 # ---- 7. non-editable install ---------------------------------------------------------------
 def test_wheel_install_loads_builtin_configs(tmp_path):
     """A built wheel, used without the source tree, still finds the nine built-in configs."""
-    # Build from a copy so the build does not leave build/ or *.egg-info in the working tree.
+    # Build from a copy so the build does not leave build/ or *.egg-info in the working tree; the copy
+    # leaves out what no wheel holds (environments, published results, runs: copying and deleting
+    # those took most of this test's two minutes)
     src = tmp_path / "src"
     shutil.copytree(
         REPO_ROOT, src,
-        ignore=shutil.ignore_patterns(".git", ".venv", "build", "dist", "*.egg-info", "__pycache__",
-                                      ".pytest_cache", ".hypothesis", "runs"),
+        ignore=shutil.ignore_patterns(".git", ".venv*", "build", "dist", "*.egg-info", "__pycache__",
+                                      ".pytest_cache", ".hypothesis", "runs*", "results"),
     )
     wheel_dir = tmp_path / "wheels"
     base_cmd = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(wheel_dir), str(src)]
