@@ -370,11 +370,13 @@ def _overflowing_seeds(group) -> int:
     return sum(any(e["overflow"] for e in ev["episodes"]) for ev in group.evaluations)
 
 
-def row_block(to: Path, config: str) -> str:
+def row_block(to: Path, config: str, evaluations: list | None = None) -> str:
     """The results page's table of one row: every method with its seeds' spread, the best seed's
-    behaviour, the paper's PPO and the probabilities of improvement."""
+    behaviour, the paper's PPO and the probabilities of improvement. ``evaluations``: the folder's
+    loaded evaluations (:func:`~containergym_marl.evaluation.table.load_evaluations`), read when not given."""
     data = _table_json(to)
-    groups = {g.method: g for g in tables.load_evaluations(to / "evaluations") if g.config == config}
+    evaluations = tables.load_evaluations(to / "evaluations") if evaluations is None else evaluations
+    groups = {g.method: g for g in evaluations if g.config == config}
     shown = metrics.shown_in("row")
     headers = ["method", "view", "seeds", "IQM [95 % CI]", "median seed", "lowest – highest seed",
                "seeds with an overflowing test episode", *(("best seed: " if i == 0 else "") + m.label
@@ -407,8 +409,9 @@ def page_blocks(to: Path) -> dict[str, str]:
     (the full table with the training compute) and ``row:<config>`` for each published row."""
     blocks = {"compact": compact_table(to),
               "table": (to / "table.md").read_text().rstrip("\n") + "\n\n" + (to / "compute.md").read_text()}
+    evaluations = tables.load_evaluations(to / "evaluations")  # once for every row's block
     for config in dict.fromkeys(r["config"] for r in _table_json(to)["rows"]):
-        blocks[f"row:{config}"] = row_block(to, config)
+        blocks[f"row:{config}"] = row_block(to, config, evaluations)
     return blocks
 
 
