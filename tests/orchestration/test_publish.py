@@ -124,6 +124,18 @@ def test_an_interrupted_run_published_with_its_checkpoint_resumes_after_restore(
     assert publish_results.restore(to, fresh_runs, fresh_out)["runs"] == []
 
 
+def _tiny_native_runs(runs, out, config: str, seeds) -> None:
+    """fast_shared_ppo runs of 2000 samples on 20-step episodes, evaluated on two episodes into ``out``."""
+    for seed in seeds:
+        run = train(TrainArgs(algo="fast_shared_ppo", config=config, seed=seed, timesteps=2000, n_envs=2,
+                              out=str(runs / f"fast_shared_ppo_{config}_s{seed}"), progress_bar=False,
+                              hyperparams={"n_steps": 16, "minibatch_size": 64}, overrides={"episode_length_steps": 20}))
+        result = evaluate_run(run, protocol=EvalProtocol(episodes=2, episode_length_steps=30), write=False)
+        path = out / "evaluations" / config / f"fast_shared_ppo_s{seed}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(result.to_json())
+
+
 def test_published_native_ppo_runs_are_shipped_policies_of_the_main_job(tmp_path):
     """The main job (compare on the shipped folder) takes native-PPO runs like SB3 ones: their
     tensor-only best model is what it evaluates, checked against the manifest."""
@@ -132,14 +144,7 @@ def test_published_native_ppo_runs_are_shipped_policies_of_the_main_job(tmp_path
 
     runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
     config = "n5_m2_dt120"
-    for seed in (1, 2):
-        run = train(TrainArgs(algo="fast_shared_ppo", config=config, seed=seed, timesteps=2000, n_envs=2,
-                              out=str(runs / f"fast_shared_ppo_{config}_s{seed}"), progress_bar=False,
-                              hyperparams={"n_steps": 16, "minibatch_size": 64}, overrides={"episode_length_steps": 20}))
-        result = evaluate_run(run, protocol=EvalProtocol(episodes=2, episode_length_steps=30), write=False)
-        path = out / "evaluations" / config / f"fast_shared_ppo_s{seed}.json"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(result.to_json())
+    _tiny_native_runs(runs, out, config, (1, 2))
     publish_results.publish(runs, out, to, min_seeds=3)  # two seeds: no models, no fresh evaluations
     assert (to / "runs" / f"fast_shared_ppo_{config}_s1" / "best_model.pt").is_file()
     plan = shipped_plan(CompareArgs(configs=[config], methods=["fast_shared_ppo"], shipped=str(to), episodes=2,
@@ -159,14 +164,7 @@ def test_shipped_native_models_get_safetensors_and_a_model_card_of_their_fresh_n
 
     runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
     config = "n5_m2_dt120"
-    for seed in (1, 2, 3):
-        run = train(TrainArgs(algo="fast_shared_ppo", config=config, seed=seed, timesteps=2000, n_envs=2,
-                              out=str(runs / f"fast_shared_ppo_{config}_s{seed}"), progress_bar=False,
-                              hyperparams={"n_steps": 16, "minibatch_size": 64}, overrides={"episode_length_steps": 20}))
-        result = evaluate_run(run, protocol=EvalProtocol(episodes=2, episode_length_steps=30), write=False)
-        path = out / "evaluations" / config / f"fast_shared_ppo_s{seed}.json"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(result.to_json())
+    _tiny_native_runs(runs, out, config, (1, 2, 3))
     publish_results.publish(runs, out, to)
     folder = to / "models" / config
     meta = json.loads((folder / "fast_shared_ppo.json").read_text())
