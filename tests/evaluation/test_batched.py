@@ -23,15 +23,22 @@ RUNS = REPO / "results" / "paper_rows" / "runs"
 EPISODES = EvalProtocol(episodes=12, first_seed=30_000)
 
 
-@pytest.mark.parametrize("run", ["fast_shared_ppo_n11_m2_dt120_s3", "fast_ppo_n11_m2_dt120_s2",
-                                 "ppo_n11_m2_dt120_s1", "shared_ppo_n11_m2_dt120_s2", "mappo_n11_m2_dt120_s2",
-                                 "fast_shared_ppo_team_n5_m2_dt60_s1"])
-def test_batched_evaluation_equals_the_one_environment_evaluation(run):
+# (run, its first fresh episodes compared, whether they include an overflow as well as time-limit ends):
+# enough episodes for both ends where the policy overflows early in the range, four where it never does
+COMPARED = [("fast_shared_ppo_n11_m2_dt120_s3", 4, False), ("fast_ppo_n11_m2_dt120_s2", 6, True),
+            ("ppo_n11_m2_dt120_s1", 6, True), ("shared_ppo_n11_m2_dt120_s2", 4, False),
+            ("mappo_n11_m2_dt120_s2", 6, True), ("fast_shared_ppo_team_n5_m2_dt60_s1", 12, True)]
+
+
+@pytest.mark.parametrize("run, episodes, overflows", COMPARED)
+def test_batched_evaluation_equals_the_one_environment_evaluation(run, episodes, overflows):
     policy = policy_from_run(RUNS / run)
     config = json.loads((RUNS / run / "args.json").read_text())["config"]
-    one = evaluate(policy, config, EPISODES, keep_records=False)
-    batched = evaluate_batched(policy, config, EPISODES)
-    assert [e.seed for e in batched.episodes] == EPISODES.seeds
+    protocol = dataclasses.replace(EPISODES, episodes=episodes)
+    one = evaluate(policy, config, protocol, keep_records=False)
+    batched = evaluate_batched(policy, config, protocol)
+    assert [e.seed for e in batched.episodes] == protocol.seeds
+    assert {e.overflow for e in one.episodes} == ({False, True} if overflows else {False})
     for a, b in zip(one.episodes, batched.episodes):
         assert b.values.keys() == a.values.keys() == {m.name for m in METRICS}
         for name, x, y in [("cumulative_reward", a.cumulative_reward, b.cumulative_reward),
