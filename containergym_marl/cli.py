@@ -107,6 +107,13 @@ def _evaluate_target(target: str, config: str | None, episodes: int, which: str,
         from containergym_marl.evaluation.run_policies import evaluate_run
         from containergym_marl.rundir import RunWarning
 
+        try:  # one thread, as training and the sweep's evaluations: a learned policy's networks are too
+            import torch  # small to split, and on a busy machine a second thread made each step wait for it
+
+            torch.set_num_threads(1)
+        except ImportError:
+            pass  # loading the run's model names the extra to install
+
         bar, on_episode = _episode_bar(protocol.episodes)
         with warnings.catch_warnings(record=True) as caught, bar:
             warnings.simplefilter("always", RunWarning)
