@@ -164,7 +164,7 @@ def report(rows: list[dict], note: str = "") -> str:
             agents = views.get("planner_agents")
             episodes = max(r["episodes"] for r in views.values())
             lines.append(f"| {plant.rsplit('_', 1)[0]} | {setting} | {episodes} | " + " | ".join(cells)
-                         + f" | {agents['ms_cpu_per_step']:.2f} |" if agents else " | – |")
+                         + (f" | {agents['ms_cpu_per_step']:.2f} |" if agents else " | – |"))
         lines.append("")
     replays = [r for r in rows if r["part"] == "replay"]
     if replays:

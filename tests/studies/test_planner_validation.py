@@ -55,3 +55,15 @@ def test_each_overflowing_fresh_episode_is_replayed_with_another_seed_and_more_f
                                                       for s in (30_007, 30_042) for _ in range(3)]
     assert [{k: v for k, v in j[3].items() if script.DEFAULTS.get(k) != v} for j in jobs[:3]] == [
         {"seed": 1}, {"seed": 2}, {"futures": 64}]
+
+
+def test_a_setting_with_one_view_so_far_keeps_its_whole_row():
+    """A setting whose container-agent blocks have not run yet: its row shows the planner and dashes
+    (the line used to be replaced by its last cell alone)."""
+    script = load_script("studies/planner_validation.py")
+    row = {"part": "wide", "plant": "n16_m2_dt120", "view": "planner", "settings": dict(script.DEFAULTS),
+           "episodes": 10, "return_mean": 111.25, "return_sem": 0.5, "overflowing_episodes": 0,
+           "ms_cpu_per_step": 2.0}
+    lines = script.report([row]).splitlines()
+    assert "| n16_m2 | defaults | 10 | 111.25 ± 0.50 | 0 | – | – | – |" in lines
+    assert " | – |" not in lines
