@@ -24,8 +24,8 @@ reached the same run, finished or still running, so a weak setting costs four n 
 A setting the sampler proposes again after a trial judged it takes that trial's verdict (state
 ``(= trial N)`` in the table) without training; each setting counts once in the median. A pruned
 setting may have been stopped by noise when close to the median: ``--finalists K`` queues the K
-settings with the best mean score (over at least one run of every row) again as *finalists*, which
-are never pruned and so are judged on every run, their earlier runs reused. A new search can start
+settings (judged on at least the first four runs) that beat the default by most on the runs both did
+again as *finalists*, which are never pruned and so are judged on every run, their earlier runs reused. A new search can start
 from another's results: ``--start-from fast_shared_ppo:3`` queues that search's three best
 settings after the default (``fast_shared_ppo_team`` and ``fast_ppo`` need not search from scratch).
 
@@ -286,10 +286,12 @@ def _worker(method: str, journal: str, runs: str, rows, seeds, rule, timesteps, 
 
 
 def enqueue_finalists(study, count: int, min_runs: int) -> list[int]:
-    """Queue the ``count`` settings with the highest mean score over at least ``min_runs`` runs that
-    no trial has finished all runs of, as finalists: the pruner never stops them, so each is judged
-    on every run, as the default is (a setting pruned by a hair at a few runs gets its full
-    comparison). Their runs so far are reused. Returns the numbers of the trials they come from."""
+    """Queue the ``count`` settings with the largest advantage over the default setting (their mean
+    score minus the default's on the same runs: a setting pruned on the easy n = 5 runs is not ranked
+    against another's mean over harder ones) over at least ``min_runs`` runs that no trial has
+    finished all runs of, as finalists: the pruner never stops them, so each is judged on every run,
+    as the default is (a setting pruned by a hair at a few runs gets its full comparison). Their runs
+    so far are reused. Returns the numbers of the trials they come from."""
     optuna = require_optuna()
     complete = {settings_key(t.params) for t in study.get_trials(deepcopy=False)
                 if t.state == optuna.trial.TrialState.COMPLETE}
@@ -298,16 +300,26 @@ def enqueue_finalists(study, count: int, min_runs: int) -> list[int]:
               for t in study.get_trials(deepcopy=False)
               if t.state in (optuna.trial.TrialState.WAITING, optuna.trial.TrialState.RUNNING)}
     best: dict[str, Any] = {}
-    for row in trial_rows(study):
+    rows = trial_rows(study)
+    for row in rows:
         key = settings_key(row["params"])
         if key in complete or key in queued or len(row["runs"]) < min_runs:
             continue
         if key not in best or len(row["runs"]) > len(best[key]["runs"]):
             best[key] = row
-    chosen = sorted(best.values(), key=lambda r: r["mean_score"], reverse=True)[:count]
+    reference = max((r for r in rows if r["params"] == DEFAULT_TRIAL), key=lambda r: len(r["runs"]), default=None)
+    chosen = sorted(best.values(), key=lambda r: advantage(r, reference), reverse=True)[:count]
     for row in chosen:
         study.enqueue_trial(row["params"], user_attrs={"finalist": True, "finalist_of": row["number"]})
     return [row["number"] for row in chosen]
+
+
+def advantage(row: dict[str, Any], reference: dict[str, Any] | None) -> float:
+    """``row``'s mean score minus ``reference``'s over the runs (row, seed) both have; its mean score
+    where there is no reference or no run in common."""
+    theirs = {(r["row"], r["seed"]): r["score"] for r in reference["runs"]} if reference else {}
+    paired = [r["score"] - theirs[r["row"], r["seed"]] for r in row["runs"] if (r["row"], r["seed"]) in theirs]
+    return float(np.mean(paired)) if paired else row["mean_score"]
 
 
 def best_settings(study, count: int, min_runs: int) -> list[tuple[int, dict[str, Any]]]:
@@ -515,16 +527,23 @@ def _cell(value) -> str:
     return str(value).lower() if isinstance(value, bool) else str(value)
 
 
+def _count(settings: set[str]) -> str:
+    return "1 setting" if len(settings) == 1 else f"{len(settings)} settings"
+
+
 def write_config(method: str, study, path: Path) -> dict[str, Any]:
     """Write the best finished trial's settings (highest IQM share of rule_based_agents over every run)
     as ``method``'s settings file, read by ``train`` and ``compare``; a ValueError when no trial has
     finished."""
     optuna = require_optuna()
     best = best_trial(study, "--write-config")
-    done = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE]
-    source = (f"studies/native_ppo_tuning.py: trial {best.number}, the best of the {len(done)} trials judged on "
-              f"every run (the others were pruned), IQM share of rule_based_agents {best.value:.3f} on validation "
-              f"episodes (results/ppo_tuning/{method}/trials.md)")
+    trials = study.get_trials(deepcopy=False)
+    judged = {settings_key(t.params) for t in trials if t.state == optuna.trial.TrialState.COMPLETE}
+    tried = {settings_key(t.params) for t in trials if t.params}
+    which = "the trainer's default setting" if best.params == DEFAULT_TRIAL else "a searched setting"
+    source = (f"studies/native_ppo_tuning.py: trial {best.number} ({which}), the best of {_count(judged)} judged "
+              f"on every run, of {_count(tried)} tried (the others were pruned), IQM share of rule_based_agents "
+              f"{best.value:.3f} on validation episodes (results/ppo_tuning/{method}/trials.md)")
     write_settings(path, dict(best.params), source)
     return dict(best.params)
 
@@ -541,8 +560,8 @@ def main(argv=None) -> None:
     p.add_argument("--report", action="store_true", help="train nothing: write the tables of the journal")
     p.add_argument("--smoke", action="store_true", help="trials of 1 row x 1 seed at 8192 samples (a test)")
     p.add_argument("--finalists", type=int, default=0, metavar="K",
-                   help="first queue the K best settings not yet judged on every run (mean score over at least "
-                        "one run of every row) as finalists, which the pruner never stops")
+                   help="first queue the K settings not yet judged on every run that beat the default by most on "
+                        "the runs both did (at least the first 4) as finalists, which the pruner never stops")
     p.add_argument("--start-from", default=None, metavar="METHOD:K",
                    help="a new search's first trials after the default: the K best settings of METHOD's search "
                         "(its journal under --out), e.g. fast_shared_ppo:3 for fast_shared_ppo_team")
@@ -597,7 +616,7 @@ def main(argv=None) -> None:
             done = sum(t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
                        for t in study.get_trials(deepcopy=False))
             if ns.finalists:
-                finalists = enqueue_finalists(study, ns.finalists, min_runs=len(rows))
+                finalists = enqueue_finalists(study, ns.finalists, min_runs=WARMUP_RUNS)
                 print(f"finalists queued, the settings of trial(s) {finalists}")
                 total = max(total, done + len(finalists))
             if done < total:

@@ -36,6 +36,7 @@ def _study(out: Path):
     return optuna.load_study(study_name="fast_shared_ppo", storage=storage)
 
 
+@pytest.mark.slow  # a study's end-to-end smoke search, ~50 s
 def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_path):
     out, runs = tmp_path / "out", tmp_path / "runs"
     _search(out, runs)
@@ -111,7 +112,11 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     finished = [t for t in _study(out).get_trials() if t.state == optuna.trial.TrialState.COMPLETE]
     best = max(finished, key=lambda t: t.value)
     settings, source = read_settings(tmp_path / "chosen.toml")
-    assert settings == best.params and f"trial {best.number}, the best of the {len(finished)} trials judged" in source
+    judged = {script.settings_key(t.params) for t in finished}
+    tried = {script.settings_key(t.params) for t in _study(out).get_trials() if t.params}
+    assert settings == best.params and f"trial {best.number} (" in source
+    assert (f"the best of {len(judged)} setting{'s' if len(judged) > 1 else ''} judged on every run, of {len(tried)} "
+            f"setting{'s' if len(tried) > 1 else ''} tried") in source
 
     # the regression guards (at smoke size: the search's own row and seed) compare the default with
     # the chosen setting, reusing the runs the search trained, and leave the journal alone
@@ -209,28 +214,42 @@ def test_a_setting_tried_several_times_counts_once_in_the_median():
     assert other.should_prune()  # the median of (0.9, 0.5, 0.8) is 0.8
 
 
-def test_finalists_are_the_best_settings_not_yet_judged_on_every_run():
+def test_finalists_are_the_settings_that_beat_the_default_most_on_the_same_runs():
     script = _load_script()
     study = optuna.create_study(direction="maximize")
+    keys = [(row, seed) for seed in (101, 102) for row in ("a", "b", "c", "d", "e")]
+    rates = [script.DEFAULT_TRIAL["learning_rate"]] + [1.1e-4 * i for i in range(1, 6)]
 
-    def finished(x: int, scores: list[float], state):
-        trial = _setting(study, x)
+    def finished(rate: float, scores: list[float], state):
+        params = {**script.DEFAULT_TRIAL, "learning_rate": rate}
+        study.enqueue_trial(params)
+        trial = study.ask()
+        for name, value in params.items():
+            trial.suggest_categorical(name, rates if name == "learning_rate" else [value])
         for k, score in enumerate(scores):
-            trial.set_user_attr(f"run_{k:02d}", {"score": score, "overflowing_episodes": 0,
+            row, seed = keys[k]
+            trial.set_user_attr(f"run_{k:02d}", {"row": row, "seed": seed, "score": score, "overflowing_episodes": 0,
                                                  "half_budget_score": score, "cpu_s": 1.0})
         study.tell(trial, float(np.mean(scores)) if state == optuna.trial.TrialState.COMPLETE else None, state=state)
         return trial
 
     pruned, complete = optuna.trial.TrialState.PRUNED, optuna.trial.TrialState.COMPLETE
-    finished(1, [0.9] * 10, complete)  # judged on every run: never a finalist
-    near = finished(2, [0.95] * 7, pruned)
-    finished(3, [0.99] * 3, pruned)  # too few runs to rank
-    lower = finished(4, [0.7] * 7, pruned)
-    assert script.enqueue_finalists(study, 2, min_runs=5) == [near.number, lower.number]
+    default = finished(rates[0], [0.9] * 4 + [0.5] * 6, complete)  # easy first runs, then hard ones
+    judged = finished(rates[1], [0.95] * 10, complete)  # judged on every run: never a finalist
+    early = finished(rates[2], [0.92] * 4, pruned)  # mean 0.92; +0.02 on the default's same runs
+    later = finished(rates[3], [0.88] * 4 + [0.6] * 3, pruned)  # mean 0.76; +0.22 / 7 on the same runs
+    lower = finished(rates[4], [0.6] * 7, pruned)  # -0.9 / 7
+    finished(rates[5], [0.99] * 3, pruned)  # too few runs to rank
+    rows = {r["number"]: r for r in script.trial_rows(study)}
+    assert script.advantage(rows[early.number], rows[default.number]) == pytest.approx(0.02)
+    assert script.advantage(rows[later.number], rows[default.number]) == pytest.approx(0.22 / 7)
+    assert script.advantage(rows[early.number], None) == pytest.approx(0.92)  # no reference: the mean
+    assert script.enqueue_finalists(study, 3, min_runs=4) == [later.number, early.number, lower.number]
     waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
-    assert [t.system_attrs["fixed_params"] for t in waiting] == [{"x": 2}, {"x": 4}]  # as a worker will ask them
-    assert all(t.user_attrs["finalist"] for t in waiting)
-    assert script.enqueue_finalists(study, 2, min_runs=5) == []  # queued already
+    assert [t.user_attrs["finalist_of"] for t in waiting] == [later.number, early.number, lower.number]
+    assert all(t.user_attrs["finalist"] for t in waiting) and judged.number not in [
+        t.user_attrs["finalist_of"] for t in waiting]
+    assert script.enqueue_finalists(study, 2, min_runs=4) == []  # queued already
 
 
 def test_a_setting_proposed_again_takes_the_earlier_verdict_without_training(tmp_path):
