@@ -25,6 +25,7 @@ import numpy as np
 
 from containergym_marl import ENV_ID
 from containergym_marl.algorithms import get_algorithm
+from containergym_marl.evaluation.table import FRESH_FOLDER, VALIDATION_FOLDER, evaluation_key
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.actor_critic import ActorCritic
 from containergym_marl.rundir import read_run_summary, run_args
@@ -65,10 +66,11 @@ def card(to: Path, method: str, config: str, view: str, which: str, seed: int, s
     command = (f"`containergym-marl train --algo {algo} --config {config} --seed {seed}"
                + (f" --reward-mode {mode}" if mode else "") + "`") if spec.trained_here else f"`{spec.trainer_name}`"
     summary = read_run_summary(run) or {}
-    fresh = _summary(json.loads((to / "fresh" / config / f"{method}_s{seed}.json").read_text()))
-    test = _summary(json.loads((to / "evaluations" / config / f"{method}_s{seed}.json").read_text()))
+    stem = f"{evaluation_key(method, seed)}.json"
+    fresh = _summary(json.loads((to / FRESH_FOLDER / config / stem).read_text()))
+    test = _summary(json.loads((to / "evaluations" / config / stem).read_text()))
     env = ENV_ID if view == "centralised" else AGENTS_ENV
-    chosen_on = to / picked_on / config / f"{method}_s{seed}.json" if picked_on == "validation" else None
+    chosen_on = to / VALIDATION_FOLDER / config / stem if picked_on == "validation" else None
     picked = f"the {picked_on} episodes"
     if chosen_on is not None and chosen_on.is_file():
         validation = _summary(json.loads(chosen_on.read_text()))

@@ -33,6 +33,7 @@ def _number(cell: str) -> float:
     return float(cell.replace(",", "").rstrip("×"))
 
 
+@pytest.mark.slow  # ~20 s
 def test_smoke_run_prints_every_table(tmp_path):
     out_json = tmp_path / "throughput.json"
     env = {k: v for k, v in os.environ.items() if k != "CONTAINERGYM_REFERENCE_PYTHON"}
@@ -115,6 +116,7 @@ def test_kernel_benchmark_compares_two_checkouts():
         assert abs(_number(r[2]) - 1000 * _number(r[1]) / bsz) <= 1000 * 0.05 / bsz + 1  # µs shown to 0.1
 
 
+@pytest.mark.slow  # starts fresh processes, ~12 s
 def test_startup_benchmark_shows_a_warm_process_compiling_nothing():
     """benchmarks/startup.py runs a cold and a warm process per rule on a private numba cache; the
     warm one loads the kernel (one hit, no miss) and writes no cache file."""
@@ -127,6 +129,7 @@ def test_startup_benchmark_shows_a_warm_process_compiling_nothing():
     assert rows[1][7] == "1 / 0" and rows[1][8] == "0"
 
 
+@pytest.mark.slow  # times SB3 and the native trainer, ~30 s
 def test_trainer_throughput_smoke_prints_both_ratios(tmp_path):
     """benchmarks/trainer_throughput.py end to end at one rollout a burst: the four algorithms and
     the two native/SB3 ratios, also as JSON (structure, not speed)."""
@@ -166,6 +169,7 @@ def test_trainer_profile_smoke_accounts_for_the_whole_run(tmp_path):
     assert out_md.read_text().strip() in proc.stdout and "load average before" in out_md.read_text()
 
 
+@pytest.mark.slow  # ~25 s
 def test_threads_smoke_times_both_layouts(tmp_path):
     """benchmarks/threads.py trains whole runs in both layouts and writes what it judged from."""
     out_json = tmp_path / "threads.json"
@@ -180,6 +184,7 @@ def test_threads_smoke_times_both_layouts(tmp_path):
     assert len(data["ratios"]) == 1
 
 
+@pytest.mark.slow  # ~15 s
 def test_trainer_ab_compares_a_checkout_with_itself(tmp_path):
     """Two checkouts of the same code train the same model (the hash check can pass) and the table
     has both sides."""

@@ -55,6 +55,7 @@ def cache_files(folder: Path) -> dict[str, int]:
 
 
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="NUMBA_DISABLE_JIT: nothing is compiled or cached")
+@pytest.mark.slow  # compiles every rule in a fresh cache, ~20 s
 def test_second_process_loads_every_rule_from_the_cache(tmp_path):
     assert set(BUILT_IN) <= set(dynamics.ARBITRATION_RULES)
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONPATH": str(ROOT)}

@@ -105,6 +105,7 @@ def _published_means(folder: Path) -> dict[int, float]:
     return means
 
 
+@pytest.mark.slow  # starts a local Ray instance and evaluates every shipped policy, ~50 s
 def test_the_main_job_evaluates_the_shipped_policies_and_trains_nothing(shipped, tmp_path):
     before = _snapshot(shipped)
     means = _published_means(shipped)

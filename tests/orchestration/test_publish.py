@@ -17,6 +17,7 @@ from containergym_marl.orchestration import publish as publish_results
 
 
 
+@pytest.mark.slow  # evaluates three SB3 seeds on 300 full-length episodes, ~35 s
 def test_publish_copies_small_files_evaluations_and_the_best_and_median_models(tmp_path):
     runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
     config = "n5_m2_dt120"

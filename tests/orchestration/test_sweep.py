@@ -22,6 +22,8 @@ TINY = dict(configs=["n5_m2_dt120"], methods=["rule_based", "rule_based_agents",
 RUNS = ("ppo_n5_m2_dt120_s1", "ppo_n5_m2_dt120_s2")
 
 
+# a local Ray sweep of SB3 runs, ~1 min; test_compare_trains_and_evaluates_the_native_ppo_methods runs Ray in the default suite
+@pytest.mark.slow
 def test_tiny_sweep_on_local_ray_then_a_rerun_trains_nothing(tmp_path, capsys):
     out = tmp_path / "cmp"
     report = compare(CompareArgs(out=str(out), figures="all", **TINY))
@@ -69,6 +71,7 @@ def test_tiny_sweep_on_local_ray_then_a_rerun_trains_nothing(tmp_path, capsys):
     assert json.dumps(again["rows"]) == json.dumps(report["rows"])  # (NaN shares compare equal as JSON)
 
 
+@pytest.mark.slow  # kills and restarts compare on Ray, ~1 min
 def test_compare_killed_once_then_the_same_command_resumes_and_finishes(tmp_path):
     """The short variant of test_sweep_slow.py's random kills: SIGKILL to every process of a running
     compare (driver, Ray, workers) once its run has a checkpoint. Nothing of it lives on, every file a
@@ -138,6 +141,7 @@ def test_compare_killed_once_then_the_same_command_resumes_and_finishes(tmp_path
         assert all(np.array_equal(a[k].numpy(), b[k].numpy()) for k in a), s
 
 
+@pytest.mark.slow  # trains three native methods and evaluates them on a local Ray instance, ~40 s
 def test_compare_trains_and_evaluates_the_native_ppo_methods(tmp_path):
     """fast_ppo, fast_shared_ppo and fast_shared_ppo_team through compare on Ray: tensor-only run
     directories, evaluations, and the decentralised-against-centralised pairs in the table; a rerun

@@ -8,9 +8,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.slow  # a study's end-to-end smoke run, ~1 min
 def test_smoke_run_reports_share_cost_and_decision_time(tmp_path):
     subprocess.run([sys.executable, str(REPO / "studies" / "dagger_rows.py"), "--smoke", "--num-cpus", "1",
                     "--out", str(tmp_path / "out"), "--runs", str(tmp_path / "runs")],

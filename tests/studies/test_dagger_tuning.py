@@ -8,10 +8,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = str(REPO / "studies" / "dagger_tuning.py")
 
 
+@pytest.mark.slow  # a study's end-to-end smoke run, ~30 s
 def test_smoke_run_evaluates_each_variant_on_validation_seeds(tmp_path):
     out, runs = tmp_path / "out", tmp_path / "runs"
     subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "2", "--out", str(out), "--runs", str(runs)],
@@ -29,6 +32,7 @@ def test_smoke_run_evaluates_each_variant_on_validation_seeds(tmp_path):
     assert "| greedy | greedy=true | n5_m2_dt120 | 1 |" in (out / "tuning.md").read_text()
 
 
+@pytest.mark.slow  # trains and evaluates a study run, ~30 s
 def test_a_run_stopped_by_the_deadline_is_evaluated_by_its_best_model(tmp_path):
     out, runs = tmp_path / "out", tmp_path / "runs"
     common = [sys.executable, SCRIPT, "--variants", "greedy", "--rows", "n5_m2_dt120", "--seeds", "1",
@@ -50,6 +54,7 @@ def test_a_run_stopped_by_the_deadline_is_evaluated_by_its_best_model(tmp_path):
     assert entry["model"] == "best" and not entry["finished"] and 0 < entry["trained_samples"] < 5_000_000
 
 
+@pytest.mark.slow  # trains a study run, ~20 s
 def test_a_fine_tuning_variant_trains_its_method_with_its_reward_mode(tmp_path):
     out, runs = tmp_path / "out", tmp_path / "runs"
     subprocess.run([sys.executable, SCRIPT, "--variants", "ppo_team_share_0.5", "--rows", "n5_m2_dt120", "--seeds", "1",

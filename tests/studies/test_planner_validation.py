@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.evaluation.protocol import FRESH
@@ -19,6 +20,7 @@ REPO = Path(__file__).resolve().parents[2]
 SCRIPT = str(REPO / "studies" / "planner_validation.py")
 
 
+@pytest.mark.slow  # a study's end-to-end smoke run, ~20 s
 def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
     out = tmp_path / "out"
     out.mkdir()

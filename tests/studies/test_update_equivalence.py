@@ -14,6 +14,7 @@ pytest.importorskip("torch")
 REPO = Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.slow  # a study's smoke run, ~15 s
 def test_update_equivalence_reference_is_the_autograd_update_and_the_smoke_run_reports(tmp_path):
     """studies/update_equivalence.py: its ``autograd`` variant's update reaches the weights of the
     trainer's written-out update from the same start (one update of four minibatches, to float

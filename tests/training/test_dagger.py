@@ -74,6 +74,7 @@ class _RandomAgents:
         return {a: int(self.rng.integers(2)) for a in observations}
 
 
+@pytest.mark.slow  # trains to a learning bound, ~25 s
 def test_imitation_beats_a_random_policy_clearly_within_a_small_budget(tmp_path):
     """40k samples (about 5 s) of DAgger on n5_m2_dt120; 5 test episodes of the paper's protocol. The
     imitated policy's mean return exceeds the random agents' by more than 5 standard errors of the
@@ -96,6 +97,7 @@ def test_imitation_beats_a_random_policy_clearly_within_a_small_budget(tmp_path)
     assert np.mean(late) > 0.95, late
 
 
+@pytest.mark.slow  # ~1 min; the native trainer's kill-9 resume is in the default suite
 def test_cli_trains_resumes_after_kill_9_and_evaluates(tmp_path):
     """A run killed with SIGKILL after some checkpoints resumes from the newest: every metrics row and
     every iteration of the record once, the labelling cost continuing from the checkpoint's; the

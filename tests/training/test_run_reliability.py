@@ -509,6 +509,7 @@ def _check_consistent(run: Path, budget: int) -> None:
     evaluate_run(run, protocol=EvalProtocol(episodes=1), write=False)
 
 
+@pytest.mark.slow  # ~20 s; the native trainer's kill-9 resume is in the default suite
 def test_kill_9_after_the_first_checkpoint_then_resume(tmp_path):
     out, budget = tmp_path / "r", 1536
     proc = _start(out, budget)
