@@ -8,6 +8,7 @@
     containergym-marl evaluate planner --config n11_m2_dt120      # the rollout planner (planner_agents: per container)
     containergym-marl compare                                   # the main job: the shipped policies, evaluated
     containergym-marl compare --train                           # ... or trained here (--timesteps paper: hours)
+    containergym-marl demonstrations --configs n5_m2_dt120 --episodes 10   # datasets of the planner and rules
 """
 
 from __future__ import annotations
@@ -206,6 +207,18 @@ def _cmd_publish(ns: argparse.Namespace) -> int:
     return run(from_namespace(PublishArgs, ns))
 
 
+def _cmd_demonstrations(ns: argparse.Namespace) -> int:
+    from containergym_marl.demonstrations import DemonstrationsArgs, build
+
+    try:  # bad values, a dataset of other episodes, a changed file: ValueErrors, reported by main()
+        build(from_namespace(DemonstrationsArgs, ns))
+    except KeyboardInterrupt:
+        print("containergym-marl demonstrations: interrupted; the finished datasets are kept, and the same command "
+              "builds the others", file=sys.stderr)
+        return 130
+    return 0
+
+
 def _version() -> str:
     """The installed package's version (its metadata), else the source tree's."""
     from importlib.metadata import PackageNotFoundError, version
@@ -259,6 +272,18 @@ def build_parser() -> argparse.ArgumentParser:
                                        "(or back, --restore)")
     add_options(p, PublishArgs)
     p.set_defaults(func=_cmd_publish)
+
+    from containergym_marl.demonstrations import DemonstrationsArgs
+
+    d = sub.add_parser("demonstrations", help="datasets of the planner's and the rule-based controllers' episodes: "
+                                              "Minari (centralised) and NumPy (container agents)",
+                       description="Episodes of the rollout planner and the rule-based controllers on the built-in "
+                                   "rows (the paper's test plant, seeds 40000 on): a Minari dataset per (row, "
+                                   "policy) for the centralised view and a NumPy file for the container agents, "
+                                   "labelled with planner_agents' decisions. Finished datasets are reused; an "
+                                   "interrupted build resumes. Needs the offline extra.")
+    add_options(d, DemonstrationsArgs)
+    d.set_defaults(func=_cmd_demonstrations)
     return parser
 
 

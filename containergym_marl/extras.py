@@ -14,6 +14,7 @@ INSTALL = {
     "sweep": "pip install 'containergym-marl[train,sweep]'",  # Ray, for compare's sweeps
     "clients": "pip install 'containergym-marl[clients]'",  # TorchRL, BenchMARL, Tianshou, RLlib
     "notebook": "pip install 'containergym-marl[notebook]'",  # ipywidgets, for progress rows in Jupyter
+    "offline": "pip install 'containergym-marl[offline]'",  # Minari (with h5py and jax), for the demonstrations
 }
 
 

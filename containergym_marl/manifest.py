@@ -11,6 +11,9 @@ check every such file they read against it and refuse, naming the file, when it 
 the manifest, or its size or bytes differ: a file changed after publication is never used
 (``sha256sum -c MANIFEST.sha256`` in the folder checks the same hashes). Hidden files (a run's
 ``.lock``, temporary files of a write cut short) are not published and not listed.
+
+``containergym-marl demonstrations`` writes the same manifest for its output folder, over its
+``minari/`` and ``agents/`` folders (:mod:`containergym_marl.demonstrations`).
 """
 
 from __future__ import annotations
@@ -51,32 +54,34 @@ def sha256_file(path: Path, within: Path) -> str:
     return digest.hexdigest()
 
 
-def is_covered(name: str) -> bool:
-    """Whether the manifest lists the file ``name`` (a path relative to the results folder)."""
+def is_covered(name: str, folders: tuple[str, ...] = COVERED_FOLDERS) -> bool:
+    """Whether the manifest lists the file ``name`` (a path relative to the results folder);
+    ``folders``: the folders it covers (a demonstrations folder's are ``minari`` and ``agents``)."""
     parts = Path(name).parts
-    return len(parts) > 1 and parts[0] in COVERED_FOLDERS and not parts[-1].startswith(".")
+    return len(parts) > 1 and parts[0] in folders and not parts[-1].startswith(".")
 
 
-def covered(folder: Path) -> list[Path]:
+def covered(folder: Path, folders: tuple[str, ...] = COVERED_FOLDERS) -> list[Path]:
     """The files of ``folder`` the manifest lists, walked without following links (a link there is
     an :class:`~containergym_marl.files.UnsafePathError`, anything but a regular file too)."""
     found = []
-    for sub in COVERED_FOLDERS:
-        for directory, folders, files in os.walk(refuse_links(folder / sub, folder)):
-            for name in folders + files:
+    for sub in folders:
+        for directory, subfolders, files in os.walk(refuse_links(folder / sub, folder)):
+            for name in subfolders + files:
                 path = Path(directory) / name
                 refuse_links(path, directory)  # its folder was checked when the walk entered it
-                if name in files and is_covered(path.relative_to(folder).as_posix()):
+                if name in files and is_covered(path.relative_to(folder).as_posix(), folders):
                     if not stat.S_ISREG(path.lstat().st_mode):
                         raise UnsafePathError(f"{str(path)!r} is not a regular file; refusing to publish it")
                     found.append(path)
     return sorted(found)
 
 
-def write_manifest(folder: str | Path) -> Path:
+def write_manifest(folder: str | Path, folders: tuple[str, ...] = COVERED_FOLDERS) -> Path:
+    """``folder/MANIFEST.sha256`` for the files of ``folders`` in it (by default a results folder's)."""
     folder = Path(folder)
     lines = []
-    for p in covered(folder):
+    for p in covered(folder, folders):
         name = p.relative_to(folder).as_posix()
         lines += [f"{_SIZE}{p.lstat().st_size}  {name}", f"{sha256_file(p, folder)}  {name}"]
     return atomic_write_text(folder / MANIFEST, "\n".join(lines) + ("\n" if lines else ""))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import io
 import json
 import math
@@ -34,6 +35,7 @@ import containergym_marl.config.bounds as bounds
 from containergym_marl.algorithms import get_algorithm
 from containergym_marl.cli import main as cli_main
 from containergym_marl.config import ConfigError, load_config
+from containergym_marl.demonstrations import agents_path, load_agent_demonstrations
 from containergym_marl.envs.vector import ContainerGymVecEnv
 from containergym_marl.models import load_model
 from containergym_marl.policies.actor_critic import FORMAT, ActorCritic
@@ -43,7 +45,7 @@ from containergym_marl.training import dagger, fast_ppo
 from containergym_marl.training.checkpoints import load_replay_buffer, save_replay_buffer
 from containergym_marl.training.train_args import memory_estimate
 
-from tests.helpers import CFG
+from tests.helpers import CFG, ROOT
 
 HEADROOM_MB, PROBE_SECONDS = 500, 10.0
 _STATUS = Path("/proc/self/status")
@@ -604,3 +606,38 @@ def test_the_replay_buffer_loader_refuses_random_and_mutated_files_with_value_er
         _refused_or_loaded(lambda p: load_replay_buffer(fresh(), p), Path(folder) / "buffer.npz",
                            data.draw(_mutations([seed, payload])))
     assert not (path.parent / "ran.txt").exists()
+
+
+@functools.cache
+def _agent_demonstrations() -> tuple[bytes, ...]:
+    """The shipped container agents' dataset cut to one episode of its first 6 steps, compressed (as
+    the package writes it) and not."""
+    with np.load(agents_path(ROOT / "results" / "datasets", CFG, "planner"), allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    steps = 6
+    for name in ("observations", "actions", "labels", "rewards", "plant_rewards", "terminations", "truncations"):
+        arrays[name] = arrays[name][:steps]
+    arrays.update(final_observations=arrays["final_observations"][:1], episode_starts=np.zeros(1, np.int64),
+                  episode_lengths=np.full(1, steps, np.int64), seeds=arrays["seeds"][:1])
+    files = []
+    for save in (np.savez_compressed, np.savez):
+        buffer = io.BytesIO()
+        save(buffer, **arrays)
+        files.append(buffer.getvalue())
+    return tuple(files)
+
+
+def test_the_cut_demonstrations_load(tmp_path):
+    for data in _agent_demonstrations():
+        (tmp_path / "d.npz").write_bytes(data)
+        assert load_agent_demonstrations(tmp_path / "d.npz").observations.shape == (6, 5, 19)
+
+
+@FUZZ
+@given(data=st.data())
+def test_the_demonstrations_loader_refuses_random_and_mutated_files_with_value_errors(data):
+    payload = pickle.dumps(_Payload(Path(tempfile.gettempdir()) / "ran-demonstrations.txt"))
+    with tempfile.TemporaryDirectory() as folder:
+        _refused_or_loaded(load_agent_demonstrations, Path(folder) / "d.npz",
+                           data.draw(_mutations([*_agent_demonstrations(), payload])))
+    assert not (Path(tempfile.gettempdir()) / "ran-demonstrations.txt").exists()

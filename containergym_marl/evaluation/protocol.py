@@ -55,6 +55,10 @@ SELECTION = EvalProtocol(episodes=100, first_seed=20_000)
 #: Fresh episodes, for reporting only: every published policy, rule and planner is evaluated on them
 #: beside the test episodes; seeds 30000-30199 serve nothing else (no training, tuning or choice).
 FRESH = EvalProtocol(episodes=200, first_seed=30_000)
+#: The episodes of the demonstration datasets (``containergym-marl demonstrations``,
+#: :mod:`containergym_marl.demonstrations`): the test protocol's plant (δ = 120 s, T = 600) on seeds
+#: 40000 on (100 a dataset by default), which serve nothing else (no training, test, tuning, choice or report).
+DEMONSTRATIONS = EvalProtocol(episodes=100, first_seed=40_000)
 #: The protocols by name, as ``compare --protocol`` names them.
 PROTOCOLS = {"paper": PAPER, "validation": VALIDATION, "fresh": FRESH}
 

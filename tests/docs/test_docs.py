@@ -51,7 +51,7 @@ def test_site_builds_with_warnings_as_errors(tmp_path):
     assert "WARNING" not in proc.stderr, proc.stderr[-3000:]
     pages = {p.parent.name: p.read_text() for p in site.glob("*/index.html")}
     assert {"environments", "physics", "configurations", "recipes", "integrations", "cli", "results",
-            "reproducing", "planner", "performance", "changelog"} <= set(pages)
+            "reproducing", "planner", "performance", "changelog", "demonstrations"} <= set(pages)
     assert "usage: containergym-marl evaluate" in pages["cli"]  # generated at build time
     assert "Observation space" in pages["environments"] and "&lt;!-- docstring" not in pages["environments"]
     assert "n16_m2_dt120" in pages["configurations"] and "Changelog" in pages["changelog"]
@@ -156,6 +156,41 @@ def test_recipe_train_one_small_run(recipe_dir):
         assert proc.returncode == 0, proc.stderr[-2000:]
     assert (recipe_dir / "runs" / "try" / "final_model.pt").is_file()
     assert "1 episodes" in proc.stdout or "1 episode" in proc.stdout
+
+
+def test_recipe_clone_the_planner_from_its_demonstrations(recipe_dir, monkeypatch, capsys):
+    """The recipe loads the shipped Minari dataset, clones the planner and evaluates the clone on
+    validation episodes: it scores above a uniformly random controller on the same episodes and
+    overflows in fewer of them (the random one overflows in one of the ten)."""
+    pytest.importorskip("minari", reason="the offline extra is not installed (pip install -e '.[offline]')")
+    torch = pytest.importorskip("torch", reason="the train extra is not installed")
+    import numpy as np
+
+    from containergym_marl.evaluation import evaluate
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(recipe_dir / "elsewhere"))  # the recipe sets it; restored after
+    ns = {"__name__": "recipe"}
+    with torch.random.fork_rng():  # the recipe seeds torch's global generator
+        exec(compile(_recipe("Clone the planner from its demonstrations"), "docs/recipes.md", "exec"), ns)
+    assert re.fullmatch(r"behaviour cloning: return -?\d+\.\d\d, overflow rate \d\.\d\d; the planner's "
+                        r"demonstrations: \d+\.\d\d\n", capsys.readouterr().out)
+    assert ns["dataset"].total_episodes == 10 and ns["validation"].seeds == list(range(20_000, 20_010))
+
+    class RandomController:
+        """Uniformly random actions, from each episode's seed."""
+
+        name, view = "random", "centralised"
+
+        def reset(self, seed):
+            self.rng = np.random.default_rng(seed)
+
+        def act(self, observation, env):
+            return int(self.rng.integers(env.action_space.n))
+
+    random = evaluate(RandomController(), "n5_m2_dt120", ns["validation"]).summary()
+    cloned = ns["summary"]
+    assert random["overflow_rate"] > 0
+    assert cloned["return_mean"] > random["return_mean"] and cloned["overflow_rate"] < random["overflow_rate"]
 
 
 def test_gif_script_draws_an_episode(tmp_path):
