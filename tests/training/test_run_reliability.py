@@ -530,7 +530,13 @@ def test_kill_9_at_random_points_many_times(tmp_path):
     out, budget, kills = tmp_path / "r", 32768, 0
     for _ in range(10):
         proc = _start(out, budget, resume=(out / "args.json").exists())
-        time.sleep(float(rng.uniform(2.0, 6.0)))
+        # the kill's moment counts from the run's start (its args.json), not the process's: on a busy
+        # machine the imports alone took longer than the sleep, every kill came before the run began
+        # and nothing was left to resume
+        deadline = time.monotonic() + 300
+        while not (out / "args.json").exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(float(rng.uniform(0.5, 4.0)))
         if proc.poll() is not None:
             assert proc.returncode == 0, proc.stderr.read()
             break
