@@ -274,7 +274,7 @@ def profile_b1(key: str, n: int, steps: int) -> dict:
     structure: one compiled kernel per arbitration rule, called by ``dynamics.step_checked``)."""
     import dataclasses
 
-    import containergym_marl.envs.container_agents_v0 as agents_view
+    from containergym_marl.core.observations import AgentObservations
     from containergym_marl import ContainerAgentsParallelEnv, ContainerGymEnv
     from containergym_marl.core import dynamics
     from containergym_marl.core.rng import NoiseStreams
@@ -302,7 +302,7 @@ def profile_b1(key: str, n: int, steps: int) -> dict:
         for env_class in (ContainerGymEnv, ContainerAgentsParallelEnv):
             timers.wrap(env_class, "reset", "resets", exclusive=True)
         timers.wrap(PlantSimulator, "global_state", "observations")
-        timers.wrap(agents_view, "agent_observations", "observations")
+        timers.wrap(AgentObservations, "__call__", "observations")  # the agents' view builds them here
         t = time.perf_counter()
         runner.run(steps)
         total = time.perf_counter() - t

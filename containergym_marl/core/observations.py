@@ -29,6 +29,47 @@ idx   name                     meaning                                          
 ====  =======================  ===================================================  ==============
 
 Entries 1 and 3–6 identify the container by its physics; the one-hot makes identity explicit.
+
+Observation variants (``observation=`` of the container-agent views, :data:`OBSERVATIONS`): what an
+agent sees besides the table above, for the ablation of what the imitation of the planner lacks
+(``studies/coordination_ablation.py``). Every variant starts with the F₀ = 12 + m + n entries
+above, unchanged (``"local"``, the default, is exactly them); execution stays decentralised: an
+agent acts on its own row, which holds only what it was allowed to receive. Built in one place,
+:class:`AgentObservations`, for the PettingZoo views, the vectorised env and the batched evaluator.
+
+* ``"local"``: the table above, nothing more (F = F₀).
+* ``"global"``: plus the normalised global state, the same for every agent (an *oracle*: the upper
+  bound of what imitation can reach with this network; F = F₀ + n + m). The timers repeat
+  entries 12+j, so that the block is the whole global state ``[v / v_max, p / max PU time]``:
+
+  ======  =========================  =============================================  ==========
+  idx     name                       meaning                                        bounds
+  ======  =========================  =============================================  ==========
+  F₀+k    global_volume_frac[k]      container k's volume v_k / v_max,k, k < n      [0, 2]
+  F₀+n+j  global_pu_timer_frac[j]    PU j's timer / largest possible PU time, j < m [0, 1]
+  ======  =========================  =============================================  ==========
+
+* ``"history4"``: plus the agent's observations of the last 3 steps (4 stacked frames, newest
+  first; F = 4 F₀). Before the episode's start the earlier frames are 0 (inside every entry's
+  bounds), so the first observation of an episode is ``[o_0, 0, 0, 0]``:
+
+  ======  =========================  =============================================  ==========
+  idx     name                       meaning                                        bounds
+  ======  =========================  =============================================  ==========
+  s·F₀+e  <name of entry e>@t-s      entry e of the agent's observation s steps     entry e's
+                                     ago, s = 1, 2, 3; 0 before the episode         bounds
+  ======  =========================  =============================================  ==========
+
+* ``"broadcast"``: plus one public signal the plant broadcasts after every step, the same for
+  every agent: which containers requested a PU in the last step and which were granted one
+  (emptied); both 0 at the start of an episode (F = F₀ + 2n). Entry 9 is its share of requests:
+
+  ======  =========================  =============================================  ==========
+  idx     name                       meaning                                        bounds
+  ======  =========================  =============================================  ==========
+  F₀+k    requested_last_step[k]     1 if container k requested in the last step    [0, 1]
+  F₀+n+k  granted_last_step[k]       1 if container k was emptied in the last step  [0, 1]
+  ======  =========================  =============================================  ==========
 """
 
 from __future__ import annotations
@@ -60,12 +101,44 @@ SCALAR_FEATURES = (
 N_SCALAR_FEATURES = len(SCALAR_FEATURES)
 
 
-def agent_feature_names(params: PlantParams) -> list[str]:
-    return (
+#: The container agents' observation variants (the module docstring); the first is the default.
+OBSERVATIONS = ("local", "global", "history4", "broadcast")
+DEFAULT_OBSERVATION = OBSERVATIONS[0]
+#: Frames of the ``"history4"`` observation: the current one and the 3 before it.
+HISTORY_FRAMES = 4
+
+
+def check_observation(value, where: str = "observation") -> str:
+    """``value`` if it names an observation variant; a ValueError naming ``where`` and the choices."""
+    if not isinstance(value, str) or value not in OBSERVATIONS:
+        raise ValueError(f"{where}: unknown observation {value!r}; choose one of {OBSERVATIONS}")
+    return value
+
+
+def agent_observation_size(n_containers: int, n_pus: int, observation: str = DEFAULT_OBSERVATION) -> int:
+    """F, the entries of a container agent's observation in variant ``observation``."""
+    local = N_SCALAR_FEATURES + n_pus + n_containers
+    extra = {"local": 0, "global": n_containers + n_pus, "history4": (HISTORY_FRAMES - 1) * local,
+             "broadcast": 2 * n_containers}
+    return local + extra[check_observation(observation)]
+
+
+def agent_feature_names(params: PlantParams, observation: str = DEFAULT_OBSERVATION) -> list[str]:
+    """The names of a container agent's observation entries in variant ``observation``, in order."""
+    n, m = params.n_containers, params.n_pus
+    local = (
         list(SCALAR_FEATURES)
-        + [f"pu_timer_frac[{j}]" for j in range(params.n_pus)]
-        + [f"container_one_hot[{i}]" for i in range(params.n_containers)]
+        + [f"pu_timer_frac[{j}]" for j in range(m)]
+        + [f"container_one_hot[{i}]" for i in range(n)]
     )
+    observation = check_observation(observation)
+    if observation == "global":
+        return local + [f"global_volume_frac[{k}]" for k in range(n)] + [f"global_pu_timer_frac[{j}]" for j in range(m)]
+    if observation == "history4":
+        return local + [f"{name}@t-{s}" for s in range(1, HISTORY_FRAMES) for name in local]
+    if observation == "broadcast":
+        return local + [f"requested_last_step[{k}]" for k in range(n)] + [f"granted_last_step[{k}]" for k in range(n)]
+    return local
 
 
 def global_state_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarray]:
@@ -78,14 +151,25 @@ def global_state_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
-def agent_observation_bounds(params: PlantParams) -> tuple[np.ndarray, np.ndarray]:
-    """float32 bounds of a container agent's observation (the table in the module docstring)."""
+def agent_observation_bounds(params: PlantParams, observation: str = DEFAULT_OBSERVATION
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """float32 bounds of a container agent's observation in variant ``observation`` (the tables in
+    the module docstring)."""
     n, m = params.n_containers, params.n_pus
     low = np.zeros(len(SCALAR_FEATURES) + m + n, dtype=np.float32)
     high = np.ones_like(low)
     high[0] = VOLUME_BOUND_FACTOR
     low[2] = -VOLUME_BOUND_FACTOR
     low[7] = params.penalty_reward
+    observation = check_observation(observation)
+    if observation == "global":
+        extra_high = np.ones(n + m, dtype=np.float32)
+        extra_high[:n] = VOLUME_BOUND_FACTOR
+        return np.concatenate([low, np.zeros(n + m, np.float32)]), np.concatenate([high, extra_high])
+    if observation == "history4":
+        return np.tile(low, HISTORY_FRAMES), np.tile(high, HISTORY_FRAMES)
+    if observation == "broadcast":
+        return np.concatenate([low, np.zeros(2 * n, np.float32)]), np.concatenate([high, np.ones(2 * n, np.float32)])
     return low, high
 
 
@@ -173,3 +257,82 @@ def agent_observations(
     out = np.empty((bsz, n, len(SCALAR_FEATURES) + params.n_pus + n), dtype=np.float32)
     _agent_observations_into(v, state.pu_timers_s, previous_requests, out, *params.kernel_arrays())
     return out
+
+
+class AgentObservations:
+    """The container agents' observations of B simulations in one variant (the module docstring),
+    and what the variant remembers between steps (``"history4"``: each agent's last 3 frames).
+
+    Call it once per step with the simulator's state, last requests and last grants: it returns the
+    (B, n, F) float32 observations and remembers them. :meth:`reset` forgets simulations whose
+    episode starts anew (call it after the simulator's reset, before observing them);
+    :meth:`final` gives the last observation of ending episodes without remembering it (an
+    autoreset's terminal observation). ``"local"`` is :func:`agent_observations` itself.
+    """
+
+    def __init__(self, params: PlantParams, observation: str = DEFAULT_OBSERVATION, num_sims: int = 1):
+        self.params = params
+        self.observation = check_observation(observation)
+        n, m = params.n_containers, params.n_pus
+        self.frame_size = N_SCALAR_FEATURES + m + n
+        self.size = agent_observation_size(n, m, self.observation)
+        self.low, self.high = agent_observation_bounds(params, self.observation)
+        # the earlier frames, newest first: (B, n, HISTORY_FRAMES - 1, F0), zeros before an episode starts
+        self._earlier = (np.zeros((int(num_sims), n, HISTORY_FRAMES - 1, self.frame_size), np.float32)
+                         if self.observation == "history4" else None)
+        self._pu_time_s = float(params.max_pu_time_s) or 1.0  # a plant whose PUs take no time: timers are 0
+
+    def feature_names(self) -> list[str]:
+        return agent_feature_names(self.params, self.observation)
+
+    def reset(self, sims=None) -> None:
+        """Forget the earlier frames of ``sims`` (indices; default: all): their episodes start now."""
+        if self._earlier is not None:
+            self._earlier[slice(None) if sims is None else sims] = 0.0
+
+    def __call__(self, state: PlantState, previous_requests: np.ndarray, previous_granted: np.ndarray) -> np.ndarray:
+        """(B, n, F) observations of every simulation now; remembered as the latest frames."""
+        obs = self._build(state, previous_requests, previous_granted, self._earlier)
+        if self._earlier is not None:
+            bsz, n = obs.shape[:2]
+            self._earlier = obs[:, :, : (HISTORY_FRAMES - 1) * self.frame_size].reshape(
+                bsz, n, HISTORY_FRAMES - 1, self.frame_size).copy()
+        return obs
+
+    def final(self, state: PlantState, previous_requests: np.ndarray, previous_granted: np.ndarray,
+              sims) -> np.ndarray:
+        """(len(sims), n, F) observations of simulations ``sims`` in ``state`` (their rows only, e.g.
+        a finished episode's last state), not remembered."""
+        earlier = None if self._earlier is None else self._earlier[sims]
+        return self._build(state, previous_requests, previous_granted, earlier)
+
+    def _build(self, state, previous_requests, previous_granted, earlier) -> np.ndarray:
+        frame = agent_observations(state, self.params, previous_requests)
+        if self.observation == "local":
+            return frame
+        bsz, n = frame.shape[:2]
+        if self.observation == "history4":
+            if earlier.shape[0] != bsz:
+                raise ValueError(f"state: {bsz} simulations, but {earlier.shape[0]} remembered")
+            extra = earlier.reshape(bsz, n, -1)
+        else:
+            if self.observation == "global":
+                block = np.concatenate([np.clip(state.volumes / self.params.max_volume, 0.0, VOLUME_BOUND_FACTOR),
+                                        np.clip(state.pu_timers_s / self._pu_time_s, 0.0, 1.0)], axis=1)
+            else:  # broadcast
+                granted = np.asarray(previous_granted, dtype=bool)
+                if granted.shape != (bsz, n):
+                    raise ValueError(f"previous_granted: expected shape {(bsz, n)}, got {granted.shape}")
+                block = np.concatenate([np.asarray(previous_requests, dtype=bool), granted], axis=1)
+            # one public block per simulation, the same in every agent's row
+            extra = np.broadcast_to(block.astype(np.float32)[:, None, :], (bsz, n, block.shape[1]))
+        return np.concatenate([frame, extra], axis=2)
+
+
+def check_same_observation(trained: str, given: str, who: str) -> None:
+    """Refuse to let a model trained on observation variant ``trained`` act on variant ``given`` (a
+    ValueError naming ``who`` and both): two variants can have the same size (``"global"`` and
+    ``"broadcast"`` where m = n), so the names are compared, not the shapes."""
+    if trained != given:
+        raise ValueError(f"{who} was trained on the {trained!r} observation but is given the {given!r} "
+                         f"observation; evaluate it on the observation it was trained on ({trained!r})")

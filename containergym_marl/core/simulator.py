@@ -56,6 +56,8 @@ class PlantSimulator:
             np.zeros(self.num_sims, dtype=np.int64),
         )
         self.previous_requests = np.zeros((self.num_sims, n), dtype=bool)
+        # the last step's grants (emptied containers), as the plant could broadcast them; 0 after a reset
+        self.previous_granted = np.zeros((self.num_sims, n), dtype=bool)
         self.finished = np.ones(self.num_sims, dtype=bool)  # nothing to step before a reset
         self._any_finished = True
         self.last_outcome: StepOutcome | None = None
@@ -84,7 +86,7 @@ class PlantSimulator:
     # ---- what-if copies ----------------------------------------------------------------------
     def branch(self, sim: int, generators: Sequence[np.random.Generator]) -> "PlantSimulator":
         """A new simulator of ``len(generators)`` simulations, each a copy of simulation ``sim`` now
-        (volumes, PU timers, step count, last requests, finished flag), each drawing its noise from
+        (volumes, PU timers, step count, last requests and grants, finished flag), each drawing its noise from
         its own generator.
 
         Nothing of this simulator is touched, its random stream included: stepping the copies (a
@@ -100,6 +102,7 @@ class PlantSimulator:
         rows = np.full(copies, int(sim))
         new.state = self.state.select(rows)  # fancy indexing: new arrays
         new.previous_requests = self.previous_requests[rows]
+        new.previous_granted = self.previous_granted[rows]
         new.finished = self.finished[rows]
         new._any_finished = bool(new.finished.any())
         new._streams = NoiseStreams(list(generators), self.params.n_containers)
@@ -129,6 +132,7 @@ class PlantSimulator:
         if everyone:
             self.state = fresh
             self.previous_requests = np.zeros_like(self.previous_requests)
+            self.previous_granted = np.zeros_like(self.previous_granted)
             self.finished = np.zeros_like(self.finished)
             self._any_finished = False
         else:
@@ -137,8 +141,9 @@ class PlantSimulator:
             vol[idx], tim[idx], cnt[idx] = fresh.volumes, fresh.pu_timers_s, fresh.step_count
             self.state = PlantState(vol, tim, cnt)
             previous, finished = self.previous_requests.copy(), self.finished.copy()
-            previous[idx] = finished[idx] = False
-            self.previous_requests, self.finished = previous, finished
+            granted = self.previous_granted.copy()
+            previous[idx] = finished[idx] = granted[idx] = False
+            self.previous_requests, self.previous_granted, self.finished = previous, granted, finished
             self._any_finished = bool(finished.any())
 
     def step(self, requests: np.ndarray) -> StepOutcome:
@@ -160,6 +165,7 @@ class PlantSimulator:
         self.state, outcome = dynamics.step_checked(self.state, requests, self.params, normals, uniforms, self._rule,
                                                     outputs)
         self.previous_requests = outcome.requested  # shared with the outcome; reset() replaces it, never writes it
+        self.previous_granted = outcome.granted  # the same
         finished = self.finished = outcome.terminated | outcome.truncated
         # a Python bool for the check above (ndarray.any() costs ~1 µs, a tenth of a small step)
         self._any_finished = finished.item(0) if finished.size == 1 else bool(np.logical_or.reduce(finished))

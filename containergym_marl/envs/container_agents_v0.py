@@ -17,9 +17,9 @@ from pettingzoo.utils import conversions, wrappers
 from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION, get_rule
 from containergym_marl.core.observations import (
-    agent_feature_names,
-    agent_observation_bounds,
-    agent_observations,
+    DEFAULT_OBSERVATION,
+    AgentObservations,
+    check_observation,
     global_state_bounds,
 )
 from containergym_marl.core.simulator import EpisodeFinishedError, PlantSimulator
@@ -76,6 +76,18 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     others fuller), the PU timers and a one-hot container index. The table with every entry and
     bound is in :mod:`containergym_marl.core.observations`; names via :meth:`feature_names`.
 
+    What the Box holds (``observation=``, :data:`~containergym_marl.core.observations.OBSERVATIONS`):
+    ``"local"`` (default) is the above, F = 12 + m + n entries. The other variants append entries
+    after them, each documented entry by entry in :mod:`containergym_marl.core.observations`, for
+    the study of what an imitation of the planner lacks (``studies/coordination_ablation.py``):
+    ``"global"`` the normalised global state, every container's v / v_max and every PU's timer
+    (n + m entries, the same for all agents: an oracle, not a decentralised observation);
+    ``"history4"`` the agent's own observations of the last 3 steps (3 (12 + m + n) entries, 0
+    before the episode's start); ``"broadcast"`` which containers requested in the last step and
+    which were emptied (2n entries of 0/1, 0 at the start), a signal the plant could broadcast to
+    every agent. The space, its bounds and dtype are the same at reset and at every step; models
+    record the variant they were trained on and refuse to act on another.
+
     ``"dict"``: ``Dict({"action_mask": Box(0, 1, (2,), int8), "observation": <the Box above>})``,
     the layout of PettingZoo's classic environments, which Tianshou's ``PettingZooEnv`` and
     TorchRL's ``PettingZooWrapper`` read as action masks (TorchRL also reads ``action_mask``
@@ -126,7 +138,8 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ## Arguments
     ``config`` (also positional: ``parallel_env("n5_m2_dt120")``), ``protocol`` and plant-level
     overrides as for the centralised view; ``arbitration``, ``reward_mode``, ``action_masking``,
-    ``observation_mode`` (``"box"``/``"dict"``), ``state_mode`` (``"physical"``/``"normalised"``),
+    ``observation`` (``"local"``/``"global"``/``"history4"``/``"broadcast"``), ``observation_mode``
+    (``"box"``/``"dict"``), ``state_mode`` (``"physical"``/``"normalised"``),
     ``agent_names`` (``"containers"``/``"indexed"``) as above; ``render_mode``: None,
     ``"human"`` (a live diagram drawn at every reset and step, in a window only when a display is
     available, otherwise off-screen without blocking), ``"rgb_array"`` (that diagram as an
@@ -136,7 +149,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ## Version history
     * v0: first release. Later additions, with defaults that keep the first behaviour:
       ``observation_mode``, ``state_mode``, ``agent_names``, positional ``config``, reset infos
-      with every step key.
+      with every step key, ``observation`` (the variants; default ``"local"``).
     """
 
     metadata = {
@@ -153,6 +166,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         arbitration: str = DEFAULT_ARBITRATION,
         reward_mode: str = "individual",
         action_masking: bool = False,
+        observation: str = DEFAULT_OBSERVATION,
         observation_mode: str = "box",
         state_mode: str = "physical",
         agent_names: str = "containers",
@@ -162,6 +176,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ):
         get_rule(arbitration)  # a clear error for an unknown rule, before anything is built
         check_reward_mode(reward_mode)
+        check_observation(observation)
         for name, value, allowed in (("observation_mode", observation_mode, OBSERVATION_MODES),
                                      ("state_mode", state_mode, STATE_MODES),
                                      ("agent_names", agent_names, AGENT_NAMES)):
@@ -182,6 +197,9 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         self._sim = PlantSimulator(self.config, num_sims=1, arbitration=arbitration)
         self._renderer = EnvRenderer(self._sim, render_mode, view="decentralised")
         params = self._sim.params
+        #: what each agent sees (the Box's variant): one of ``core.observations.OBSERVATIONS``
+        self.observation = observation
+        self._agent_obs = AgentObservations(params, observation, num_sims=1)
 
         #: container i's name, for agent i (``possible_agents[i]``)
         self.container_names: tuple[str, ...] = tuple(self.config.container_names)
@@ -191,7 +209,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
             self.possible_agents = list(self.container_names)
         self._agent_index = {a: i for i, a in enumerate(self.possible_agents)}
         self.agents: list[str] = []
-        low, high = agent_observation_bounds(params)
+        low, high = self._agent_obs.low, self._agent_obs.high
         # One (equal) space object per agent, each returned every time: SuperSuit needs equal
         # spaces, PettingZoo's seeding tests need a cached object per agent.
         self.observation_spaces = {a: self._agent_observation_space(low, high) for a in self.possible_agents}
@@ -223,7 +241,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
     def feature_names(self) -> list[str]:
         """Names of the observation entries, in order."""
-        return agent_feature_names(self._sim.params)
+        return self._agent_obs.feature_names()
 
     @property
     def simulator(self) -> PlantSimulator:
@@ -241,6 +259,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
         if seed is not None:
             self._np_random, _ = seeding.np_random(seed)
         self._sim.reset(generators=[self.np_random])
+        self._agent_obs.reset()
         self.agents = self.possible_agents[:]
         observations = self._observations()
         free = int(self._sim.free_pu_count()[0])
@@ -303,7 +322,8 @@ class ContainerAgentsParallelEnv(ParallelEnv):
 
     # ---- helpers -----------------------------------------------------------------------------
     def _observations(self) -> dict[str, Any]:
-        obs = agent_observations(self._sim.state, self._sim.params, self._sim.previous_requests)[0]
+        sim = self._sim  # called once per reset and step: a "history4" observation remembers it
+        obs = self._agent_obs(sim.state, sim.previous_requests, sim.previous_granted)[0]
         if self.observation_mode == "box":
             return {a: obs[i] for i, a in enumerate(self.possible_agents)}
         free = int(self._sim.free_pu_count()[0])

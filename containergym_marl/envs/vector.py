@@ -48,8 +48,9 @@ from gymnasium.vector.utils import batch_space
 from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION, StepOutcome
 from containergym_marl.core.observations import (
-    agent_observation_bounds,
-    agent_observations,
+    DEFAULT_OBSERVATION,
+    AgentObservations,
+    check_observation,
     global_state_bounds,
 )
 from containergym_marl.core.params import PlantParams
@@ -116,17 +117,18 @@ class _AutoresetBatch:
 
     def step(self, requests: np.ndarray) -> tuple[StepOutcome, np.ndarray, np.ndarray, Any]:
         """Step all simulations; reset the finished ones. Returns the outcome, the (B,) done mask,
-        the indices of the finished simulations and their final state and previous requests
-        (before the reset; None if none finished)."""
+        the indices of the finished simulations and their final state, previous requests and
+        previous grants (before the reset; None if none finished)."""
         out = self.sim.step(requests)
         done_mask = out.terminated | out.truncated
         if not done_mask.any():
-            return out, done_mask, _NO_SIMS, (None, None)
+            return out, done_mask, _NO_SIMS, (None, None, None)
         done = np.flatnonzero(done_mask)
         final_state = self.sim.state.select(done)
         final_previous = self.sim.previous_requests[done]
+        final_granted = self.sim.previous_granted[done]
         self.sim.reset(sims=done)
-        return out, done_mask, done, (final_state, final_previous)
+        return out, done_mask, done, (final_state, final_previous, final_granted)
 
 
 _NO_SIMS = np.zeros(0, dtype=np.int64)
@@ -213,7 +215,7 @@ class _SB3Base(VecEnv):
         self._sim_seeds = [None] * self.num_sims
         self._reset_seeds()
         self._reset_options()
-        return self._observe(self._batch.sim.state, self._batch.sim.previous_requests)
+        return self._first_observations()
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = actions
@@ -257,17 +259,17 @@ class ContainerGymVecEnv(_SB3Base):
         self._init_sb3(cfg, num_envs, DEFAULT_ARBITRATION, num_envs,
                        spaces.Box(low, high, dtype=np.float32), spaces.Discrete(cfg.n_containers + 1))
 
-    def _observe(self, state, previous_requests) -> np.ndarray:
-        return self._batch.sim.global_state(state)
+    def _first_observations(self) -> np.ndarray:
+        return self._batch.sim.global_state()
 
     def step_wait(self):
         n = self._batch.params.n_containers
         requests = _centralised_requests(self._actions, self.num_sims, n)
-        out, dones, done, (final_state, final_prev) = self._batch.step(requests)
-        obs = self._observe(self._batch.sim.state, None)
+        out, dones, done, (final_state, _, _) = self._batch.step(requests)
+        obs = self._batch.sim.global_state()
         infos: list[dict] = [NO_INFO] * self.num_envs
         if done.size:
-            final_obs = self._observe(final_state, final_prev)
+            final_obs = self._batch.sim.global_state(final_state)
             truncated = out.truncated[done].tolist()
             for k, b in enumerate(done.tolist()):
                 infos[b] = {"terminal_observation": final_obs[k], "TimeLimit.truncated": truncated[k]}
@@ -286,36 +288,45 @@ class ContainerAgentsVecEnv(_SB3Base):
     Slot ``b * n + i`` is agent i (``config.container_names[i]``) of simulation b, with the
     observation, ``Discrete(2)`` action and reward of the PettingZoo view
     (:class:`~containergym_marl.envs.ContainerAgentsParallelEnv`). All n slots of a simulation end
-    together and are reset together.
+    together and are reset together. ``observation`` chooses what each agent sees, as the
+    PettingZoo view's argument of that name (:data:`~containergym_marl.core.observations.OBSERVATIONS`;
+    the default ``"local"`` is the view's usual observation); a ``"history4"`` agent's terminal
+    observation stacks the frames of the episode that ended, its first next one only its own.
     """
 
     def __init__(self, config: str | PlantConfig = "n5_m2_dt120", num_sims: int = 8, *,
                  arbitration: str = DEFAULT_ARBITRATION, reward_mode: str = "individual",
-                 protocol: str | None = None, **overrides: Any):
+                 observation: str = DEFAULT_OBSERVATION, protocol: str | None = None, **overrides: Any):
         check_reward_mode(reward_mode)
+        check_observation(observation)
         num_sims = check_batch_size(num_sims, "num_sims")
         _require_sb3(type(self).__name__)
         cfg = load_config(config, protocol=protocol, **overrides)
         self.reward_mode = reward_mode
         self.n_agents = cfg.n_containers
-        low, high = agent_observation_bounds(PlantParams.from_config(cfg))
+        self._agent_obs = AgentObservations(PlantParams.from_config(cfg), observation, num_sims)
+        self.observation = self._agent_obs.observation
         self._init_sb3(cfg, num_sims, arbitration, num_sims * cfg.n_containers,
-                       spaces.Box(low, high, dtype=np.float32), spaces.Discrete(2))
+                       spaces.Box(self._agent_obs.low, self._agent_obs.high, dtype=np.float32), spaces.Discrete(2))
 
-    def _observe(self, state, previous_requests) -> np.ndarray:
-        obs = agent_observations(state, self._batch.params, previous_requests)
-        return obs.reshape(-1, obs.shape[-1])
+    def _first_observations(self) -> np.ndarray:
+        sim = self._batch.sim
+        self._agent_obs.reset()
+        return self._agent_obs(sim.state, sim.previous_requests, sim.previous_granted).reshape(self.num_envs, -1)
 
     def step_wait(self):
         n = self.n_agents
         requests = _agent_requests(self._actions, self.num_sims, n)
-        out, done_mask, done, (final_state, final_prev) = self._batch.step(requests)
-        obs = self._observe(self._batch.sim.state, self._batch.sim.previous_requests)
+        out, done_mask, done, (final_state, final_prev, final_granted) = self._batch.step(requests)
+        if done.size:  # the ended episodes' last observations, before their memory is cleared
+            final_obs = self._agent_obs.final(final_state, final_prev, final_granted, done)
+            self._agent_obs.reset(done)
+        sim = self._batch.sim
+        obs = self._agent_obs(sim.state, sim.previous_requests, sim.previous_granted).reshape(self.num_envs, -1)
         rewards = agent_rewards(out, self.reward_mode, np.float32).reshape(-1)
         dones = np.repeat(done_mask, n)
         infos: list[dict] = [NO_INFO] * self.num_envs
         if done.size:
-            final_obs = self._observe(final_state, final_prev).reshape(done.size, n, -1)
             truncated = out.truncated[done].tolist()
             for k, b in enumerate(done.tolist()):
                 for i in range(n):
@@ -390,7 +401,7 @@ class ContainerGymVectorEnv(VectorEnv):
             raise RuntimeError("call reset() before step()")
         n = self._batch.params.n_containers
         requests = _centralised_requests(actions, self.num_envs, n)
-        out, done_mask, done, (final_state, _) = self._batch.step(requests)
+        out, done_mask, done, (final_state, _, _) = self._batch.step(requests)
         obs = self._batch.sim.global_state()
         step_count = self._batch.sim.state.step_count
         if done.size:  # the finished episodes' step counts, before their reset

@@ -16,7 +16,7 @@ import numpy as np
 
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.config import PlantConfig
-from containergym_marl.core.observations import agent_observations
+from containergym_marl.core.observations import AgentObservations
 from containergym_marl.core.simulator import PlantSimulator
 from containergym_marl.envs.vector import _agent_requests, _centralised_requests
 from containergym_marl.evaluation.metrics import BatchTotals, Steps
@@ -26,6 +26,7 @@ from containergym_marl.evaluation.protocol import (
     EvalProtocol,
     EvaluationResult,
     check_observation_shape,
+    policy_observation,
 )
 
 
@@ -43,7 +44,10 @@ def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol =
     sim = PlantSimulator(plant, num_sims=episodes, arbitration=arbitration)
     params, n = sim.params, plant.n_containers
     sim.reset(generators=[seeding.np_random(seed)[0] for seed in protocol.seeds])
-    _check_fits(policy, sim, plant)
+    # the observation variant the policy was trained on, as evaluate() builds it
+    agent_obs = AgentObservations(params, policy_observation(policy), episodes) if policy.view == "decentralised" \
+        else None
+    _check_fits(policy, sim, plant, agent_obs)
 
     active = np.ones(episodes, dtype=bool)  # the episode of simulation b has not ended yet
     totals, returns = BatchTotals(episodes), np.zeros(episodes)
@@ -55,7 +59,7 @@ def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol =
             masks[:, 1:] = free[:, None]
             requests = _centralised_requests(np.asarray(policy.act_batch(obs, masks)), episodes, n)
         else:
-            obs = agent_observations(sim.state, params, sim.previous_requests).reshape(episodes * n, -1)
+            obs = agent_obs(sim.state, sim.previous_requests, sim.previous_granted).reshape(episodes * n, -1)
             masks = np.stack([np.ones(episodes * n, dtype=bool), np.repeat(free, n)], axis=1)
             requests = _agent_requests(np.asarray(policy.act_batch(obs, masks)), episodes, n)
         out = sim.step(requests)
@@ -67,14 +71,15 @@ def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol =
         active &= ~done
         if done.any():
             sim.reset(sims=np.flatnonzero(done))  # a simulation whose episode ended steps on for nothing
+            if agent_obs is not None:
+                agent_obs.reset(np.flatnonzero(done))
 
     metrics = [EpisodeMetrics(seed, float(returns[b]), totals.values(b)) for b, seed in enumerate(protocol.seeds)]
     return EvaluationResult(policy.name, policy.view, plant.name, protocol, metrics)
 
 
-def _check_fits(policy, sim: PlantSimulator, plant: PlantConfig) -> None:
-    size = (sim.global_state(sim.state) if policy.view == "centralised"
-            else agent_observations(sim.state, sim.params, sim.previous_requests)).shape[-1]
+def _check_fits(policy, sim: PlantSimulator, plant: PlantConfig, agent_obs: AgentObservations | None) -> None:
+    size = sim.global_state(sim.state).shape[-1] if agent_obs is None else agent_obs.size
     check_observation_shape(policy, (size,), plant.name)
 
 

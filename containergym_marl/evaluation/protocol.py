@@ -18,6 +18,7 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
+from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_same_observation
 from containergym_marl.config import PAPER_TEST_PROTOCOL, PlantConfig, load_config
 from containergym_marl.evaluation.metrics import Steps, episode_values
 from containergym_marl.evaluation.metrics import summary as metric_summary
@@ -160,7 +161,8 @@ def evaluate(
     episode (progress).
 
     The decentralised view is stepped with ``reward_mode="team"`` only to read the plant reward;
-    the policy's own observations do not depend on the reward mode.
+    the policy's own observations do not depend on the reward mode. It builds the observation the
+    policy was trained on (its ``observation``, :func:`policy_observation`).
     """
     from containergym_marl.envs.centralised import ContainerGymEnv
     from containergym_marl.envs.container_agents_v0 import parallel_env
@@ -169,7 +171,8 @@ def evaluate(
     if policy.view == "centralised":
         env = ContainerGymEnv(plant)
     elif policy.view == "decentralised":
-        env = parallel_env(config=plant, arbitration=arbitration, reward_mode="team", action_masking=True)
+        env = parallel_env(config=plant, arbitration=arbitration, reward_mode="team", action_masking=True,
+                           observation=policy_observation(policy))
     else:
         raise ValueError(f"policy {policy.name!r}: unknown view {policy.view!r}")
     _check_policy_fits(policy, env)
@@ -206,8 +209,17 @@ def evaluate(
     return EvaluationResult(policy.name, policy.view, plant.name, protocol, episodes, records)
 
 
+def policy_observation(policy: Policy) -> str:
+    """The container-agent observation variant a policy acts on: a learned model's records the one
+    it was trained on; rules, planners and older models see the default (``"local"``)."""
+    return getattr(policy, "observation", DEFAULT_OBSERVATION)
+
+
 def _check_policy_fits(policy: Policy, env: Any) -> None:
-    """Refuse a learned model whose observation space differs from the environment's."""
+    """Refuse a learned model whose observation variant or space differs from the environment's."""
+    if policy.view == "decentralised":
+        check_same_observation(policy_observation(policy), getattr(env, "observation", DEFAULT_OBSERVATION),
+                               f"policy {policy.name!r}")
     env_space = env.observation_space if policy.view == "centralised" else env.observation_space(env.possible_agents[0])
     check_observation_shape(policy, env_space.shape, env.config.name)
 

@@ -16,13 +16,19 @@ The file (``torch.save`` of plain containers)::
     {"format": "containergym-marl actor-critic", "version": 1,
      "view": "centralised" | "decentralised",
      "observation_size": F, "n_actions": A, "hidden": [64, 64], "action_mask": bool,
+     "observation": "local",              # the container agents' observation variant it was trained on
      "state_dict": {"actor.0.weight": ..., ..., "critic.4.bias": ...},
      "meta": {...}}                       # where it came from (algorithm, config, seed, samples)
+
+``observation`` (:data:`~containergym_marl.core.observations.OBSERVATIONS`) is absent from files
+written before the variants existed: they read as ``"local"``, the observation they were trained on.
+A model acts only on the variant it records (its policy adapter refuses another, naming both), and
+an evaluation builds that variant; a centralised model's is always ``"local"``.
 
 The same model as safetensors (:meth:`ActorCritic.save_safetensors`, ``.safetensors``: a format
 that holds tensors and a string header, never code): the state dict's tensors, and the other fields
 as the header's metadata (``format``, ``version``, ``view``, ``observation_size``, ``n_actions``,
-``hidden``, ``action_mask``, ``meta``; numbers, lists and ``meta`` as JSON text).
+``hidden``, ``action_mask``, ``observation``, ``meta``; numbers, lists and ``meta`` as JSON text).
 :meth:`ActorCritic.load` reads either by the file's suffix, with the same checks.
 
 The network is Stable-Baselines3's ``MlpPolicy`` for a discrete action: separate policy and value
@@ -47,6 +53,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from containergym_marl.config.bounds import MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_NETWORK_PARAMETERS
+from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation, check_same_observation
 from containergym_marl.extras import missing_extra
 
 FORMAT = "containergym-marl actor-critic"
@@ -92,14 +99,20 @@ class ActorCritic:
         state_dict: weights to load (None: a fresh initialisation drawn from ``generator``).
         meta: JSON-able facts about the model (algorithm, config, seed, samples).
         generator: the torch.Generator of a fresh initialisation (all randomness from the run's seed).
+        observation: the container agents' observation variant it acts on
+            (:data:`~containergym_marl.core.observations.OBSERVATIONS`; "local" for a centralised model).
     """
 
     def __init__(self, view: str, observation_size: int, n_actions: int, hidden: Sequence[int] = (64, 64),
                  action_mask: bool = False, state_dict: dict[str, Any] | None = None,
-                 meta: dict[str, Any] | None = None, generator=None):
+                 meta: dict[str, Any] | None = None, generator=None, observation: str = DEFAULT_OBSERVATION):
         torch = _torch()
         if view not in VIEWS:
             raise ValueError(f"view: expected one of {VIEWS}, got {view!r}")
+        self.observation = check_observation(observation)
+        if view == "centralised" and observation != DEFAULT_OBSERVATION:
+            raise ValueError(f"observation: {observation!r} is a variant of the container agents' observation; "
+                             f"a centralised model observes the global state ({DEFAULT_OBSERVATION!r})")
         self.view, self.action_mask = view, bool(action_mask)
         self.observation_size, self.n_actions, self.hidden = check_network(observation_size, n_actions, hidden)
         self.meta = dict(meta or {})
@@ -128,7 +141,7 @@ class ActorCritic:
     def to_dict(self) -> dict[str, Any]:
         return {"format": FORMAT, "version": VERSION, "view": self.view,
                 "observation_size": self.observation_size, "n_actions": self.n_actions, "hidden": self.hidden,
-                "action_mask": self.action_mask,
+                "action_mask": self.action_mask, "observation": self.observation,
                 "state_dict": {k: v.detach().clone() for k, v in self.net.state_dict().items()},
                 "meta": self.meta}
 
@@ -143,8 +156,12 @@ class ActorCritic:
             raise ValueError(f"{source}: no {', '.join(missing)}")
         sizes = check_network(data["observation_size"], data["n_actions"], data["hidden"], source)
         check_state_dict(data["state_dict"], _shapes(*sizes), source)
+        observation = check_observation(data.get("observation", DEFAULT_OBSERVATION), f"{source}: observation")
+        if data["view"] == "centralised" and observation != DEFAULT_OBSERVATION:
+            raise ValueError(f"{source}: a centralised model with the container agents' {observation!r} observation")
         try:
-            return cls(data["view"], *sizes, data["action_mask"], data["state_dict"], data.get("meta"))
+            return cls(data["view"], *sizes, data["action_mask"], data["state_dict"], data.get("meta"),
+                       observation=observation)
         except (TypeError, RuntimeError, ValueError) as exc:
             raise ValueError(f"{source}: its shape and weights do not match ({type(exc).__name__}: {exc})") from exc
 
@@ -160,7 +177,7 @@ class ActorCritic:
         metadata = {"format": data["format"], "version": str(data["version"]), "view": data["view"],
                     "observation_size": str(data["observation_size"]), "n_actions": str(data["n_actions"]),
                     "hidden": json.dumps(list(data["hidden"])), "action_mask": json.dumps(bool(data["action_mask"])),
-                    "meta": json.dumps(data["meta"], sort_keys=True)}
+                    "observation": data["observation"], "meta": json.dumps(data["meta"], sort_keys=True)}
         blob = _safetensors_torch().save({k: v.contiguous() for k, v in data["state_dict"].items()}, metadata)
         return atomic_write(path, lambda tmp: tmp.write_bytes(blob))
 
@@ -207,6 +224,7 @@ def read_safetensors(path: str | Path) -> dict[str, Any]:
                 "view": metadata.get("view"), "observation_size": int(metadata["observation_size"]),
                 "n_actions": int(metadata["n_actions"]), "hidden": json.loads(metadata["hidden"]),
                 "action_mask": json.loads(metadata["action_mask"]), "state_dict": tensors,
+                "observation": metadata.get("observation", DEFAULT_OBSERVATION),
                 "meta": json.loads(metadata.get("meta", "{}"))}
     except (KeyError, ValueError, TypeError) as exc:
         raise ValueError(f"{source}: its safetensors header lacks or garbles a field of the "
@@ -322,6 +340,8 @@ class _ActorCriticPolicy:
         if self.model.view != self.view:
             raise ValueError(f"model: a {self.model.view} actor-critic cannot act in the {self.view} view")
         self.name, self.deterministic = name, deterministic
+        #: the observation variant the model was trained on: evaluate() builds it, act() refuses another
+        self.observation = self.model.observation
         from gymnasium import spaces
 
         # what evaluate() checks against the environment's observation space
@@ -362,6 +382,9 @@ class SharedActorCriticPolicy(_ActorCriticPolicy):
     view = "decentralised"
 
     def act(self, observations: dict[str, Any], env: Any) -> dict[str, int]:
+        if getattr(env, "observation", DEFAULT_OBSERVATION) != self.observation:
+            check_same_observation(self.observation, getattr(env, "observation", DEFAULT_OBSERVATION),
+                                   f"policy {self.name!r}")
         agents = list(observations)
         obs = np.stack([o["observation"] if isinstance(o, dict) else o for o in observations.values()])
         masks = None

@@ -17,6 +17,13 @@ one network shared by every container agent, acting on the agent's own observati
 decentralised view's, ``Discrete(2)``), so it is evaluated by the same adapter and decides by one
 forward of a [64, 64] MLP for all agents. Only the labels come from the global state.
 
+**What the student sees** (``observation``, :data:`~containergym_marl.core.observations.OBSERVATIONS`):
+the container agents' observation variant its env builds, ``"local"`` (the view's usual
+observation) unless set, e.g. ``--hp observation=global``: the global state besides (an oracle),
+``history4`` (the last 4 observations stacked), ``broadcast`` (last step's requests and grants of
+every container). The model records it, and its evaluation builds the same observation
+(``studies/coordination_ablation.py`` compares them).
+
 **One iteration** (:func:`learn`):
 
 1. *act*: ``n_steps`` steps of every simulation. The container agents act with the shared policy
@@ -82,10 +89,11 @@ from containergym_marl.config.bounds import (
     MAX_PLANNER_HORIZON,
     check_count,
 )
+from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation, check_same_observation
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors, save_tensors
 from containergym_marl.policies.planner import PlannerAgents
-from containergym_marl.rundir import RunWarning
+from containergym_marl.rundir import RunError, RunWarning
 from containergym_marl.training import fast_ppo
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
 from containergym_marl.training.native import MemoryShapes
@@ -128,6 +136,9 @@ class DAggerArgs:
     futures: int = 16  # K of the labelling planner (planner_agents' default)
     horizon: int = 8  # H of the labelling planner (planner_agents' default)
     imitation_share: float = 1.0  # share of the budget DAgger trains; dagger_ppo_agents: 0.5, PPO the rest
+    # what every container agent sees (core.observations.OBSERVATIONS): the view's usual observation, or it with
+    # the global state (an oracle), the last 4 observations stacked, or last step's requests and grants of all
+    observation: str = DEFAULT_OBSERVATION
     ppo: fast_ppo.PPOArgs | None = None  # the fine-tuning's settings (``ppo_<field>``); None: no fine-tuning
 
     @classmethod
@@ -181,6 +192,7 @@ class DAggerArgs:
         if self.ppo is not None and not 0 < self.imitation_share < 1:
             raise ValueError(f"hp: imitation_share must be in (0, 1), got {self.imitation_share}")
         fast_ppo.check_hidden(self.hidden)
+        check_observation(self.observation, "hp: observation")
 
     def learning_rate_at(self, samples: int, budget: int) -> float:
         """Adam's step size after ``samples`` of an imitation budget of ``budget`` samples."""
@@ -301,8 +313,9 @@ def new_state(env, hp: DAggerArgs, seed: int, meta: dict[str, Any]) -> DAggerSta
     """A fresh shared policy (initialised from ``seed``), its optimiser and an empty data set."""
     generator = torch.Generator().manual_seed(int(seed))
     obs_size = env.observation_space.shape[0]
+    check_same_observation(hp.observation, getattr(env, "observation", DEFAULT_OBSERVATION), "the new DAgger model")
     model = ActorCritic("decentralised", obs_size, int(env.action_space.n), hp.hidden,
-                        meta={**meta, "expert": "planner_agents"}, generator=generator)
+                        meta={**meta, "expert": "planner_agents"}, generator=generator, observation=hp.observation)
     return DAggerState(model, _optimizer(model, hp), generator, Dataset(hp.dataset_size, obs_size),
                        hyperparams=_jsonable(hp))
 
@@ -315,6 +328,15 @@ def dataset_file(run: Path, steps: int) -> Path:
     return Path(run) / "checkpoints" / f"ckpt_dataset_{steps}_steps.pt"
 
 
+def _check_resumed_observation(model: ActorCritic, hp: DAggerArgs, source: str) -> None:
+    """A RunError (not the ValueError of a broken checkpoint, which a resume sets aside and passes over)
+    when the checkpoint's model was trained on another observation than ``hp`` asks for."""
+    try:
+        check_same_observation(model.observation, hp.observation, f"the model of {source}")
+    except ValueError as exc:
+        raise RunError(f"{exc} (hp: observation)") from None
+
+
 def load_checkpoint(path: str | Path, hp: DAggerArgs):
     """The training state saved at ``path`` (tensors only): a :class:`DAggerState` (its data set
     from beside it, or empty with a warning), or, in the fine-tuning phase, the native PPO's; a
@@ -323,12 +345,15 @@ def load_checkpoint(path: str | Path, hp: DAggerArgs):
     data = load_tensors(path)
     source = f"checkpoint {str(path)!r}"
     if isinstance(data, dict) and data.get("format") == fast_ppo.CHECKPOINT_FORMAT and hp.ppo is not None:
-        return fast_ppo.load_checkpoint(path, hp.ppo)
+        state = fast_ppo.load_checkpoint(path, hp.ppo)
+        _check_resumed_observation(state.model, hp, source)
+        return state
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{source} is not a DAgger checkpoint (format {CHECKPOINT_FORMAT!r})")
     if data.get("version") != CHECKPOINT_VERSION:
         raise ValueError(f"{source}: version {data.get('version')!r}; this package reads {CHECKPOINT_VERSION}")
     model = ActorCritic.from_dict(data.get("model"), source)
+    _check_resumed_observation(model, hp, source)
     optimizer, generator = _optimizer(model, hp), torch.Generator()
     try:
         optimizer.load_state_dict(data["optimizer"])
@@ -569,6 +594,9 @@ class DAggerTrainer:
         if hp.ppo is not None:  # the fine-tuning keeps the imitated network
             estimate.update(fast_ppo.batch_memory(dataclasses.replace(hp.ppo, hidden=hp.hidden), shapes, "ppo_"))
         return estimate
+
+    def env_options(self, settings: DAggerArgs) -> dict[str, Any]:
+        return {"observation": settings.observation}
 
     def new_state(self, env, settings: DAggerArgs, view: str, seed: int, meta: dict[str, Any]) -> DAggerState:
         return new_state(env, settings, seed, meta)

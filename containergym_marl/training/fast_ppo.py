@@ -162,6 +162,10 @@ def coerce_setting(key: str, value: Any, default: Any) -> Any:
             if not isinstance(value, (bool, np.bool_)):
                 raise ValueError("expected true or false")
             return bool(value)
+        if isinstance(default, str):  # a name; the settings' validate() checks it among its choices
+            if not isinstance(value, str):
+                raise ValueError("expected a name")
+            return value
         if isinstance(default, tuple):
             items = value.split(",") if isinstance(value, str) else list(value)
             return tuple(_integer(v) for v in items)

@@ -39,6 +39,7 @@ from containergym_marl.config.bounds import check_memory
 from containergym_marl.config.hyperparams import method_settings
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.rundir import (
+    RunError,
     RunLock,
     RunWarning,
     append_metrics,
@@ -61,6 +62,7 @@ from containergym_marl.training.checkpoints import (
     read_progress,
     save_checkpoint,
 )
+from containergym_marl.training.native import env_options
 from containergym_marl.training.train_args import TrainArgs, memory_estimate, prepare_run_dir
 
 
@@ -70,8 +72,14 @@ def no_episode_note(best_name: str = "best_model.zip") -> str:
             f"({best_name} is not written); evaluation uses the final model")
 
 
-def make_training_env(spec: AlgorithmSpec, args: TrainArgs, plant: PlantConfig, n_envs: int):
-    """The vectorised training env of ``spec`` (native by default)."""
+def make_training_env(spec: AlgorithmSpec, args: TrainArgs, plant: PlantConfig, n_envs: int,
+                      options: dict[str, Any] | None = None):
+    """The vectorised training env of ``spec`` (native by default); ``options``: the env's keyword
+    arguments that a native trainer's settings choose (``NativeTrainer.env_options``: DAgger's
+    ``observation``), for the native container-agent env."""
+    options = dict(options or {})
+    if options and not (spec.view == "decentralised" and args.vec == "native"):
+        raise ValueError(f"{sorted(options)}: options of the native container-agent env, not of {args.algo}'s")
     if spec.view == "decentralised":
         if args.vec == "supersuit":
             from containergym_marl.training.supersuit_adapter import SuperSuitVecEnv
@@ -80,7 +88,8 @@ def make_training_env(spec: AlgorithmSpec, args: TrainArgs, plant: PlantConfig, 
                                    arbitration=args.arbitration, reward_mode=args.reward_mode)
         from containergym_marl.envs.vector import ContainerAgentsVecEnv
 
-        return ContainerAgentsVecEnv(plant, n_envs, arbitration=args.arbitration, reward_mode=args.reward_mode)
+        return ContainerAgentsVecEnv(plant, n_envs, arbitration=args.arbitration, reward_mode=args.reward_mode,
+                                     **options)
     from containergym_marl.envs.vector import ContainerGymVecEnv
 
     return ContainerGymVecEnv(plant, n_envs)
@@ -284,6 +293,7 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
     args.validate()
     args = dataclasses.replace(args, hyperparams=run_settings(args))
     settings = args.validate()  # the settings from the method's file or the resumed run, checked as --hp's
+    _check_resumed_env(spec, args, settings)
     # a MissingExtraError naming the extra, before anything is written
     algo_cls = spec.load_class() if spec.sb3 else None
     import torch
@@ -301,7 +311,7 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
     # is written: a size that does not fit or settings the algorithm refuses leave no run directory behind.
     check_memory(memory_estimate(args, plant, n_envs, settings), "the run")
     try:
-        env = make_training_env(spec, args, plant, n_envs)
+        env = make_training_env(spec, args, plant, n_envs, env_options(spec.trainer(), settings) if spec.native else None)
     except MemoryError:
         raise ValueError(f"n_envs: {n_envs} simulations do not fit in this machine's memory") from None
     try:
@@ -323,6 +333,20 @@ def train(args: TrainArgs, held_lock: RunLock | None = None) -> Path:
     finally:
         env.close()
     return run
+
+
+def _check_resumed_env(spec: AlgorithmSpec, args: TrainArgs, settings) -> None:
+    """A resumed native run keeps the env its settings chose (DAgger's ``observation``): a RunError
+    naming the setting when ``--hp`` asks for another, before anything is written."""
+    if not (spec.native and args.resume and (args.run_dir() / "args.json").is_file()):
+        return
+    trainer = spec.trainer()
+    before = env_options(trainer, trainer.settings(run_args(args.run_dir()).get("hyperparams") or {}))
+    now = env_options(trainer, settings)
+    changed = sorted(k for k in {*before, *now} if before.get(k) != now.get(k))
+    if changed:
+        raise RunError(f"--resume: hp {', '.join(f'{k}={now.get(k)!r}' for k in changed)} differs from the run's "
+                       f"{', '.join(f'{k}={before.get(k)!r}' for k in changed)}, the env it trains on")
 
 
 def _new_sb3_model(spec: AlgorithmSpec, algo_cls, args: TrainArgs, env, run: Path):

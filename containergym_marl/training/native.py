@@ -62,6 +62,11 @@ class NativeTrainer(Protocol):
         """Bytes the run needs beyond its simulations, one entry per setting that sizes them
         (``"n_steps=64"``), what a refusal names."""
 
+    def env_options(self, settings: Any) -> dict[str, Any]:
+        """Optional: keyword arguments of the run's vectorised env that the settings choose (DAgger's
+        ``observation``, the container agents' observation variant); a trainer without this method
+        trains on the env's defaults (:func:`env_options`)."""
+
     def new_state(self, env, settings: Any, view: str, seed: int, meta: dict[str, Any]) -> Any:
         """A fresh state for ``env`` from ``seed``; ``meta`` goes into the model's header."""
 
@@ -80,4 +85,11 @@ class NativeTrainer(Protocol):
         """Entries ``run.json`` adds for this trainer (``{}``: none)."""
 
 
-__all__ = ["MemoryShapes", "NativeTrainer"]
+def env_options(trainer: NativeTrainer, settings: Any) -> dict[str, Any]:
+    """The env keyword arguments ``trainer``'s ``settings`` choose: its ``env_options``, or ``{}``
+    for a trainer without that optional method."""
+    method = getattr(trainer, "env_options", None)
+    return {} if method is None else dict(method(settings))
+
+
+__all__ = ["MemoryShapes", "NativeTrainer", "env_options"]

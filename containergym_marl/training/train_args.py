@@ -176,19 +176,22 @@ def memory_estimate(args: TrainArgs, plant, n_envs: int, settings=None) -> dict[
     """
     import inspect
 
-    from containergym_marl.core.observations import N_SCALAR_FEATURES
-    from containergym_marl.training.native import MemoryShapes
+    from containergym_marl.core.observations import DEFAULT_OBSERVATION, agent_observation_size
+    from containergym_marl.training.native import MemoryShapes, env_options
 
     spec = get_algorithm(args.algo)
     n, m = plant.n_containers, plant.num_processing_units
     agents = spec.view == "decentralised"
-    obs, actions = (N_SCALAR_FEATURES + m + n, 2) if agents else (n + m, n + 1)
+    observation = DEFAULT_OBSERVATION  # the container agents' observation variant (F), DAgger's setting
+    if spec.native:
+        trainer = spec.trainer()
+        settings = trainer.settings(args.hyperparams) if settings is None else settings
+        observation = env_options(trainer, settings).get("observation", DEFAULT_OBSERVATION)
+    obs, actions = (agent_observation_size(n, m, observation), 2) if agents else (n + m, n + 1)
     shapes = MemoryShapes(obs, actions, spec.num_slots(n, n_envs), n, m)
     estimate = {f"n_envs={n_envs}": n_envs * (n + m) * 16 * 8 + shapes.slots * obs * 4 * 4}
     if spec.native:
-        trainer = spec.trainer()
-        return {**estimate, **trainer.memory(trainer.settings(args.hyperparams) if settings is None else settings,
-                                             shapes)}
+        return {**estimate, **trainer.memory(settings, shapes)}
     from containergym_marl.models import sb3_networks
 
     kwargs = spec.kwargs(shapes.slots, args.gamma, args.hyperparams)
