@@ -24,6 +24,11 @@ rows of a plant are evaluated on the same plant: the training δ does not concer
   (``seed`` = 1, 2) and with K = 64 futures: whether the overflow is the look-ahead's sampling error
   (a diagnosis, not a choice: the defaults stay those chosen on validation episodes). Runs after
   ``fresh``.
+* ``safety``: the deadline check (``safety_risk``, :mod:`containergym_marl.policies.safety`) next to
+  the defaults on the contended plants, ``--safety-episodes`` (default 1,000) episodes per setting and
+  view from ``--safety-first-seed`` (default the fresh seeds 30000+, where the claim of no overflow is
+  held; 20000 for validation episodes, on which its setting was chosen): whether it removes the
+  overflows, at what return and time per step (issue 38).
 
 Episodes run in blocks of 10 on ``--workers`` processes (the planner seeds its own generator from
 each episode's seed, so a block gives what a whole evaluation would). Writes ``--out``/validation.json
@@ -56,7 +61,9 @@ HORIZONS = (4, 8, 16, 24, 32, 48)
 WIDE = (16, 64, 128)
 VALIDATION_SEED, FRESH_SEED = 20_000, FRESH.first_seed
 BLOCK = 10
-PARTS = ("settings", "horizons", "wide", "fresh", "replay")
+PARTS = ("settings", "horizons", "wide", "fresh", "replay", "safety")
+#: the deadline check's setting (chosen on validation episodes 20000+), run next to the defaults
+SAFETY = {"safety_risk": 1e-4, "safety_horizon_steps": 24}
 #: how the overflowing fresh episodes are replayed
 REPLAYS = ({"seed": 1}, {"seed": 2}, {"futures": 64})
 
@@ -71,6 +78,8 @@ def settings_for(part: str) -> list[tuple[str, dict]]:
     if part == "wide":
         return [(plant, dict(DEFAULTS) if k == DEFAULTS["futures"] else {**DEFAULTS, "max_futures": k})
                 for plant in CONTENDED for k in WIDE]
+    if part == "safety":
+        return [(plant, s) for plant in CONTENDED for s in (dict(DEFAULTS), {**DEFAULTS, **SAFETY})]
     return [(plant, dict(DEFAULTS)) for plant in PLANTS]
 
 
@@ -92,10 +101,10 @@ def run_block(job: tuple) -> dict:
             "steps": int(sum(e.steps for e in result.episodes))}
 
 
-def jobs_for(parts: list[str], episodes: dict[str, int]) -> list[tuple]:
+def jobs_for(parts: list[str], episodes: dict[str, int], safety_first_seed: int = FRESH_SEED) -> list[tuple]:
     jobs = []
     for part in parts:
-        first = FRESH_SEED if part == "fresh" else VALIDATION_SEED
+        first = {"fresh": FRESH_SEED, "safety": safety_first_seed}.get(part, VALIDATION_SEED)
         for plant, settings in settings_for(part):
             for view in VIEWS:
                 for start in range(0, episodes[part], BLOCK):
@@ -113,7 +122,8 @@ def summarise(blocks: list[dict]) -> list[dict]:
     """One row per (part, plant, view, settings): the blocks' episodes together."""
     rows: dict[str, dict] = {}
     for b in sorted(blocks, key=lambda b: b["first_seed"]):
-        k = json.dumps([b["part"], b["plant"], b["view"], b["settings"]], sort_keys=True)
+        # fresh and validation episodes of a part (the safety part runs either) are rows apart
+        k = json.dumps([b["part"], b["plant"], b["view"], b["settings"], b["first_seed"] >= FRESH_SEED], sort_keys=True)
         row = rows.setdefault(k, {"part": b["part"], "plant": b["plant"], "view": b["view"], "settings": b["settings"],
                                   "first_seed": b["first_seed"], "returns": [], "overflows": [], "cpu_s": 0.0,
                                   "steps": 0})
@@ -146,10 +156,14 @@ def report(rows: list[dict], note: str = "") -> str:
               "horizons": f"## Look-ahead H with K = 16 on the contended plants (validation seeds {VALIDATION_SEED}+)",
               "wide": "## More futures on uncertain decisions, on the contended plants (validation seeds "
                       f"{VALIDATION_SEED}+)",
-              "fresh": f"## The defaults on fresh episodes (seeds {FRESH_SEED}+)"}
+              "fresh": f"## The defaults on fresh episodes (seeds {FRESH_SEED}+)",
+              "safety": "## The deadline check next to the defaults, on the contended plants"}
     for part, title in titles.items():
         mine = [r for r in rows if r["part"] == part and part != "replay"]
         if not mine:
+            continue
+        if part == "safety":
+            lines += safety_table(mine)
             continue
         lines += [title, "", "| plant | setting | episodes | planner | overflows | planner_agents | overflows | "
                   "ms CPU/step (agents) |", "|---|---|---|---|---|---|---|---|"]
@@ -188,19 +202,41 @@ def report(rows: list[dict], note: str = "") -> str:
     return "\n".join(lines)
 
 
+def safety_table(rows: list[dict]) -> list[str]:
+    """The safety part's rows: per plant, seed range and view, each setting's return, overflowing
+    episodes and CPU time per decision."""
+    lines = ["## The deadline check next to the defaults, on the contended plants", "",
+             "CPU per step: the mean over every step of the episodes (steps without a choice included).", "",
+             "| plant | seeds | view | setting | episodes | return | overflows | ms CPU/step |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: (r["plant"], r["first_seed"] >= FRESH_SEED, r["view"],
+                                         changed(r["settings"]) != "defaults")):
+        seeds = f"{FRESH_SEED}+ (fresh)" if r["first_seed"] >= FRESH_SEED else f"{VALIDATION_SEED}+ (validation)"
+        lines.append(f"| {r['plant'].rsplit('_', 1)[0]} | {seeds} | {r['view']} | {changed(r['settings'])} | "
+                     f"{r['episodes']} | {r['return_mean']:.2f} ± {r['return_sem']:.2f} | {r['overflowing_episodes']} | "
+                     f"{r['ms_cpu_per_step']:.2f} |")
+    return lines + [""]
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS)
     p.add_argument("--validation-episodes", type=int, default=30)
     p.add_argument("--fresh-episodes", type=int, default=200)
     p.add_argument("--wide-episodes", type=int, default=200)
+    p.add_argument("--safety-episodes", type=int, default=1000)
+    p.add_argument("--safety-first-seed", type=int, default=FRESH_SEED,
+                   help=f"first episode seed of the safety part ({FRESH_SEED}: fresh; {VALIDATION_SEED}: validation)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     p.add_argument("--out", default="results/planner_validation")
     p.add_argument("--note", default=None, help="where it ran (kept in validation.json, shown in validation.md)")
     p.add_argument("--smoke", action="store_true", help="two episodes per setting, one plant")
     ns = p.parse_args(argv)
     episodes = {"settings": ns.validation_episodes, "horizons": ns.validation_episodes, "wide": ns.wide_episodes,
-                "fresh": ns.fresh_episodes}
+                "fresh": ns.fresh_episodes, "safety": ns.safety_episodes}
+    for label, value in (("--safety-episodes", ns.safety_episodes), ("--safety-first-seed", ns.safety_first_seed)):
+        if value < 1:
+            p.error(f"{label}: expected an integer >= 1, got {value}")
     global PLANTS, CONTENDED, VARIED, HORIZONS, WIDE
     if ns.smoke:
         episodes = dict.fromkeys(episodes, 2)
@@ -219,7 +255,7 @@ def main(argv=None) -> None:
     blocks = kept
     done = {b["key"] for b in blocks}
     parts = [part for part in ns.parts if part != "replay"]
-    todo = [j for j in jobs_for(parts, episodes) if key(*j) not in done]
+    todo = [j for j in jobs_for(parts, episodes, ns.safety_first_seed) if key(*j) not in done]
     print(f"{len(todo)} block(s) to run, {len(done)} reused", flush=True)
     with ProcessPoolExecutor(ns.workers) as pool:
         for block in pool.map(run_block, todo):

@@ -81,6 +81,21 @@ episodes overflows again under each change (``results/planner_validation/validat
 is within ``confidence`` standard errors of the best (``studies/planner_validation.py --parts wide``
 measures it on validation episodes).
 
+**Deadline check** (``safety_risk`` = ε, off by default). The overflow cost above is estimated from
+the K sampled futures, and near an overflow that estimate is noisy: the risk sits in the few futures
+whose fills run high several steps in a row (in an overflowing validation episode of ``n16_m2`` the
+16 futures gave a candidate 0.3 % of overflow risk where 4,000 give 5.5 %), which is why more
+futures or another seed move the overflows around instead of removing them. With ε set, every
+decision must also pass a check that samples nothing (:mod:`~containergym_marl.policies.safety`): from
+the fill distribution, each container's deadline (the fills it can wait before its probability of
+overflowing passes ε); from the PU timers after the decision, a schedule that empties the containers
+due within ``safety_horizon_steps`` (W) earliest deadline first, each as soon as a PU frees. A
+decision whose schedule misses a deadline is replaced by the best-valued candidate whose schedule
+meets them all (the containers due in the window become candidates too); if there is none, by the
+candidate of least total schedule risk. Where the look-ahead's choice passes, the decision (and the
+planner's random stream) is that of the planner without the check. ``studies/planner_validation.py
+--parts safety`` measures it next to the defaults.
+
 **Randomness.** The planner draws its futures from its own generator, seeded per episode from
 ``(episode seed, seed)`` by :meth:`reset` (which :func:`~containergym_marl.evaluation.evaluate`
 calls with the evaluation seed), so an evaluation is reproducible and the environment's random
@@ -103,6 +118,7 @@ from containergym_marl.core.dynamics import PlantState, emptying_rewards
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.whatif import Futures, simulate_futures
 from containergym_marl.policies.rule_based import within_margin
+from containergym_marl.policies.safety import DeadlineCheck
 
 #: Last word of the planner's seed entropy, so its streams differ from the environment's (which
 #: are seeded from the episode seed alone).
@@ -162,6 +178,13 @@ class RolloutPlanner:
             futures and decides on all of them, so the look-ahead's sampling error is small where it
             decides, at the cost of more simulations on those steps only.
         confidence: the standard errors of that test.
+        safety_risk: ε, probability (per container, no unit); ``None`` (default): no check. With it set,
+            the planner's decision must leave a schedule of the PUs, earliest deadline first, that
+            empties every container before its overflow probability passes ε (the deadline check of
+            :mod:`~containergym_marl.policies.safety`); a decision that does not is replaced by the
+            best-valued one that does.
+        safety_horizon_steps: W, the window of that check (steps): containers that can wait W fills
+            with an overflow probability <= ε are not scheduled.
     """
 
     name = "planner"
@@ -171,7 +194,7 @@ class RolloutPlanner:
     def __init__(self, params: PlantParams | None = None, *, futures: int = 16, horizon: int = 8,
                  base: str = "fullest", margin: float = 1.0, min_reward: float = 0.0,
                  overflow_penalty: float = 10.0, seed: int = 0, max_futures: int | None = None,
-                 confidence: float = 2.0):
+                 confidence: float = 2.0, safety_risk: float | None = None, safety_horizon_steps: int = 24):
         if base not in BASE_POLICIES:
             raise ValueError(f"base: unknown base policy {base!r}; choose one of {tuple(BASE_POLICIES)}")
         max_futures = futures if max_futures is None else max_futures
@@ -182,18 +205,28 @@ class RolloutPlanner:
             raise ValueError(f"max_futures: expected at least futures ({futures}), got {max_futures}")
         if not (isinstance(confidence, (int, float)) and np.isfinite(confidence) and confidence >= 0):
             raise ValueError(f"confidence: expected a finite number >= 0, got {confidence!r}")
+        if safety_risk is not None and not (isinstance(safety_risk, (int, float)) and not isinstance(safety_risk, bool)
+                                            and 0.0 < safety_risk < 1.0):
+            raise ValueError(f"safety_risk: expected a probability in (0, 1) or None, got {safety_risk!r}")
+        if (isinstance(safety_horizon_steps, bool) or not isinstance(safety_horizon_steps, (int, np.integer))
+                or safety_horizon_steps < 1):
+            raise ValueError(f"safety_horizon_steps: expected an integer >= 1, got {safety_horizon_steps!r}")
         self.params = params
         self.futures, self.horizon, self.base = int(futures), int(horizon), base
         self.margin, self.min_reward = float(margin), float(min_reward)
         self.overflow_penalty = float(overflow_penalty)
         self.seed = int(seed)
         self.max_futures, self.confidence = int(max_futures), float(confidence)
+        self.safety_risk = None if safety_risk is None else float(safety_risk)
+        self.safety_horizon_steps = int(safety_horizon_steps)
         self._base = BASE_POLICIES[base]
         self._rng: np.random.Generator | None = None
         self._seeded_by_reset = False
         self._plant: tuple[PlantParams, np.ndarray, float] | None = None
         #: decisions taken / planned (with a look-ahead) / planned again with max_futures, since construction
         self.decisions = self.planned = self.widened = 0
+        #: decisions the deadline check replaced, since construction
+        self.shielded = 0
 
     # ---- episode control --------------------------------------------------------------------
     def reset(self, seed: int | None = None) -> None:
@@ -236,19 +269,47 @@ class RolloutPlanner:
         volumes = state.volumes[:1]
         ready = within_margin(volumes, params, self.margin)[0]
         eligible = ready | (emptying_rewards(volumes, params)[0] >= self.min_reward)
-        if not eligible.any():
+        check = None
+        if self.safety_risk is not None:
+            check = DeadlineCheck(volumes[0], state.pu_timers_s[0], params, self.safety_risk,
+                                  self.safety_horizon_steps)
+        if not eligible.any() and (check is None or check.safe(np.zeros(n, dtype=bool))):
             return np.zeros(n, dtype=bool)
         base = self._base(state, params, limit, self.margin)[0]
         candidates = self._candidates(base, eligible, limit, volumes[0] / params.max_volume)
         if len(candidates) == 1:
-            return candidates[0]
-        self.planned += 1
-        values = self._values(state, params, candidates, self.futures)
-        if self.max_futures > self.futures and self.uncertain(values, self.confidence):
-            self.widened += 1
-            values = np.concatenate([values, self._values(state, params, candidates,
-                                                          self.max_futures - self.futures)], axis=1)
-        return candidates[int(np.argmax(values.mean(axis=1)))]  # the first best: the base decision on ties
+            values = None
+        else:
+            self.planned += 1
+            values = self._values(state, params, candidates, self.futures)
+            if self.max_futures > self.futures and self.uncertain(values, self.confidence):
+                self.widened += 1
+                values = np.concatenate([values, self._values(state, params, candidates,
+                                                              self.max_futures - self.futures)], axis=1)
+        best = 0 if values is None else int(np.argmax(values.mean(axis=1)))  # the first best: the base on ties
+        if check is None or check.safe(candidates[best]):
+            return candidates[best]
+        return self._shielded(state, params, check, base, eligible, limit, candidates, values)
+
+    def _shielded(self, state: PlantState, params: PlantParams, check: DeadlineCheck, base: np.ndarray,
+                  eligible: np.ndarray, limit: int, candidates: np.ndarray, values: np.ndarray | None) -> np.ndarray:
+        """The decision when the look-ahead's choice fails the deadline check: the best-valued safe
+        candidate, the containers due in the check's window candidates too; if none is safe, the one
+        of least total schedule risk."""
+        self.shielded += 1
+        due = np.zeros(params.n_containers, dtype=bool)
+        due[check.due] = True
+        extended = self._candidates(base, eligible | due, limit, state.volumes[0] / params.max_volume)
+        if len(extended) > len(candidates):
+            candidates = extended
+            values = self._values(state, params, candidates, self.futures)
+        mean = np.zeros(len(candidates)) if values is None else values.mean(axis=1)
+        risks = np.array([check.schedule_risk(c) for c in candidates])  # (C, n)
+        safe = risks.max(axis=1) <= check.epsilon
+        if safe.any():
+            return candidates[int(np.argmax(np.where(safe, mean, -np.inf)))]
+        total = risks.sum(axis=1)
+        return candidates[int(np.lexsort((-mean, total))[0])]  # least risk, then best value
 
     def _values(self, state: PlantState, params: PlantParams, candidates: np.ndarray, futures: int) -> np.ndarray:
         """(C, K) values of ``futures`` new futures of every candidate (the same streams for each)."""

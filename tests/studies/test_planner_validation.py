@@ -31,9 +31,9 @@ def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
     first = subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "2", "--out", str(out)],
                            capture_output=True, text=True, timeout=300, check=True)
     assert "1 fresh block(s) outside seeds 30000+ dropped" in first.stdout
-    assert "10 block(s) to run, 0 reused" in first.stdout
+    assert "14 block(s) to run, 0 reused" in first.stdout
     blocks = json.loads((out / "validation.json").read_text())["blocks"]
-    assert {b["part"] for b in blocks} == {"settings", "horizons", "wide", "fresh"}
+    assert {b["part"] for b in blocks} == {"settings", "horizons", "wide", "fresh", "safety"}
     fresh = [b for b in blocks if b["part"] == "fresh" and b["view"] == "planner_agents"]
     assert [b["first_seed"] for b in fresh] == [FRESH.first_seed]  # the one fresh range, 30000+
     plain = evaluate(PlannerAgents(), "n5_m2_dt120", EvalProtocol(episodes=2, first_seed=FRESH.first_seed),
@@ -42,9 +42,12 @@ def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
     text = (out / "validation.md").read_text()
     assert "| n5_m2 | max_futures = 32 | 2 |" in text  # the widened look-ahead's part
     assert "| n5_m2 | margin = 2 | 2 |" in text and "## The defaults on fresh episodes (seeds 30000+)" in text
+    # the deadline check's part: its setting next to the defaults, on the fresh seeds by default
+    assert "| n5_m2 | 30000+ (fresh) | planner_agents | safety_risk = 0.0001, safety_horizon_steps = 24 | 2 |" in text
+    assert "| n5_m2 | 30000+ (fresh) | planner_agents | defaults | 2 |" in text
     again = subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "1", "--out", str(out)],
                            capture_output=True, text=True, timeout=300, check=True)
-    assert "0 block(s) to run, 10 reused" in again.stdout
+    assert "0 block(s) to run, 14 reused" in again.stdout
 
 
 def test_each_overflowing_fresh_episode_is_replayed_with_another_seed_and_more_futures():
@@ -69,3 +72,30 @@ def test_a_setting_with_one_view_so_far_keeps_its_whole_row():
     lines = script.report([row]).splitlines()
     assert "| n16_m2 | defaults | 10 | 111.25 ± 0.50 | 0 | – | – | – |" in lines
     assert " | – |" not in lines
+
+
+def test_the_safety_part_runs_its_setting_next_to_the_defaults_from_the_seed_asked():
+    script = load_script("studies/planner_validation.py")
+    jobs = script.jobs_for(["safety"], {"safety": 25}, 20_000)
+    assert {(j[1], j[2]) for j in jobs} == {(p, v) for p in script.CONTENDED for v in script.VIEWS}
+    assert sorted({json.dumps(j[3], sort_keys=True) for j in jobs}) == sorted(
+        json.dumps(s, sort_keys=True) for s in (script.DEFAULTS, {**script.DEFAULTS, **script.SAFETY}))
+    assert sorted({(j[4], j[5]) for j in jobs}) == [(20_000, 10), (20_010, 10), (20_020, 5)]
+    assert {j[4] for j in script.jobs_for(["safety"], {"safety": 10})} == {FRESH.first_seed}  # fresh by default
+    # validation and fresh blocks of one setting are rows apart, each with its seed range
+    block = {"part": "safety", "plant": "n16_m2_dt120", "view": "planner", "settings": {**script.DEFAULTS,
+             **script.SAFETY}, "episodes": 2, "returns": [110.0, 112.0], "overflows": [0, 1], "cpu_s": 2.0,
+             "steps": 1000}
+    rows = script.summarise([dict(block, first_seed=20_000), dict(block, first_seed=30_000, overflows=[0, 0])])
+    assert sorted((r["first_seed"], r["overflowing_episodes"]) for r in rows) == [(20_000, 1), (30_000, 0)]
+    text = script.report(rows)
+    assert "| n16_m2 | 20000+ (validation) | planner | safety_risk = 0.0001, safety_horizon_steps = 24 | 2 | " \
+           "111.00 ± 1.00 | 1 | 2.00 |" in text
+    assert "| n16_m2 | 30000+ (fresh) | planner |" in text
+
+
+def test_the_safety_part_refuses_a_bad_episode_count(capsys):
+    script = load_script("studies/planner_validation.py")
+    with pytest.raises(SystemExit):
+        script.main(["--parts", "safety", "--safety-episodes", "0", "--out", "/nonexistent/never"])
+    assert "--safety-episodes: expected an integer >= 1, got 0" in capsys.readouterr().err

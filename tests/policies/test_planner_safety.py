@@ -1,0 +1,137 @@
+"""The planner's deadline check (containergym_marl.policies.safety) and its shield in the planner."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from containergym_marl import load_config
+from containergym_marl.core.dynamics import PlantState
+from containergym_marl.core.params import PlantParams
+from containergym_marl.evaluation import EvalProtocol, evaluate
+from containergym_marl.policies import PlannerAgents, RolloutPlanner
+from containergym_marl.policies.safety import DeadlineCheck, deadlines, waiting_risk
+
+SMALL = dict(futures=4, horizon=6)
+
+
+def _params(name: str = "n5_m2_dt120") -> PlantParams:
+    return PlantParams.from_config(load_config(name))
+
+
+def _tail(x: float) -> float:
+    return 0.5 * math.erfc(x / math.sqrt(2.0))
+
+
+def _state(volumes, timers_s, step: int = 100) -> PlantState:
+    return PlantState(np.array([volumes], dtype=float), np.array([timers_s], dtype=float), np.array([step]))
+
+
+def test_the_default_planner_is_unchanged():
+    """Both views, K = 4, H = 6, a 200-step episode of n16_m2: the return and emptyings of the
+    planner before the deadline check existed (main at 42cd76f), to the last bit."""
+    protocol = EvalProtocol(episodes=1, episode_length_steps=200, first_seed=20_000)
+    expected = {RolloutPlanner: ([35.60410729691495], [47]), PlannerAgents: ([38.58437420229669], [49])}
+    for cls, (returns, emptyings) in expected.items():
+        result = evaluate(cls(**SMALL), "n16_m2_dt120", protocol)
+        assert result.returns.tolist() == returns
+        assert [int(r.granted.sum()) for r in result.records] == emptyings
+
+
+def test_waiting_risk_is_the_union_of_the_k_step_normal_tails():
+    """C1-20 of n5_m2 (μδ = 0.692, σ√δ = 0.609) at 36: P(s) = Σₖ P(36 + kμδ + √k σ√δ Z >= 40)."""
+    params = _params()
+    mean, std = params.fill_mean_per_step[0], params.fill_std_per_step[0]
+    risk = waiting_risk(np.array([36.0, 5.0, 5.0, 5.0, 5.0]), params, 6)
+    by_hand = np.cumsum([_tail((40.0 - 36.0 - k * mean) / (std * math.sqrt(k))) for k in range(1, 7)])
+    np.testing.assert_allclose(risk[0], np.minimum(by_hand, 1.0), rtol=1e-12)
+    assert risk[0, 0] < 1e-7 < 1e-3 < risk[0, 1]  # it can wait one fill with ε = 1e-3, not two
+    assert deadlines(risk, 1e-3)[0] == 1
+    assert deadlines(risk, 1e-3)[1:].tolist() == [6] * 4  # at 5 units: no deadline within 6 steps
+
+
+def test_the_check_sees_two_containers_due_before_a_pu_frees():
+    """n5_m2, C1-20 and C1-30 at 36, PU 0 busy 1000 s, PU 1 free. Emptying C1-20 takes PU 1 for
+    g = 106.8 + 264.9·⌊36/27⌋ = 371.7 s (free from step 1 + ⌈371.7/120⌉ = 5); PU 0 frees at step
+    1 + ⌈880/120⌉ = 9. So C1-30 (deadline 4 fills at ε = 1e-3) waits 5 fills: unsafe. Waiting
+    instead serves C1-20 (deadline 1) at step 1 and C1-30 at 1 + 5 = 6: unsafe too; emptying C1-30
+    leaves C1-20 five fills: unsafe. Every choice breaks a deadline, and the check says so."""
+    params = _params()
+    check = DeadlineCheck(np.array([36.0, 36.0, 5.0, 5.0, 5.0]), np.array([1000.0, 0.0]), params, 1e-3, 24)
+    assert check.deadline[:2].tolist() == [1, 4] and check.due.tolist()[:2] == [0, 1]
+    empty_0, empty_1, wait = (np.eye(5, dtype=bool)[0], np.eye(5, dtype=bool)[1], np.zeros(5, dtype=bool))
+    assert check.schedule_risk(empty_0)[1] == check.risk[1, 5 - 1]
+    assert check.schedule_risk(empty_1)[0] == check.risk[0, 5 - 1]
+    waiting = check.schedule_risk(wait)
+    assert waiting[0] == check.risk[0, 1 - 1] and waiting[1] == check.risk[1, 6 - 1]
+    assert not any(check.safe(c) for c in (empty_0, empty_1, wait))
+    # with PU 0 free in 2 steps instead, emptying C1-20 now leaves C1-30 a PU at step 2 (<= 4): safe
+    # a planner whose look-ahead prefers waiting takes the choice of least total schedule risk
+    # (P_1(5) ≈ 0.013 against P_0(5) ≈ 0.35 and P_0(1) + P_1(6) ≈ 0.08): emptying C1-20
+    planner = RolloutPlanner(**SMALL, safety_risk=1e-3)
+    planner._values = lambda state, params, candidates, futures: np.repeat(
+        (~candidates.any(axis=1)).astype(float)[:, None], futures, axis=1)
+    assert np.flatnonzero(planner.decide(_state([36.0, 36.0, 5.0, 5.0, 5.0], [1000.0, 0.0]), params)).tolist() == [0]
+    assert planner.shielded == 1
+    slack = DeadlineCheck(np.array([36.0, 36.0, 5.0, 5.0, 5.0]), np.array([130.0, 0.0]), params, 1e-3, 24)
+    assert slack.schedule_risk(empty_0)[1] == slack.risk[1, 2 - 1] and slack.safe(empty_0)
+
+
+def test_no_intervention_with_slack():
+    """Low volumes and both PUs free: every candidate passes the check, and the planner with the
+    check decides as the one without it, drawing the same futures."""
+    params = _params()
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        volumes = rng.uniform(15.0, 27.0, size=5)
+        check = DeadlineCheck(volumes, np.zeros(2), params, 1e-4, 24)
+        assert all(check.safe(c) for c in np.eye(5, dtype=bool)) and check.safe(np.zeros(5, dtype=bool))
+        plain, shielded = PlannerAgents(**SMALL), PlannerAgents(**SMALL, safety_risk=1e-4)
+        for p in (plain, shielded):
+            p.reset(7)
+        state = _state(volumes, [0.0, 0.0])
+        assert plain.decide(state, params).tolist() == shielded.decide(state, params).tolist()
+        assert shielded.shielded == 0
+
+
+def test_the_shield_replaces_an_unsafe_look_ahead_choice(monkeypatch):
+    """n5_m2, PU 0 busy 1000 s, PU 1 free; C1-50 (v* = 31.5) at its optimum and C1-60 (μδ = 0.98,
+    σ√δ = 1.34) at 30, ten units from v_max with eight steps to wait for PU 0 if C1-50 takes PU 1.
+    A look-ahead that prefers emptying C1-50, then C1-60, then waiting (its values stubbed) is
+    overruled: C1-60 is emptied. Waiting is safe too (PU 1 stays free for C1-60), so with waiting
+    preferred to C1-60 the shield waits."""
+    params = _params()
+    state = _state([5.0, 5.0, 5.0, 31.5, 30.0], [1000.0, 0.0])
+
+    for c1_60, wait, expected in ((0.5, 0.0, [4]), (0.0, 0.5, [])):
+        def stub(self, state, params, candidates, futures, c1_60=c1_60, wait=wait):
+            value = np.where(candidates[:, 3], 1.0, np.where(candidates[:, 4], c1_60, wait))
+            return np.repeat(value[:, None], futures, axis=1)
+
+        monkeypatch.setattr(RolloutPlanner, "_values", stub)
+        plain = RolloutPlanner(**SMALL)
+        assert np.flatnonzero(plain.decide(state, params)).tolist() == [3]
+        shielded = RolloutPlanner(**SMALL, safety_risk=1e-4)
+        assert np.flatnonzero(shielded.decide(state, params)).tolist() == expected
+        assert shielded.shielded == 1
+
+
+@pytest.mark.parametrize("kwargs, field", [({"safety_risk": 0.0}, "safety_risk"),
+                                           ({"safety_risk": 1.0}, "safety_risk"),
+                                           ({"safety_risk": float("nan")}, "safety_risk"),
+                                           ({"safety_risk": True}, "safety_risk"),
+                                           ({"safety_risk": "0.01"}, "safety_risk"),
+                                           ({"safety_horizon_steps": 0}, "safety_horizon_steps"),
+                                           ({"safety_horizon_steps": 2.5}, "safety_horizon_steps"),
+                                           ({"safety_horizon_steps": True}, "safety_horizon_steps")])
+def test_bad_safety_settings_are_named(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        PlannerAgents(**kwargs)
+
+
+def test_the_check_refuses_more_emptyings_than_free_pus():
+    check = DeadlineCheck(np.full(5, 10.0), np.array([50.0, 0.0]), _params(), 1e-3, 8)
+    with pytest.raises(ValueError, match="emptied"):
+        check.schedule_risk(np.array([True, True, False, False, False]))
