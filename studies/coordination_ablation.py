@@ -59,7 +59,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -202,23 +201,15 @@ def decision_time(policy, row: str) -> dict:
     import torch
 
     from containergym_marl.envs.container_agents_v0 import parallel_env
+    from containergym_marl.evaluation.decision_time import decision_times_ms
     from containergym_marl.evaluation.protocol import VALIDATION, policy_observation
 
     torch.set_num_threads(1)
     env = parallel_env(VALIDATION.plant(row), action_masking=True, observation=policy_observation(policy))
     if hasattr(policy, "reset"):
         policy.reset(seed=VALIDATION.first_seed)
-    observations, _ = env.reset(seed=VALIDATION.first_seed)
-    times = []
-    for _ in range(TIMED_STEPS):
-        if not env.agents:
-            observations, _ = env.reset()
-        t0 = time.perf_counter()
-        actions = policy.act(observations, env)
-        times.append(time.perf_counter() - t0)
-        observations, *_ = env.step(actions)
-    ms = 1e3 * np.asarray(times)
-    return {"steps": len(times), "ms_median": float(np.median(ms)), "ms_mean": float(ms.mean()),
+    ms = decision_times_ms(policy, env, TIMED_STEPS, VALIDATION.first_seed)
+    return {"steps": len(ms), "ms_median": float(np.median(ms)), "ms_mean": float(ms.mean()),
             "ms_p99": float(np.quantile(ms, 0.99))}
 
 

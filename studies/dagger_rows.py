@@ -27,12 +27,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from containergym_marl.evaluation.decision_time import decision_times_ms
 from containergym_marl.files import atomic_write_text
 from containergym_marl.orchestration.compare_args import PAPER_ROWS
 
@@ -111,17 +111,10 @@ def decision_time(runs: Path, methods: list[str], steps: int = 600) -> dict:
         source = "an untrained network of the same shape"
     policy = policy_for(model, "timed")
     env = parallel_env(TIMING_ROW)
-    observations, _ = env.reset(seed=0)
-    times: list[float] = []
-    for _ in range(steps):  # an untrained policy's episodes end early: the next one continues
-        if not env.agents:
-            observations, _ = env.reset()
-        t0 = time.perf_counter()
-        actions = policy.act(observations, env)
-        times.append(time.perf_counter() - t0)
-        observations, *_ = env.step(actions)
-    return {"row": TIMING_ROW, "model": source, "steps": len(times), "ms_per_step_median": 1e3 * float(np.median(times)),
-            "ms_per_step_mean": 1e3 * float(np.mean(times)), "ms_per_step_p99": 1e3 * float(np.quantile(times, 0.99)),
+    # an untrained policy's episodes end early: the next one continues
+    ms = decision_times_ms(policy, env, steps, seed=0)
+    return {"row": TIMING_ROW, "model": source, "steps": len(ms), "ms_per_step_median": float(np.median(ms)),
+            "ms_per_step_mean": float(np.mean(ms)), "ms_per_step_p99": float(np.quantile(ms, 0.99)),
             "torch_threads": 1}
 
 
