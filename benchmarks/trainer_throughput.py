@@ -1,4 +1,4 @@
-"""Training throughput of SB3's PPO at the paper's settings against the native PPO at its defaults,
+"""Training throughput of SB3's PPO at the paper's settings against the native PPO at its settings files,
 measured side by side in one run: samples per CPU-second and per wall-second.
 
     python benchmarks/trainer_throughput.py                      # n11_m2_dt120, 3 rounds, ~3 minutes
@@ -24,6 +24,7 @@ import warnings
 from pathlib import Path
 
 from containergym_marl.config import load_config
+from containergym_marl.config.hyperparams import method_settings
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.algorithms import get_algorithm, rollout_steps
 from containergym_marl.training.fast_ppo import PPOArgs
@@ -32,11 +33,14 @@ PAIRS = (("ppo", "fast_ppo"), ("shared_ppo", "fast_shared_ppo"))
 
 
 def rollout_samples(algo: str, n_containers: int) -> int:
-    """Samples per rollout of ``algo`` at its defaults (SB3's paper settings, the native PPO's shape)."""
+    """Samples per rollout of ``algo`` as ``train`` runs it: SB3's paper settings, or the native PPO's
+    shape from its method's settings file."""
     spec = get_algorithm(algo)
-    slots = spec.num_slots(n_containers, spec.default_sims(n_containers))
-    n_steps = PPOArgs().n_steps if spec.native else rollout_steps(slots)
-    return slots * n_steps
+    if not spec.native:
+        slots = spec.num_slots(n_containers, spec.default_sims(n_containers))
+        return slots * rollout_steps(slots)
+    settings = PPOArgs.from_hyperparams(method_settings(spec.method_name(None)))
+    return spec.num_slots(n_containers, spec.default_sims(n_containers, settings=settings)) * settings.n_steps
 
 
 def burst(algo: str, config: str, rollouts: int, folder: Path, k: int) -> dict:
@@ -81,7 +85,7 @@ def main(argv=None) -> dict:
         cpu_rate = statistics.median(b["samples_per_cpu_s"] for b in bursts)
         wall_rate = statistics.median(b["samples_per_s"] for b in bursts)
         summary["algorithms"][algo] = {"samples_per_cpu_s": cpu_rate, "samples_per_s": wall_rate, "bursts": bursts}
-        settings = "native defaults" if get_algorithm(algo).native else "paper (SB3)"
+        settings = "native settings file" if get_algorithm(algo).native else "paper (SB3)"
         lines.append(f"| {algo} | {settings} | {bursts[0]['samples']:,} | {cpu_rate:,.0f} | {wall_rate:,.0f} |")
     lines += ["", "| native / SB3 | samples per CPU-second | samples per second (wall) |", "|---|---|---|"]
     for sb3, fast in PAIRS:

@@ -16,7 +16,7 @@ from typing import Any
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.algorithms import AlgorithmSpec, get_algorithm
 from containergym_marl.policies import RuleBasedAgents, RuleBasedController
-from containergym_marl.policies.planner import PlannerAgents, RolloutPlanner
+from containergym_marl.policies.planner import PlannerAgents, RolloutPlanner, ShieldedPlanner, ShieldedPlannerAgents
 
 #: The kinds of method: a fixed rule, a planner that simulates ahead, a learned policy.
 KINDS = ("rule", "planner", "learned")
@@ -89,6 +89,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     _controller(RuleBasedAgents, "rule", counterpart="rule_based"),
     _controller(RolloutPlanner, "planner"),
     _controller(PlannerAgents, "planner", counterpart="planner"),
+    # the same planners with the deadline check: the reference (planner, planner_agents: the cheap setting)
+    _controller(ShieldedPlanner, "planner"),
+    _controller(ShieldedPlannerAgents, "planner", counterpart="planner_shielded"),
     _learned("ppo"),
     _learned("trpo"),
     _learned("dqn"),

@@ -48,6 +48,7 @@ import numpy as np
 
 from containergym_marl.evaluation.protocol import FRESH
 from containergym_marl.files import atomic_write_text
+from containergym_marl.policies.planner import SHIELD
 
 #: one row per test plant (the δ of a row's training settings does not concern the planner)
 PLANTS = ("n5_m2_dt120", "n5_m5_dt120", "n11_m2_dt120", "n11_m11_dt120", "n16_m2_dt120")
@@ -62,8 +63,8 @@ WIDE = (16, 64, 128)
 VALIDATION_SEED, FRESH_SEED = 20_000, FRESH.first_seed
 BLOCK = 10
 PARTS = ("settings", "horizons", "wide", "fresh", "replay", "safety")
-#: the deadline check's setting (chosen on validation episodes 20000+), run next to the defaults
-SAFETY = {"safety_risk": 1e-4, "safety_horizon_steps": 24}
+#: the deadline check's setting (chosen on validation episodes 20000+; the shielded planners'), run next to the defaults
+SAFETY = SHIELD
 #: how the overflowing fresh episodes are replayed
 REPLAYS = ({"seed": 1}, {"seed": 2}, {"futures": 64})
 
@@ -78,8 +79,8 @@ def settings_for(part: str) -> list[tuple[str, dict]]:
     if part == "wide":
         return [(plant, dict(DEFAULTS) if k == DEFAULTS["futures"] else {**DEFAULTS, "max_futures": k})
                 for plant in CONTENDED for k in WIDE]
-    if part == "safety":
-        return [(plant, s) for plant in CONTENDED for s in (dict(DEFAULTS), {**DEFAULTS, **SAFETY})]
+    if part == "safety":  # the shield's episodes first (the claim), then the defaults' beside them
+        return [(plant, s) for s in ({**DEFAULTS, **SAFETY}, dict(DEFAULTS)) for plant in CONTENDED]
     return [(plant, dict(DEFAULTS)) for plant in PLANTS]
 
 

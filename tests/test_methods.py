@@ -9,7 +9,14 @@ import pytest
 from containergym_marl.algorithms import ALGORITHMS
 from containergym_marl.cli import build_parser
 from containergym_marl.methods import COMPARABLE, CONTROLLERS, METHODS, PAIRS, get_method
-from containergym_marl.policies import PlannerAgents, RolloutPlanner, RuleBasedAgents, RuleBasedController
+from containergym_marl.policies import (
+    PlannerAgents,
+    RolloutPlanner,
+    RuleBasedAgents,
+    RuleBasedController,
+    ShieldedPlanner,
+    ShieldedPlannerAgents,
+)
 
 
 def _choices(command: str, option: str):
@@ -22,6 +29,7 @@ def test_each_method_is_what_its_name_says():
     expected = {
         "rule_based": ("rule", "centralised"), "rule_based_agents": ("rule", "decentralised"),
         "planner": ("planner", "centralised"), "planner_agents": ("planner", "decentralised"),
+        "planner_shielded": ("planner", "centralised"), "planner_agents_shielded": ("planner", "decentralised"),
         "ppo": ("learned", "centralised"), "trpo": ("learned", "centralised"), "dqn": ("learned", "centralised"),
         "maskable_ppo": ("learned", "centralised"), "shared_ppo": ("learned", "decentralised"),
         "shared_ppo_team": ("learned", "decentralised"), "fast_ppo": ("learned", "centralised"),
@@ -31,7 +39,14 @@ def test_each_method_is_what_its_name_says():
     }
     assert {name: (m.kind, m.view) for name, m in METHODS.items()} == expected
     assert CONTROLLERS == {"rule_based": RuleBasedController, "rule_based_agents": RuleBasedAgents,
-                           "planner": RolloutPlanner, "planner_agents": PlannerAgents}
+                           "planner": RolloutPlanner, "planner_agents": PlannerAgents,
+                           "planner_shielded": ShieldedPlanner, "planner_agents_shielded": ShieldedPlannerAgents}
+    # the shielded planners are the planners with the deadline check at the setting chosen on validation episodes
+    for name in ("planner_shielded", "planner_agents_shielded"):
+        planner = CONTROLLERS[name]()
+        assert (planner.safety_risk, planner.safety_horizon_steps, planner.futures, planner.horizon) == (1e-4, 24, 16, 8)
+        assert CONTROLLERS[name](safety_risk=1e-3).safety_risk == 1e-3
+    assert METHODS["planner_agents_shielded"].counterpart == "planner_shielded"
     team = METHODS["shared_ppo_team"]
     assert (team.algo, team.train_settings()) == ("shared_ppo", {"reward_mode": "team"})
     assert METHODS["ppo"].train_settings() == {}
