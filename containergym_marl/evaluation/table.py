@@ -48,6 +48,7 @@ import numpy as np
 
 from containergym_marl.evaluation import metrics
 from containergym_marl.evaluation import stats as st
+from containergym_marl.evaluation.protocol import DEMONSTRATIONS, FRESH, PAPER, VALIDATION
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.methods import PAIRS
 
@@ -183,7 +184,11 @@ class MethodEvaluations:
 
     @property
     def unit(self) -> str:
-        return "training seeds" if self.seeds else "test episodes"
+        """What a probability of improvement is over: training seeds, or the episodes of a policy without them."""
+        if self.seeds:
+            return "training seeds"
+        first = (self.evaluations[0].get("protocol") or {}).get("first_seed") if self.evaluations else None
+        return f"{episode_kind(first)} episodes"
 
 
 def _episode_returns(evaluation: dict) -> np.ndarray:
@@ -353,13 +358,42 @@ def _samples(n: int | None) -> str:
 
 
 def _protocol_text(groups: Sequence[MethodEvaluations]) -> str:
-    seen = {(p.get("timestep_s"), p.get("episode_length_steps"), p.get("episodes"))
+    seen = {(p.get("timestep_s"), p.get("episode_length_steps"), p.get("episodes"), p.get("first_seed"))
             for g in groups for e in g.evaluations if (p := e.get("protocol"))}
     if len(seen) > 1:
-        return "test protocols differ between rows"
-    dt, steps, episodes = seen.pop() if seen else (120.0, 600, None)
-    name = "paper protocol" if (dt, steps) == (120.0, 600) else "test protocol"
+        return "protocols differ between rows"
+    dt, steps, episodes, first = seen.pop() if seen else (120.0, 600, None, PAPER.first_seed)
+    if (dt, steps, first) == (PAPER.timestep_s, PAPER.episode_length_steps, PAPER.first_seed):
+        name = "paper protocol"
+    else:  # another plant timing, or other episodes than the test seeds (a study on validation or fresh ones)
+        name = f"seeds {first}+" if first is not None and first != PAPER.first_seed else "test protocol"
     return f"{name}: δ = {dt:g} s, T = {steps}" + (f", {episodes} episodes" if episodes else "")
+
+
+def episode_kind(first_seed: int | None) -> str:
+    """What the episodes starting at ``first_seed`` are for (:mod:`~containergym_marl.evaluation.protocol`'s
+    seed ranges): "test" (the paper's protocol, seeds 10000+, and evaluations that do not say),
+    "validation" (20000+), "fresh" (30000+), else "evaluation"."""
+    if first_seed is None:
+        return "test"
+    for kind, start, end in (("test", PAPER.first_seed, VALIDATION.first_seed),
+                             ("validation", VALIDATION.first_seed, FRESH.first_seed),
+                             ("fresh", FRESH.first_seed, DEMONSTRATIONS.first_seed)):
+        if start <= first_seed < end:
+            return kind
+    return "evaluation"
+
+
+def _episode_kind(groups: Sequence[MethodEvaluations]) -> str:
+    """The kind of the table's main episodes ("test" unless every evaluation says otherwise)."""
+    kinds = {episode_kind(p.get("first_seed")) for g in groups for e in g.evaluations if (p := e.get("protocol"))}
+    return kinds.pop() if len(kinds) == 1 else "test"
+
+
+def reward_title(groups: Sequence[MethodEvaluations]) -> str:
+    """The table's title: "Test cumulative reward (paper protocol: δ = 120 s, T = 600, 15 episodes)", or
+    "Validation …" / "Fresh …" for a comparison on those episodes."""
+    return f"{_episode_kind(groups).capitalize()} cumulative reward ({_protocol_text(groups)})"
 
 
 def _fresh_text(groups: Sequence[MethodEvaluations]) -> str:
@@ -373,6 +407,8 @@ def _fresh_text(groups: Sequence[MethodEvaluations]) -> str:
 
 def _selection_text(groups: Sequence[MethodEvaluations]) -> str:
     seeded = [g for g in groups if g.seeds]
+    if not seeded:  # rules and planners only: nothing is picked
+        return ""
     on = {g.selected_on for g in seeded}
     if on == {"validation"}:
         seeds = sorted({e["seed"] for g in seeded for data in g.validation.values() for e in data["episodes"]})
@@ -404,8 +440,9 @@ def markdown(rows: Sequence[dict], imps: Sequence[dict], groups: Sequence[Method
     headers = ["config", "method", "view", "seeds", "best", "best, fresh", "median", "median, fresh", "IQM [95 % CI]",
                "IQM, fresh [95 % CI]", "overflow, fresh", *(m.label for m in shown), "samples"]
     lines = [
-        f"Test cumulative reward ({_protocol_text(groups)}). Best / median: the best and the median policy "
-        f"over training seeds{_selection_text(groups)}, mean ± std over test episodes." + _fresh_text(groups)
+        f"{reward_title(groups)}. Best / median: the best and the median policy "
+        f"over training seeds{_selection_text(groups)}, mean ± std over {_episode_kind(groups)} episodes."
+        + _fresh_text(groups)
         + " IQM: interquartile mean "
         f"of the per-seed mean returns [95 % stratified-bootstrap CI]. {_best_policy_columns()}: of the best policy. "
         "Samples: training budget per run, one sample per decision of the trained policy (a plant step "
@@ -443,7 +480,7 @@ class Table:
     improvements: list[dict]
     markdown: str
     seed_means: dict[str, list[float]]
-    protocol: str = ""  # e.g. "paper protocol: δ = 120 s, T = 600, 15 episodes"
+    title: str = ""  # e.g. "Test cumulative reward (paper protocol: δ = 120 s, T = 600, 15 episodes)"
 
     def write(self, out: str | Path, meta: dict | None = None) -> list[Path]:
         """Write ``table.md``, ``table.csv`` and ``table.json`` into ``out``; returns their paths."""
@@ -473,7 +510,7 @@ def build_table(groups: Sequence[MethodEvaluations], pairs: Iterable[tuple[str, 
     rows = table_rows(groups, reps)
     imps = improvements(groups, pairs, reps)
     return Table(rows, imps, markdown(rows, imps, groups),
-                 {f"{g.config}/{g.method}": g.seed_means.tolist() for g in groups}, _protocol_text(groups))
+                 {f"{g.config}/{g.method}": g.seed_means.tolist() for g in groups}, reward_title(groups))
 
 
 def print_table(table: Table, stream: TextIO | None = None, shipped: bool = False, width: int | None = None) -> None:
@@ -508,7 +545,7 @@ def _rich_table(table: Table, shipped: bool, narrow: bool):
     from rich import box
     from rich.table import Table as RichTable
 
-    out = RichTable(title=f"Test cumulative reward ({table.protocol or 'paper protocol'})", box=box.SIMPLE_HEAD,
+    out = RichTable(title=table.title or "Test cumulative reward (paper protocol)", box=box.SIMPLE_HEAD,
                     title_justify="left", caption_justify="left", pad_edge=False)
     shown = metrics.shown_in("terminal")
     columns = ["config", "method", "view", "seeds", "best", "median", "IQM [95 % CI]", *(m.short for m in shown),

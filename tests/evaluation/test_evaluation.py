@@ -157,3 +157,21 @@ def test_evaluation_reports_every_episode_as_it_ends():
                       on_episode=lambda done, metrics: seen.append((done, metrics.seed, metrics.cumulative_reward)))
     assert seen == [(i + 1, e.seed, e.cumulative_reward) for i, e in enumerate(result.episodes)]
 
+
+
+@pytest.mark.parametrize("first_seed,kind,protocol", [(10_000, "Test", "paper protocol"), (20_000, "Validation", "seeds 20000+"),
+                                                      (30_000, "Fresh", "seeds 30000+")])
+def test_a_table_says_which_episodes_it_reports(tmp_path, first_seed, kind, protocol):
+    """A comparison on validation or fresh episodes (a study) is not titled as the paper's test protocol."""
+    protocol_record = {"timestep_s": 120.0, "episode_length_steps": 600, "episodes": 2, "first_seed": first_seed}
+    results = tmp_path / "n5_m2_dt120"
+    results.mkdir()
+    for name, reward in (("rule_based", 50.0), ("rule_based_agents", 40.0)):
+        episodes = [{"cumulative_reward": reward, "seed": first_seed + k} for k in range(2)]
+        (results / f"{name}.json").write_text(json.dumps(
+            {"episodes": episodes, "protocol": protocol_record, "summary": {"overflow_rate": 0.0}}))
+    table = markdown_table(results)
+    title = table.splitlines()[0]
+    assert title.startswith(f"{kind} cumulative reward ({protocol}: δ = 120 s, T = 600, 2 episodes)")
+    assert f"mean ± std over {kind.lower()} episodes" in title
+    assert f"(over {kind.lower()} episodes)" in table  # the probability of improvement of two controllers
