@@ -6,6 +6,7 @@ duplicate keys and huge integers; then the test protocol and overrides.
 from __future__ import annotations
 
 import json
+import re
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10: the same parser as the tomli package
@@ -29,8 +30,15 @@ def _builtin_dir():
 
 
 def list_configs() -> list[str]:
-    """Names of the built-in configurations (the paper's eight rows and the 16-container plant)."""
-    return sorted(p.name[: -len(".toml")] for p in _builtin_dir().iterdir() if p.name.endswith(".toml"))
+    """Names of the built-in configurations: the paper's eight rows, the 16-container plant and the
+    larger plants built from it (``configs/scaled.py``), by containers, then PUs, then δ."""
+    names = (p.name[: -len(".toml")] for p in _builtin_dir().iterdir() if p.name.endswith(".toml"))
+    return sorted(names, key=_size_order)
+
+
+def _size_order(name: str) -> tuple:
+    match = re.fullmatch(r"n(\d+)_m(\d+)_dt(\d+)", name)
+    return (0, *map(int, match.groups()), name) if match else (1, 0, 0, 0, name)
 
 
 class _HugeInteger:

@@ -53,6 +53,14 @@ class ContainerGymEnv(gym.Env):
     ``episode_length_steps`` (T) steps without overflow. Stepping a finished episode raises
     :class:`~containergym_marl.core.simulator.EpisodeFinishedError`.
 
+    ## Plants
+    The built-in plants (``list_configs()``, [Configurations](configurations.md)): the paper's eight
+    rows (5 and 11 containers), the whole 16-container plant of its reference data, and plants of 32,
+    64 and 128 containers that are *not in the paper*: copies of the 16-container plant with PUs in
+    proportion (``n32_m4``, ``n64_m8``, ``n128_m16``) or scarce (``n32_m3``, ``n64_m6``,
+    ``n128_m12``), built by ``configs/scaled.py``. At most one container is emptied per step in this
+    view, whatever n: on the largest plants that cap, not the PUs, can decide.
+
     ## Arguments
     ``config``: built-in name, path or :class:`PlantConfig` (default ``"n5_m2_dt120"``);
     ``protocol="paper_test"`` sets the paper's test protocol (δ = 120 s, T = 600); further keyword

@@ -136,8 +136,9 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     and BenchMARL build their info specs from the reset infos.
 
     ## Arguments
-    ``config`` (also positional: ``parallel_env("n5_m2_dt120")``), ``protocol`` and plant-level
-    overrides as for the centralised view; ``arbitration``, ``reward_mode``, ``action_masking``,
+    ``config`` (also positional: ``parallel_env("n5_m2_dt120")``; the built-in plants, the larger ones
+    not in the paper, as for the centralised view), ``protocol`` and plant-level overrides as for the
+    centralised view; ``arbitration``, ``reward_mode``, ``action_masking``,
     ``observation`` (``"local"``/``"global"``/``"history4"``/``"broadcast"``), ``observation_mode``
     (``"box"``/``"dict"``), ``state_mode`` (``"physical"``/``"normalised"``),
     ``agent_names`` (``"containers"``/``"indexed"``) as above; ``render_mode``: None,

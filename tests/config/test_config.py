@@ -40,7 +40,9 @@ from tests.helpers import PAPER_CONFIGS
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
-BUILTINS = [*PAPER_CONFIGS, "n16_m2_dt120"]
+#: the plants built from the 16-container plant by configs/scaled.py: PUs in proportion, and scarce
+SCALED = ["n32_m4_dt120", "n64_m8_dt120", "n128_m16_dt120", "n32_m3_dt120", "n64_m6_dt120", "n128_m12_dt120"]
+BUILTINS = [*PAPER_CONFIGS, "n16_m2_dt120", *SCALED]
 
 #: The paper's eight Table 1 rows and the reference file each one takes its figures from.
 PAPER_FILES = {
@@ -249,11 +251,56 @@ def _write(tmp_path: Path, filename: str, content: str | dict) -> Path:
 
 
 # ---- 1. the built-ins ----------------------------------------------------------------------
-def test_list_configs_is_exactly_the_nine_builtins():
-    """The paper's eight Table 1 rows plus the 16-container plant, nothing more or less."""
+def test_list_configs_is_exactly_the_builtins_in_size_order():
+    """The paper's eight Table 1 rows, the 16-container plant and the six larger plants, nothing more
+    or less, by containers, then PUs, then δ."""
     names = list_configs()
     assert sorted(names) == sorted(BUILTINS)
-    assert len(names) == len(set(names)) == 9
+    assert len(names) == len(set(names)) == 15
+    sizes = [tuple(map(int, re.fullmatch(r"n(\d+)_m(\d+)_dt(\d+)", name).groups())) for name in names]
+    assert sizes == sorted(sizes)
+
+
+def test_the_larger_plants_are_the_16_container_plant_copied_with_their_pus():
+    """configs/scaled.py's rule, checked entry by entry: k copies of every container (names C.1..C.k),
+    every plant setting the 16-container plant's, m = n/8 or 3n/32; the files are what the rule writes."""
+    base = load_config("n16_m2_dt120")
+    for name in SCALED:
+        n, m, _ = map(int, re.fullmatch(r"n(\d+)_m(\d+)_dt(\d+)", name).groups())
+        cfg, copies = load_config(name), n // 16
+        assert m in (n // 8, 3 * n // 32)
+        assert [c.name for c in cfg.containers] == [f"{c.name}.{j}" for j in range(1, copies + 1) for c in base.containers]
+        for k, c in enumerate(cfg.containers):
+            assert dataclasses.replace(c, name=base.containers[k % 16].name) == base.containers[k % 16]
+        for field in ("timestep_s", "episode_length_steps", "initial_volume_min", "initial_volume_max",
+                      "overflow_reward", "penalty_reward"):
+            assert getattr(cfg, field) == getattr(base, field), field
+        assert "not in the paper" in cfg.description
+    from containergym_marl.configs import scaled
+
+    assert scaled.main(["--check"]) == 0
+
+
+def _pu_load(cfg) -> float:
+    """Average share of each PU's time that emptying every container at its main optimum takes:
+    Σ_i g_i(v*_i) · μ_i / v*_i / m (paper eq. 2 for g), as docs/configurations.md states it."""
+    busy = 0.0
+    for c in cfg.containers:
+        target = c.reward_peaks[int(np.argmax(c.reward_heights))]
+        g = c.pu_offset_s + c.pu_time_per_product_s * math.floor(target / c.product_size)
+        busy += g * c.fill_rate_per_s / target
+    return busy / cfg.num_processing_units
+
+
+def test_the_larger_plants_pu_loads_are_the_ones_the_docs_state():
+    # docs/configurations.md and configs/scaled.py: 0.45 in proportion (the 16-container plant's), 0.59 scarce
+    assert round(_pu_load(load_config("n16_m2_dt120")), 2) == 0.45
+    for name in SCALED:
+        cfg = load_config(name)
+        proportional = cfg.num_processing_units * 8 == cfg.n_containers
+        assert round(_pu_load(cfg), 2) == (0.45 if proportional else 0.59), name
+    assert "0.45 of each PU's time" in (REPO_ROOT / "docs" / "configurations.md").read_text()
+    assert "load 0.59" in (REPO_ROOT / "docs" / "configurations.md").read_text()
 
 
 @pytest.mark.parametrize("name", BUILTINS)
@@ -719,6 +766,8 @@ def test_wheel_install_loads_builtin_configs(tmp_path):
         "        assert site in pathlib.Path(mod.__file__).resolve().parents, (name, mod.__file__)\n"
         "from containergym_marl.config.hyperparams import method_settings\n"
         "lr = method_settings('fast_shared_ppo')['learning_rate']\n"
+        "from containergym_marl.configs import scaled\n"
+        "assert scaled.main(['--check']) == 0  # the rule ships beside the files it wrote\n"
         "print(json.dumps({'count': len(list_configs()), 'names': list_configs(), 'n': cfg.n_containers, 'file': str(where), 'lr': lr}))\n"
     )
     env = {**os.environ, "PYTHONPATH": str(site)}
@@ -727,7 +776,7 @@ def test_wheel_install_loads_builtin_configs(tmp_path):
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stdout + run.stderr
     out = json.loads(run.stdout.strip().splitlines()[-1])
-    assert out["count"] == 9
+    assert out["count"] == len(BUILTINS) == 15
     assert sorted(out["names"]) == sorted(BUILTINS)
     assert out["n"] == 5
     assert not Path(out["file"]).is_relative_to(REPO_ROOT)
