@@ -32,7 +32,8 @@ Entries 1 and 3–6 identify the container by its physics; the one-hot makes ide
 
 Observation variants (``observation=`` of the container-agent views, :data:`OBSERVATIONS`): what an
 agent sees besides the table above, for the ablation of what the imitation of the planner lacks
-(``studies/coordination_ablation.py``). Every variant starts with the F₀ = 12 + m + n entries
+(``studies/coordination_ablation.py``), and one of a size that does not depend on the plant, for
+transfer between plants. Every variant but ``"portable"`` starts with the F₀ = 12 + m + n entries
 above, unchanged (``"local"``, the default, is exactly them); execution stays decentralised: an
 agent acts on its own row, which holds only what it was allowed to receive. Built in one place,
 :class:`AgentObservations`, for the PettingZoo views, the vectorised env and the batched evaluator.
@@ -70,6 +71,20 @@ agent acts on its own row, which holds only what it was allowed to receive. Buil
   F₀+k    requested_last_step[k]     1 if container k requested in the last step    [0, 1]
   F₀+n+k  granted_last_step[k]       1 if container k was emptied in the last step  [0, 1]
   ======  =========================  =============================================  ==========
+
+* ``"portable"``: the same size on every plant, for one network that acts on plants of any n and m
+  (a policy trained on one plant, evaluated on another): entries 0–11 of the table above, then the
+  PU timers summarised instead of listed, and no one-hot (the container is identified by its physics,
+  entries 1 and 3–6). It does *not* start with the F₀ entries; F = 14:
+
+  ======  =========================  =============================================  ==========
+  idx     name                       meaning                                        bounds
+  ======  =========================  =============================================  ==========
+  0–11    (entries 0–11 above)       as above                                       as above
+  12      next_pu_free_frac          smallest PU timer / largest possible PU time   [0, 1]
+                                     (0 while a PU is free)
+  13      mean_pu_timer_frac         mean PU timer / largest possible PU time       [0, 1]
+  ======  =========================  =============================================  ==========
 """
 
 from __future__ import annotations
@@ -102,7 +117,9 @@ N_SCALAR_FEATURES = len(SCALAR_FEATURES)
 
 
 #: The container agents' observation variants (the module docstring); the first is the default.
-OBSERVATIONS = ("local", "global", "history4", "broadcast")
+OBSERVATIONS = ("local", "global", "history4", "broadcast", "portable")
+#: The ``"portable"`` observation's summary of the PU timers (after the scalar entries).
+PORTABLE_PU_FEATURES = ("next_pu_free_frac", "mean_pu_timer_frac")
 DEFAULT_OBSERVATION = OBSERVATIONS[0]
 #: Frames of the ``"history4"`` observation: the current one and the 3 before it.
 HISTORY_FRAMES = 4
@@ -117,10 +134,12 @@ def check_observation(value, where: str = "observation") -> str:
 
 def agent_observation_size(n_containers: int, n_pus: int, observation: str = DEFAULT_OBSERVATION) -> int:
     """F, the entries of a container agent's observation in variant ``observation``."""
+    if check_observation(observation) == "portable":
+        return N_SCALAR_FEATURES + len(PORTABLE_PU_FEATURES)
     local = N_SCALAR_FEATURES + n_pus + n_containers
     extra = {"local": 0, "global": n_containers + n_pus, "history4": (HISTORY_FRAMES - 1) * local,
              "broadcast": 2 * n_containers}
-    return local + extra[check_observation(observation)]
+    return local + extra[observation]
 
 
 def agent_feature_names(params: PlantParams, observation: str = DEFAULT_OBSERVATION) -> list[str]:
@@ -132,6 +151,8 @@ def agent_feature_names(params: PlantParams, observation: str = DEFAULT_OBSERVAT
         + [f"container_one_hot[{i}]" for i in range(n)]
     )
     observation = check_observation(observation)
+    if observation == "portable":
+        return list(SCALAR_FEATURES) + list(PORTABLE_PU_FEATURES)
     if observation == "global":
         return local + [f"global_volume_frac[{k}]" for k in range(n)] + [f"global_pu_timer_frac[{j}]" for j in range(m)]
     if observation == "history4":
@@ -162,6 +183,10 @@ def agent_observation_bounds(params: PlantParams, observation: str = DEFAULT_OBS
     low[2] = -VOLUME_BOUND_FACTOR
     low[7] = params.penalty_reward
     observation = check_observation(observation)
+    if observation == "portable":
+        summary = len(PORTABLE_PU_FEATURES)
+        return (np.concatenate([low[:N_SCALAR_FEATURES], np.zeros(summary, np.float32)]),
+                np.concatenate([high[:N_SCALAR_FEATURES], np.ones(summary, np.float32)]))
     if observation == "global":
         extra_high = np.ones(n + m, dtype=np.float32)
         extra_high[:n] = VOLUME_BOUND_FACTOR
@@ -311,6 +336,10 @@ class AgentObservations:
         if self.observation == "local":
             return frame
         bsz, n = frame.shape[:2]
+        if self.observation == "portable":  # the scalars, then the timers (entries 12..12+m) summarised
+            timers = frame[:, :, N_SCALAR_FEATURES:N_SCALAR_FEATURES + self.params.n_pus]
+            return np.concatenate([frame[:, :, :N_SCALAR_FEATURES], timers.min(axis=2, keepdims=True),
+                                   timers.mean(axis=2, keepdims=True, dtype=np.float32)], axis=2)
         if self.observation == "history4":
             if earlier.shape[0] != bsz:
                 raise ValueError(f"state: {bsz} simulations, but {earlier.shape[0]} remembered")

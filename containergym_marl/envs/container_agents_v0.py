@@ -85,8 +85,11 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ``"history4"`` the agent's own observations of the last 3 steps (3 (12 + m + n) entries, 0
     before the episode's start); ``"broadcast"`` which containers requested in the last step and
     which were emptied (2n entries of 0/1, 0 at the start), a signal the plant could broadcast to
-    every agent. The space, its bounds and dtype are the same at reset and at every step; models
-    record the variant they were trained on and refuse to act on another.
+    every agent. ``"portable"`` has 14 entries on every plant, for one network that acts on plants of
+    any size (a shared policy trained on one plant and run on a larger one): entries 0–11 of the
+    above, then the PU timers summarised (the smallest and the mean), no one-hot. The space, its
+    bounds and dtype are the same at reset and at every step; models record the variant they were
+    trained on and refuse to act on another.
 
     ``"dict"``: ``Dict({"action_mask": Box(0, 1, (2,), int8), "observation": <the Box above>})``,
     the layout of PettingZoo's classic environments, which Tianshou's ``PettingZooEnv`` and
@@ -139,7 +142,7 @@ class ContainerAgentsParallelEnv(ParallelEnv):
     ``config`` (also positional: ``parallel_env("n5_m2_dt120")``; the built-in plants, the larger ones
     not in the paper, as for the centralised view), ``protocol`` and plant-level overrides as for the
     centralised view; ``arbitration``, ``reward_mode``, ``action_masking``,
-    ``observation`` (``"local"``/``"global"``/``"history4"``/``"broadcast"``), ``observation_mode``
+    ``observation`` (``"local"``/``"global"``/``"history4"``/``"broadcast"``/``"portable"``), ``observation_mode``
     (``"box"``/``"dict"``), ``state_mode`` (``"physical"``/``"normalised"``),
     ``agent_names`` (``"containers"``/``"indexed"``) as above; ``render_mode``: None,
     ``"human"`` (a live diagram drawn at every reset and step, in a window only when a display is

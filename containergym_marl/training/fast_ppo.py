@@ -33,7 +33,9 @@ entropy, approx-KL, clip fraction, the critic's explained variance, and the shar
 training episodes that reached the time limit rather than overflowing.
 
 Optional: ``--hp action_mask=true`` masks the emptying actions while no PU is free (in training and
-in evaluation, the model file records it).
+in evaluation, the model file records it); ``--hp observation=portable`` (``fast_shared_ppo``) trains
+the container agents on another observation variant (:data:`~containergym_marl.core.observations.OBSERVATIONS`:
+``portable`` has the same size on every plant, so the policy can act on a plant it was not trained on).
 
 The run directory is the SB3 runs' (:mod:`containergym_marl.rundir`), with tensor-only model
 files: ``best_model.pt`` / ``final_model.pt`` (:class:`~containergym_marl.policies.actor_critic.ActorCritic`,
@@ -67,6 +69,7 @@ from containergym_marl.config.bounds import (
     MAX_ROLLOUT_SAMPLES,
     check_count,
 )
+from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic, load_tensors
 from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
@@ -103,6 +106,7 @@ class PPOArgs:
     normalize_advantage: bool = True  # advantages normalised per minibatch (SB3: True)
     action_mask: bool = False  # mask the emptying actions while no PU is free
     hidden: tuple[int, ...] = (64, 64)  # hidden units of the policy and of the value network (SB3: 64, 64)
+    observation: str = DEFAULT_OBSERVATION  # the container agents' observation variant (fast_shared_ppo only)
 
     @classmethod
     def from_hyperparams(cls, hyperparams: dict[str, Any]) -> "PPOArgs":
@@ -142,6 +146,7 @@ class PPOArgs:
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"hp: {name} must be a finite number >= 0, got {value}")
         check_hidden(self.hidden)
+        check_observation(self.observation, "hp: observation")
 
 
 def check_hidden(hidden: tuple[int, ...]) -> None:
@@ -206,7 +211,7 @@ def new_state(env, hp: PPOArgs, view: str, seed: int, meta: dict[str, Any]) -> T
     """A fresh model (initialised from ``seed``) and optimiser for ``env``'s spaces."""
     generator = torch.Generator().manual_seed(int(seed))
     model = ActorCritic(view, env.observation_space.shape[0], int(env.action_space.n), hp.hidden,
-                        action_mask=hp.action_mask, meta=meta, generator=generator)
+                        action_mask=hp.action_mask, meta=meta, generator=generator, observation=hp.observation)
     return TrainingState(model, _optimizer(model, hp), generator, 0, dataclasses.asdict(hp))
 
 
@@ -458,6 +463,10 @@ class PPOTrainer:
 
     def default_sims(self, settings: PPOArgs, agents_per_sim: int) -> int:
         return settings.num_sims(agents_per_sim)
+
+    def env_options(self, settings: PPOArgs) -> dict[str, Any]:
+        # the container agents' env only; the default asks nothing, so the centralised fast_ppo trains as ever
+        return {} if settings.observation == DEFAULT_OBSERVATION else {"observation": settings.observation}
 
     def memory(self, settings: PPOArgs, shapes: MemoryShapes) -> dict[str, int]:
         return {**batch_memory(settings, shapes), f"hidden={list(settings.hidden)}": shapes.networks(settings.hidden)}

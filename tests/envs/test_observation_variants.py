@@ -137,6 +137,32 @@ def test_global_entries_are_every_containers_volume_over_its_vmax_and_every_pu_t
         twin, *_ = local.step(dict(actions))
 
 
+@pytest.mark.parametrize("config", ["n5_m2_dt120", "n16_m2_dt120", "n64_m6_dt120"])
+def test_portable_is_fourteen_entries_on_every_plant_the_scalars_then_the_pu_timers_summarised(config):
+    env = parallel_env(config, observation="portable", episode_length_steps=40)
+    local = parallel_env(config, episode_length_steps=40)
+    cfg = env.config
+    assert env.feature_names()[12:] == ["next_pu_free_frac", "mean_pu_timer_frac"]
+    rng = np.random.default_rng(4)
+    obs, _ = env.reset(seed=6)
+    twin, _ = local.reset(seed=6)
+    busy_seen = False
+    for _ in range(40):
+        got, p = _stack(obs), env.simulator.state.pu_timers_s[0]
+        assert got.shape == (cfg.n_containers, 14) and env.observation_space(env.agents[0]).shape == (14,)
+        np.testing.assert_array_equal(got[:, :12], _stack(twin)[:, :12])  # entries 0-11 unchanged
+        longest = _max_pu_time(cfg)
+        np.testing.assert_allclose(got[:, 12], min(p.min() / longest, 1.0), rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(got[:, 13], min(p.mean() / longest, 1.0), rtol=1e-6, atol=1e-7)
+        busy_seen |= bool(p.min() > 0)
+        if not env.agents:
+            break
+        actions = {a: int(rng.random() < 0.5) for a in env.agents}
+        obs, *_ = env.step(actions)
+        twin, *_ = local.step(dict(actions))
+    assert busy_seen  # the steps reached a moment with every PU busy: entry 12 was not always 0
+
+
 def test_history_shifts_by_one_frame_per_step_and_is_zero_before_the_episode():
     """Frame s of the history4 observation at step t is the local observation at step t − s, 0 before
     the episode's start; a reset (here at the time limit, T = 6) starts from zeros again."""

@@ -126,7 +126,8 @@ def test_a_resume_keeps_the_observation_and_a_checkpoint_refuses_another(tmp_pat
     ("dagger_agents", {"observation": "oracle"}, r"hp: observation: unknown observation 'oracle'"),
     ("dagger_agents", {"observation": 3}, r"hp: observation=3 is not valid \(expected a name\)"),
     ("dagger_ppo_agents", {"observation": "History4"}, "hp: observation: unknown observation 'History4'"),
-    ("fast_shared_ppo", {"observation": "global"}, r"unknown native PPO setting\(s\) \['observation'\]"),
+    ("fast_shared_ppo", {"observation": "oracle"}, r"hp: observation: unknown observation 'oracle'"),
+    ("fast_ppo", {"observation": "global"}, r"options of the native container-agent env, not of fast_ppo's"),
 ])
 def test_a_bad_observation_setting_is_refused_before_anything_is_written(tmp_path, algo, hp, match):
     with pytest.raises(ValueError, match=match):

@@ -266,6 +266,22 @@ def test_run_directory_holds_tensor_only_models_that_evaluate(tmp_path):
     assert (run / "evaluation_best.json").is_file()
 
 
+def test_a_shared_policy_on_the_portable_observation_acts_on_a_plant_it_was_not_trained_on(tmp_path):
+    """--hp observation=portable: 14 entries whatever n and m, recorded in the model, so a policy
+    trained on 5 containers and 2 PUs runs on 32 containers and 4 PUs (zero-shot); on the default
+    observation the sizes differ and the model is refused, naming them."""
+    hp = {**TINY["hyperparams"], "observation": "portable"}
+    run = train(TrainArgs(algo="fast_shared_ppo", out=str(tmp_path / "p"), timesteps=600,
+                          **{**TINY, "hyperparams": hp}))
+    model = ActorCritic.load(run / "final_model.pt")
+    assert (model.observation, model.observation_size) == ("portable", 14)
+    result = evaluate_run(run, config="n32_m4_dt120", protocol=SHORT, write=False)
+    assert len(result.episodes) == 2 and result.episodes[0].steps > 0
+    local = train(TrainArgs(algo="fast_shared_ppo", out=str(tmp_path / "l"), timesteps=300, **TINY))
+    with pytest.raises(ValueError, match="observation"):
+        evaluate_run(local, config="n32_m4_dt120", protocol=SHORT, write=False)
+
+
 def test_team_reward_run_is_named_as_its_method(tmp_path):
     run = train(TrainArgs(algo="fast_shared_ppo", reward_mode="team", out=str(tmp_path / "r"), timesteps=500, **TINY))
     assert policy_from_run(run).name.startswith("fast_shared_ppo_team[")
@@ -337,7 +353,9 @@ def test_kill_9_then_resume_keeps_metrics_and_episode_window(tmp_path):
 @pytest.mark.parametrize("hp, field", [({"bogus": 1}, "bogus"), ({"n_steps": 0}, "n_steps"),
                                        ({"learning_rate": "nan"}, "learning_rate"),
                                        ({"action_mask": "maybe"}, "action_mask"),
-                                       ({"minibatch_size": 2.5}, "minibatch_size")])
+                                       ({"minibatch_size": 2.5}, "minibatch_size"),
+                                       ({"observation": "oracle"}, "observation"),
+                                       ({"observation": "portable"}, "observation")])  # not the controller's
 def test_bad_settings_are_refused_before_anything_is_written(hp, field, tmp_path):
     with pytest.raises(ValueError, match=field):
         train(TrainArgs(algo="fast_ppo", out=str(tmp_path / "r"), timesteps=100, hyperparams=hp, progress_bar=False))
