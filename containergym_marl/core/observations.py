@@ -223,7 +223,7 @@ def global_state(state: PlantState, params: PlantParams) -> np.ndarray:
 
 
 @jit
-def _agent_observations_into(volumes, timers, previous_requests, out, per_container, reward_table, scalars):
+def _agent_observations_into(volumes, timers, previous_requests, portable, out, per_container, reward_table, scalars):
     params = unpack_params(per_container, reward_table, scalars)
     bsz, n = volumes.shape
     m = timers.shape[1]
@@ -260,6 +260,15 @@ def _agent_observations_into(volumes, timers, previous_requests, out, per_contai
             row[9] = _clipped((requested - previous_requests[b, i]) / others, 0.0, 1.0)
             row[10] = _clipped((ready - (v[i] >= params.target_volume[i] - READY_MARGIN)) / others, 0.0, 1.0)
             row[11] = _clipped(fuller / others, 0.0, 1.0)
+            if portable:  # the timers summarised: the smallest and the mean of the clipped shares
+                smallest, total = np.float32(1.0), np.float32(0.0)
+                for j in range(m):
+                    share = _clipped(p[j] / params.max_pu_time_s, 0.0, 1.0)
+                    smallest = min(smallest, share)
+                    total += share
+                row[ns] = smallest
+                row[ns + 1] = _clipped(total / m, 0.0, 1.0)
+                continue
             for j in range(m):
                 row[ns + j] = _clipped(p[j] / params.max_pu_time_s, 0.0, 1.0)
             for k in range(n):
@@ -267,9 +276,10 @@ def _agent_observations_into(volumes, timers, previous_requests, out, per_contai
 
 
 def agent_observations(
-    state: PlantState, params: PlantParams, previous_requests: np.ndarray
+    state: PlantState, params: PlantParams, previous_requests: np.ndarray, portable: bool = False
 ) -> np.ndarray:
-    """(B, n, F) float32 observations of every container agent; see the module docstring.
+    """(B, n, F) float32 observations of every container agent; see the module docstring (with
+    ``portable``: the ``"portable"`` variant's 14 entries instead).
 
     Every entry is computed in float64, cast to float32 and clipped into
     :func:`agent_observation_bounds`.
@@ -279,8 +289,9 @@ def agent_observations(
     previous_requests = np.ascontiguousarray(previous_requests, dtype=bool)
     if previous_requests.shape != (bsz, n):
         raise ValueError(f"previous_requests: expected shape {(bsz, n)}, got {previous_requests.shape}")
-    out = np.empty((bsz, n, len(SCALAR_FEATURES) + params.n_pus + n), dtype=np.float32)
-    _agent_observations_into(v, state.pu_timers_s, previous_requests, out, *params.kernel_arrays())
+    width = N_SCALAR_FEATURES + (len(PORTABLE_PU_FEATURES) if portable else params.n_pus + n)
+    out = np.empty((bsz, n, width), dtype=np.float32)
+    _agent_observations_into(v, state.pu_timers_s, previous_requests, bool(portable), out, *params.kernel_arrays())
     return out
 
 
@@ -332,14 +343,10 @@ class AgentObservations:
         return self._build(state, previous_requests, previous_granted, earlier)
 
     def _build(self, state, previous_requests, previous_granted, earlier) -> np.ndarray:
-        frame = agent_observations(state, self.params, previous_requests)
-        if self.observation == "local":
+        frame = agent_observations(state, self.params, previous_requests, portable=self.observation == "portable")
+        if self.observation in ("local", "portable"):
             return frame
         bsz, n = frame.shape[:2]
-        if self.observation == "portable":  # the scalars, then the timers (entries 12..12+m) summarised
-            timers = frame[:, :, N_SCALAR_FEATURES:N_SCALAR_FEATURES + self.params.n_pus]
-            return np.concatenate([frame[:, :, :N_SCALAR_FEATURES], timers.min(axis=2, keepdims=True),
-                                   timers.mean(axis=2, keepdims=True, dtype=np.float32)], axis=2)
         if self.observation == "history4":
             if earlier.shape[0] != bsz:
                 raise ValueError(f"state: {bsz} simulations, but {earlier.shape[0]} remembered")

@@ -196,3 +196,20 @@ def test_trainer_ab_compares_a_checkout_with_itself(tmp_path):
     assert report["identical_models"] is True
     assert {r["samples"] for side in report["runs"].values() for r in side} == {report["runs"]["this"][0]["samples"]}
     assert "final models identical" in proc.stdout and "| this (" in proc.stdout and "| other (" in proc.stdout
+
+
+def test_scaling_smoke_measures_every_path_of_each_plant(tmp_path):
+    """benchmarks/scaling.py end to end on two plants (structure, not speed): each plant's row holds
+    every rate, container decisions are n × plant steps, and the planner was timed."""
+    out_json, out_md = tmp_path / "scaling.json", tmp_path / "scaling.md"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "scaling.py"), "--smoke", "--json", str(out_json),
+                           "--md", str(out_md)], capture_output=True, text=True, timeout=300, check=True, cwd=tmp_path)
+    rows = json.loads(out_json.read_text())
+    assert [(r["config"], r["n"], r["m"]) for r in rows] == [("n5_m2_dt120", 5, 2), ("n32_m4_dt120", 32, 4)]
+    for r in rows:
+        for path in ("central_b1", "central_b1024", "agents_local", "agents_portable"):
+            assert r[f"{path}_steps"] > 0
+            assert r[f"{path}_decisions"] == pytest.approx(r[f"{path}_steps"] * r["n"])
+        assert r["agents_sims"] == 1024 // r["n"]
+        assert 0 < r["planner"]["median_ms"] <= r["planner"]["p95_ms"]
+    assert out_md.read_text().strip() in proc.stdout and "| `n32_m4_dt120` | 32 | 4 |" in proc.stdout
