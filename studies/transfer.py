@@ -1,0 +1,324 @@
+"""Does a policy shared by the container agents carry over to larger plants? (issue 40, item 3)
+
+    python studies/transfer.py                    # 2 methods x 2 source plants x 5 seeds, then every target
+    python studies/transfer.py --report           # the table from the files there, nothing run
+    python studies/transfer.py --smoke            # one method, one seed, tiny budget, two small targets
+
+**Question.** A centralised controller's input and action space grow with n, so it is retrained for
+every plant; one policy shared by the container agents acts on a fixed-size observation and could in
+principle run on a plant of any size. With the ``portable`` observation (14 entries on every plant,
+:mod:`containergym_marl.core.observations`) the same network runs on all of them: trained on the paper's
+contended plants (:data:`SOURCES`), how does it do on the larger plants built from the 16-container
+plant (``configs/scaled.py``), zero-shot, next to the rule-based controllers and the planner there?
+
+**Protocol.** Each method (:data:`METHODS`, ``--hp observation=portable``) x source plant x seed
+(:data:`SEEDS`, 101-105: no published run uses them) is one run at the paper's budget. Each run's best
+model (the paper's choice: the best training return; nothing is chosen on the episodes reported) is
+evaluated on ``--episodes`` *fresh* episodes (δ = 120 s, T = 600, seeds 30000+, used for nothing else)
+of its source plant and of every target plant. The controllers (:data:`CONTROLLERS`) are evaluated on
+the same episodes of every plant, ``planner_agents`` on the first ``--planner-episodes`` of them (its
+decision takes 45 ms at n = 128: ``benchmarks/scaling.py``). The table (``--out``/table.md,
+table.json): per plant and policy, the mean return per container (mean over seeds [min, max]) and the
+share of overflowing episodes.
+
+**Plan, execute, report.** The trainings and the source-plant evaluations are compare plans
+(:func:`~containergym_marl.orchestration.plan.training_plan`: run names, budgets, finished runs and
+unchanged evaluations reused), the controllers' evaluations too; a zero-shot evaluation is the same
+evaluation task (:func:`~containergym_marl.orchestration.tasks.evaluate_policy`) on a target plant,
+kept under ``--out``/zero_shot/<method>_from_<source>/<target>/ with the model's SHA-256 and evaluated
+again when the model changes. They run on ``--workers`` processes without Ray; rerun the same command to
+continue after an interruption. Writes only ``--out`` (results/transfer) and the run directories
+(``--runs``, git-ignored).
+
+**Cost.** 20 runs of the paper's 5M samples (``fast_shared_ppo`` about 5 minutes of one core each,
+``dagger_agents`` about 5), then per model 6 targets x 200 episodes of a learned policy (seconds to a
+minute each), and the planner: 30 episodes of 600 steps on each plant, about 30 minutes at n = 128.
+About 4 core-hours in all.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from containergym_marl.evaluation.table import evaluation_key
+from containergym_marl.files import atomic_write_text
+from containergym_marl.orchestration.compare_args import CompareArgs
+
+#: The shared policies that transfer: the native shared PPO and the imitation of the planner.
+METHODS = ("fast_shared_ppo", "dagger_agents")
+#: The paper's contended plants they are trained on.
+SOURCES = ("n11_m2_dt120", "n16_m2_dt120")
+#: The larger plants (configs/scaled.py): PUs in proportion, then scarce.
+TARGETS = ("n32_m4_dt120", "n64_m8_dt120", "n128_m16_dt120", "n32_m3_dt120", "n64_m6_dt120", "n128_m12_dt120")
+CONTROLLERS = ("rule_based", "rule_based_agents")
+PLANNER = "planner_agents"
+SEEDS = (101, 102, 103, 104, 105)
+OBSERVATION = "portable"
+
+
+@dataclass
+class Args:
+    methods: list[str] = field(default_factory=lambda: list(METHODS))
+    sources: list[str] = field(default_factory=lambda: list(SOURCES))
+    targets: list[str] = field(default_factory=lambda: list(TARGETS))
+    seeds: list[int] = field(default_factory=lambda: list(SEEDS))
+    timesteps: int | None = None  # None: the paper's budget of each source plant
+    episodes: int = 200  # fresh episodes (seeds 30000 on)
+    planner_episodes: int = 30  # the first fresh episodes, for planner_agents
+    workers: int = os.cpu_count() or 1
+    out: str = "results/transfer"
+    runs: str = "runs/transfer"
+    n_envs: int | None = None
+    hyperparams: dict = field(default_factory=dict)  # further settings of every method (smoke: tiny)
+    report: bool = False
+    smoke: bool = False
+
+    def for_smoke(self) -> "Args":
+        return replace(self, methods=["fast_shared_ppo"], sources=["n5_m2_dt120"], targets=["n11_m2_dt120",
+                       "n32_m4_dt120"], seeds=[SEEDS[0]], timesteps=2_000, episodes=2, planner_episodes=1, workers=1,
+                       n_envs=2, hyperparams={"n_steps": 16, "minibatch_size": 64},
+                       out=self.out if self.out != Args.out else "runs/transfer_smoke/results",
+                       runs=self.runs if self.runs != Args.runs else "runs/transfer_smoke/runs")
+
+    def validate(self) -> None:
+        """Refuse bad values before anything runs or is written (a ValueError naming the field)."""
+        for name in ("methods", "sources", "targets", "seeds"):
+            items = getattr(self, name)
+            if not items or len(set(items)) != len(items):
+                raise ValueError(f"{name}: expected distinct entries, got {items}")
+        if not set(self.methods) <= set(METHODS):
+            raise ValueError(f"methods: {sorted(set(self.methods) - set(METHODS))} are not shared container-agent "
+                             f"policies with the portable observation; choose from {METHODS}")
+        if set(self.sources) & set(self.targets):
+            raise ValueError(f"targets: {sorted(set(self.sources) & set(self.targets))} are source plants too")
+        if "observation" in self.hyperparams:
+            raise ValueError(f"hyperparams: the observation is {OBSERVATION!r}, the one that fits every plant")
+        if self.episodes < 1 or not 1 <= self.planner_episodes <= self.episodes or self.workers < 1:
+            raise ValueError(f"episodes, planner_episodes, workers: expected 1 <= planner_episodes <= episodes and "
+                             f"workers >= 1, got {self.episodes}, {self.planner_episodes}, {self.workers}")
+        for args in self.plans().values():
+            args.validate()  # unknown methods or plants, budgets
+        from containergym_marl.algorithms import get_algorithm
+
+        for method in self.methods:
+            get_algorithm(method).trainer().settings(self.plans()[method].hyperparams)
+
+    def plans(self) -> dict[str, CompareArgs]:
+        """The compare plans by folder: each method's trainings (and source-plant evaluations), the
+        controllers' evaluations on every plant, the planner's."""
+        plants = [*self.sources, *self.targets]
+        common = dict(protocol="fresh", figures="none")
+        plans = {method: CompareArgs(methods=[method], configs=list(self.sources), seeds=list(self.seeds),
+                                     timesteps=self.timesteps, episodes=self.episodes, n_envs=self.n_envs,
+                                     hyperparams={**self.hyperparams, "observation": OBSERVATION},
+                                     out=str(Path(self.out) / method), runs=str(Path(self.runs) / method), **common)
+                 for method in self.methods}
+        plans["controllers"] = CompareArgs(methods=list(CONTROLLERS), configs=plants, episodes=self.episodes,
+                                           out=str(Path(self.out) / "controllers"),
+                                           runs=str(Path(self.runs) / "controllers"), **common)
+        plans["planner"] = CompareArgs(methods=[PLANNER], configs=plants, episodes=self.planner_episodes,
+                                       out=str(Path(self.out) / "planner"), runs=str(Path(self.runs) / "planner"),
+                                       **common)
+        return plans
+
+
+def zero_shot_path(args: Args, method: str, source: str, target: str, seed: int) -> Path:
+    return Path(args.out) / "zero_shot" / f"{method}_from_{source}" / target / f"{evaluation_key(method, seed)}.json"
+
+
+def _evaluate(job: tuple) -> tuple:
+    """An evaluation task in a worker process: (job, the evaluation, its model's SHA-256)."""
+    from containergym_marl.orchestration.plan import run_files
+    from containergym_marl.orchestration.tasks import RunSpec, evaluate_policy
+
+    _, spec, source = job
+    if isinstance(source, (RunSpec, str)):  # trained by this call, or a finished run: its files now
+        source = run_files(source.run_dir if isinstance(source, RunSpec) else source)
+    return (job, *evaluate_policy(spec, source))
+
+
+def zero_shot_jobs(args: Args, plans: dict) -> list[tuple]:
+    """(("zero_shot", method, source, target), spec, run dir) of every finished run and target whose
+    evaluation is missing or was made of another model."""
+    from containergym_marl.orchestration.plan import model_sha256, run_files
+    from containergym_marl.orchestration.tasks import EvalSpec
+    from containergym_marl.rundir import run_name
+
+    protocol = plans["controllers"].eval_protocol()
+    jobs = []
+    for method in args.methods:
+        runs = Path(plans[method].runs).resolve()
+        for source in args.sources:
+            for seed in args.seeds:
+                run = runs / run_name(method, source, seed)
+                if not (run / "run.json").is_file():
+                    continue
+                sha = model_sha256(run_files(run))
+                for target in args.targets:
+                    path = zero_shot_path(args, method, source, target, seed)
+                    if path.is_file() and json.loads(path.read_text()).get("source", {}).get("model_sha256") == sha:
+                        continue
+                    spec = EvalSpec(key=evaluation_key(method, seed), method=method, config=target, protocol=protocol,
+                                    seed=seed)
+                    jobs.append((("zero_shot", method, source, target), spec, str(run)))
+    return jobs
+
+
+def execute(args: Args) -> list[str]:
+    """Train what the plans need, then every evaluation still missing (source plants, zero-shot targets,
+    controllers), ``args.workers`` at a time; returns what failed (a rerun retries it)."""
+    from containergym_marl.orchestration.compare import save_evaluation
+    from containergym_marl.orchestration.plan import training_plan
+    from containergym_marl.orchestration.tasks import RunSpec, train_run
+    from containergym_marl.rundir import run_name
+
+    compare_args = args.plans()
+    plans = {name: training_plan(c, Path(c.out).resolve(), Path(c.runs).resolve()) for name, c in compare_args.items()}
+    to_train = [spec for plan in plans.values() for spec in plan.to_train]
+    print(f"transfer: {len(to_train)} run(s) to train", flush=True)
+    failed: list[str] = []
+    with ProcessPoolExecutor(args.workers) as pool:
+        trainings = {pool.submit(train_run, spec): spec for spec in to_train}
+        for future in as_completed(trainings):
+            spec = trainings[future]
+            try:
+                print(f"trained {spec.name}: {future.result()['wall_s']:.0f} s", flush=True)
+            except Exception as exc:  # noqa: BLE001 - one failed run must not stop the others
+                failed.append(f"training {spec.name}: {type(exc).__name__}: {exc}")
+        untrained = {trainings[f].run_dir for f in trainings if f.exception() is not None}
+        jobs = [(("plan", name), spec, source) for name, plan in plans.items() for spec, source in plan.to_evaluate
+                if not (isinstance(source, RunSpec) and source.run_dir in untrained)]
+        jobs += zero_shot_jobs(args, compare_args)
+        print(f"transfer: {len(jobs)} evaluation(s) to run", flush=True)
+        for future in as_completed([pool.submit(_evaluate, job) for job in jobs]):
+            try:
+                (where, spec, _), result, model_sha = future.result()
+            except Exception as exc:  # noqa: BLE001
+                failed.append(f"evaluation: {type(exc).__name__}: {exc}")
+                continue
+            if where[0] == "plan":
+                c = compare_args[where[1]]
+                save_evaluation(c, Path(c.out).resolve(), spec, result, model_sha,
+                                None if spec.seed is None else c.budget(spec.config))
+            else:
+                _, method, source, target = where
+                data = json.loads(result.to_json())
+                data["source"] = {"config": source, "run": run_name(method, source, spec.seed), "model_sha256": model_sha}
+                path = zero_shot_path(args, method, source, target, spec.seed)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+            print(f"evaluated {spec.key} on {spec.config} ({where[0]}): {result.returns.mean():.2f}", flush=True)
+    for message in failed:
+        print(f"FAILED {message}", flush=True)
+    return failed
+
+
+# ---- the report ------------------------------------------------------------------------------------
+def _evaluation(path: Path) -> dict | None:
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _cell(evaluations: list[dict], n: int) -> dict:
+    per_seed = [float(np.mean([e["cumulative_reward"] for e in ev["episodes"]])) / n for ev in evaluations]
+    episodes = [e for ev in evaluations for e in ev["episodes"]]
+    return {"seeds": len(evaluations), "return_per_container": float(np.mean(per_seed)),
+            "min": min(per_seed), "max": max(per_seed), "episodes": len(episodes),
+            "overflow_share": sum(bool(e["overflow"]) for e in episodes) / len(episodes)}
+
+
+def summarise(args: Args) -> dict:
+    """Per plant: each policy's mean return per container (over seeds) and overflowing share."""
+    from containergym_marl.config import load_config
+
+    plans = args.plans()
+    entries = []
+    for plant in [*args.sources, *args.targets]:
+        n = load_config(plant).n_containers
+        cells: dict[str, dict] = {}
+        for name, folder in ([(m, "controllers") for m in CONTROLLERS] + [(PLANNER, "planner")]):
+            ev = _evaluation(Path(plans[folder].out) / "evaluations" / plant / f"{evaluation_key(name, None)}.json")
+            if ev is not None:
+                cells[name] = _cell([ev], n)
+        for method in args.methods:
+            for source in args.sources:
+                if plant == source:
+                    paths = [Path(plans[method].out) / "evaluations" / plant / f"{evaluation_key(method, s)}.json"
+                             for s in args.seeds]
+                    label = f"{method} (trained here)"
+                elif plant in args.targets:
+                    paths = [zero_shot_path(args, method, source, plant, s) for s in args.seeds]
+                    label = f"{method} from {source}"
+                else:
+                    continue
+                found = [ev for p in paths if (ev := _evaluation(p)) is not None]
+                if found:
+                    cells[label] = _cell(found, n)
+        entries.append({"plant": plant, "n": n, "cells": cells})
+    return {"question": "zero-shot transfer of shared container-agent policies to larger plants (issue 40)",
+            "observation": OBSERVATION, "protocol": "fresh", "args": asdict(args), "entries": entries}
+
+
+def markdown(report: dict) -> str:
+    args = report["args"]
+    lines = ["# Shared container-agent policies on plants they were not trained on", "",
+             f"Methods trained with `--hp observation={OBSERVATION}` on {', '.join(args['sources'])}, seeds "
+             f"{', '.join(map(str, args['seeds']))}, "
+             + (f"{args['timesteps']:,} samples per run" if args["timesteps"] else "the paper's budget")
+             + f"; each run's best model on {args['episodes']} fresh episodes (δ = 120 s, T = 600, seeds 30000+) "
+             f"of every plant, the rules on the same episodes, `{PLANNER}` on the first {args['planner_episodes']}. "
+             "Return per container: the mean return / n, mean over seeds [min, max]; overflow: the share of all "
+             "episodes that overflowed.", "",
+             "| plant | n | policy | seeds | return per container [min, max] | overflow |", "|---|---|---|---|---|---|"]
+    for e in report["entries"]:
+        for label, c in e["cells"].items():
+            spread = f" [{c['min']:.3f}, {c['max']:.3f}]" if c["seeds"] > 1 else ""
+            lines.append(f"| {e['plant']} | {e['n']} | {label} | {c['seeds'] if c['seeds'] > 1 else '–'} | "
+                         f"{c['return_per_container']:.3f}{spread} | {c['overflow_share']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(args: Args) -> dict:
+    if args.smoke:
+        args = args.for_smoke()
+    args.validate()
+    failed = [] if args.report else execute(args)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    report = summarise(args)
+    atomic_write_text(out / "table.json", json.dumps(report, indent=1) + "\n")
+    atomic_write_text(out / "table.md", markdown(report))
+    print(markdown(report))
+    if failed:
+        raise SystemExit(f"{len(failed)} task(s) failed; rerun the same command to retry them")
+    return report
+
+
+def parse(argv=None) -> Args:
+    from containergym_marl import list_configs
+
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    p.add_argument("--sources", nargs="+", default=list(SOURCES), choices=list_configs())
+    p.add_argument("--targets", nargs="+", default=list(TARGETS), choices=list_configs())
+    p.add_argument("--seeds", nargs="+", type=int, default=list(SEEDS))
+    p.add_argument("--timesteps", type=int, default=None, help="samples per run (default: the paper's budget)")
+    p.add_argument("--episodes", type=int, default=Args.episodes, help="fresh episodes (seeds 30000 on)")
+    p.add_argument("--planner-episodes", type=int, default=Args.planner_episodes)
+    p.add_argument("--workers", type=int, default=Args.workers, help="processes, one run or evaluation each")
+    p.add_argument("--out", default=Args.out)
+    p.add_argument("--runs", default=Args.runs)
+    p.add_argument("--report", action="store_true", help="only the table, from the files there")
+    p.add_argument("--smoke", action="store_true", help="fast_shared_ppo on n5_m2_dt120, one seed, 2000 samples, "
+                                                        "targets n11_m2_dt120 and n32_m4_dt120, 2 episodes")
+    return Args(**vars(p.parse_args(argv)))
+
+
+if __name__ == "__main__":
+    main(parse())

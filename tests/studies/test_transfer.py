@@ -1,0 +1,56 @@
+"""studies/transfer.py: bad settings are refused before anything runs; its smoke run trains a shared
+policy on the portable observation, evaluates it on its plant and zero-shot on larger ones beside the
+controllers, and a second run reuses every file."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tests.helpers import load_script
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"targets": ["n5_m2_dt120"], "sources": ["n5_m2_dt120"]}, "targets: .* source plants too"),
+    ({"hyperparams": {"observation": "local"}}, "hyperparams: the observation is 'portable'"),
+    ({"seeds": [101, 101]}, "seeds: expected distinct entries"),
+    ({"planner_episodes": 300}, "planner_episodes"),
+    ({"targets": ["n99_m1_dt120"]}, "n99_m1_dt120"),
+    ({"methods": ["ppo"]}, "methods: \\['ppo'\\] are not shared"),  # a centralised method: no agents to transfer
+])
+def test_bad_settings_are_refused_before_anything_is_written(tmp_path, change, match):
+    study = load_script("studies/transfer.py")
+    args = study.Args(out=str(tmp_path / "out"), runs=str(tmp_path / "runs"), **change)
+    with pytest.raises(ValueError, match=match):
+        study.main(args)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
+
+
+def test_every_plan_reports_on_fresh_episodes_and_the_methods_train_on_the_portable_observation(tmp_path):
+    study = load_script("studies/transfer.py")
+    plans = study.Args(out=str(tmp_path / "o"), runs=str(tmp_path / "r")).plans()
+    assert set(plans) == {"fast_shared_ppo", "dagger_agents", "controllers", "planner"}
+    assert all(p.eval_protocol().first_seed == 30_000 for p in plans.values())
+    assert plans["fast_shared_ppo"].hyperparams == {"observation": "portable"}
+    assert plans["planner"].eval_protocol().episodes == 30 and plans["controllers"].eval_protocol().episodes == 200
+    assert set(plans["controllers"].configs) == {*study.SOURCES, *study.TARGETS}
+
+
+@pytest.mark.slow  # trains one tiny run and runs 14 short evaluations: about a minute
+def test_smoke_run_evaluates_zero_shot_and_a_rerun_reuses_everything(tmp_path, capsys):
+    study = load_script("studies/transfer.py")
+    args = study.Args(out=str(tmp_path / "out"), runs=str(tmp_path / "runs"), smoke=True)
+    report = study.main(args)
+    entries = {e["plant"]: e["cells"] for e in report["entries"]}
+    assert set(entries["n32_m4_dt120"]) == {"rule_based", "rule_based_agents", "planner_agents",
+                                            "fast_shared_ppo from n5_m2_dt120"}
+    assert "fast_shared_ppo (trained here)" in entries["n5_m2_dt120"]
+    zero_shot = json.loads(study.zero_shot_path(args.for_smoke(), "fast_shared_ppo", "n5_m2_dt120", "n32_m4_dt120",
+                                                101).read_text())
+    assert zero_shot["config"] == "n32_m4_dt120" and zero_shot["source"]["config"] == "n5_m2_dt120"
+    assert [e["seed"] for e in zero_shot["episodes"]] == [30_000, 30_001]
+    capsys.readouterr()
+    study.main(args)
+    out = capsys.readouterr().out
+    assert "0 run(s) to train" in out and "0 evaluation(s) to run" in out
