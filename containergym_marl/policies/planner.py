@@ -190,6 +190,7 @@ class RolloutPlanner:
     name = "planner"
     view = "centralised"
     max_requests: int | None = 1  # per step; None: as many as free PUs (container agents)
+    shielded = False  # the deadline check on by default (the shielded planners below)
 
     def __init__(self, params: PlantParams | None = None, *, futures: int = 16, horizon: int = 8,
                  base: str = "fullest", margin: float = 1.0, min_reward: float = 0.0,
@@ -396,6 +397,7 @@ class ShieldedPlanner(RolloutPlanner):
     """The rollout planner with the deadline check on (ε = 1e-4, W = 24): the reference controller."""
 
     name = "planner_shielded"
+    shielded = True
 
     def __init__(self, params: PlantParams | None = None, **settings: Any):
         super().__init__(params, **{**SHIELD, **settings})
@@ -406,6 +408,7 @@ class ShieldedPlannerAgents(PlannerAgents):
     reference of the decentralised view."""
 
     name = "planner_agents_shielded"
+    shielded = True
 
     def __init__(self, params: PlantParams | None = None, **settings: Any):
         super().__init__(params, **{**SHIELD, **settings})
