@@ -89,7 +89,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     _controller(RuleBasedAgents, "rule", counterpart="rule_based"),
     _controller(RolloutPlanner, "planner"),
     _controller(PlannerAgents, "planner", counterpart="planner"),
-    # the same planners with the deadline check: the reference (planner, planner_agents: the cheap setting)
+    # the same planners with the deadline check (policies.planner.SHIELD), beside the plain ones
     _controller(ShieldedPlanner, "planner"),
     _controller(ShieldedPlannerAgents, "planner", counterpart="planner_shielded"),
     _learned("ppo"),

@@ -394,7 +394,7 @@ SHIELD = {"safety_risk": 1e-4, "safety_horizon_steps": 24}
 
 
 class ShieldedPlanner(RolloutPlanner):
-    """The rollout planner with the deadline check on (ε = 1e-4, W = 24): the reference controller."""
+    """The rollout planner with the deadline check on (ε = 1e-4, W = 24)."""
 
     name = "planner_shielded"
     shielded = True
@@ -404,8 +404,7 @@ class ShieldedPlanner(RolloutPlanner):
 
 
 class ShieldedPlannerAgents(PlannerAgents):
-    """The rollout planner for all container agents with the deadline check on (ε = 1e-4, W = 24): the
-    reference of the decentralised view."""
+    """The rollout planner for all container agents with the deadline check on (ε = 1e-4, W = 24)."""
 
     name = "planner_agents_shielded"
     shielded = True
