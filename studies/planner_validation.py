@@ -3,6 +3,7 @@
     python studies/planner_validation.py                  # everything below (about 40 CPU-minutes)
     python studies/planner_validation.py --parts fresh --workers 2
     python studies/planner_validation.py --smoke          # two episodes of a few settings on one plant
+    python studies/planner_validation.py --report         # only validation.md, from validation.json
 
 Both views of the planner (``planner``: centralised, ``planner_agents``: container agents), with the
 paper's test protocol (δ = 120 s, T = 600), on the five test plants (the ``_dt60`` and ``_dt120``
@@ -232,6 +233,7 @@ def main(argv=None) -> None:
     p.add_argument("--out", default="results/planner_validation")
     p.add_argument("--note", default=None, help="where it ran (kept in validation.json, shown in validation.md)")
     p.add_argument("--smoke", action="store_true", help="two episodes per setting, one plant")
+    p.add_argument("--report", action="store_true", help="only validation.md, from the blocks in validation.json")
     ns = p.parse_args(argv)
     episodes = {"settings": ns.validation_episodes, "horizons": ns.validation_episodes, "wide": ns.wide_episodes,
                 "fresh": ns.fresh_episodes, "safety": ns.safety_episodes}
@@ -256,13 +258,13 @@ def main(argv=None) -> None:
     blocks = kept
     done = {b["key"] for b in blocks}
     parts = [part for part in ns.parts if part != "replay"]
-    todo = [j for j in jobs_for(parts, episodes, ns.safety_first_seed) if key(*j) not in done]
+    todo = [] if ns.report else [j for j in jobs_for(parts, episodes, ns.safety_first_seed) if key(*j) not in done]
     print(f"{len(todo)} block(s) to run, {len(done)} reused", flush=True)
     with ProcessPoolExecutor(ns.workers) as pool:
         for block in pool.map(run_block, todo):
             blocks.append(block)
             atomic_write_text(path, json.dumps({"defaults": DEFAULTS, "note": note, "blocks": blocks}) + "\n")
-        if "replay" in ns.parts:
+        if "replay" in ns.parts and not ns.report:
             replays = [j for j in replay_jobs(summarise(blocks)) if key(*j) not in done]
             print(f"{len(replays)} overflowing fresh episode replay(s) to run", flush=True)
             for block in pool.map(run_block, replays):
