@@ -33,11 +33,13 @@ def list_configs() -> list[str]:
     """Names of the built-in configurations: the paper's eight rows, the 16-container plant and the
     larger plants built from it (``configs/scaled.py``), by containers, then PUs, then δ."""
     names = (p.name[: -len(".toml")] for p in _builtin_dir().iterdir() if p.name.endswith(".toml"))
-    return sorted(names, key=_size_order)
+    return sorted(names, key=config_sort_key)
 
 
-def _size_order(name: str) -> tuple:
-    match = re.fullmatch(r"n(\d+)_m(\d+)_dt(\d+)", name)
+def config_sort_key(name: str) -> tuple:
+    """The paper's order of plant names: by containers, then PUs, then δ (n5_m2_dt60 < n5_m2_dt120 <
+    n5_m5_dt60 < n11…); names of another form after them, alphabetically."""
+    match = re.match(r"n(\d+)_m(\d+)_dt(\d+)", name)
     return (0, *map(int, match.groups()), name) if match else (1, 0, 0, 0, name)
 
 

@@ -46,6 +46,7 @@ from typing import Any, Iterable, Sequence, TextIO
 
 import numpy as np
 
+from containergym_marl.config.loading import config_sort_key
 from containergym_marl.evaluation import metrics
 from containergym_marl.evaluation import stats as st
 from containergym_marl.evaluation.protocol import DEMONSTRATIONS, FRESH, PAPER, VALIDATION
@@ -90,7 +91,6 @@ FRESH_FOLDER = "fresh"
 VALIDATION_FOLDER = "validation"
 
 _FILE = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")
-_CONFIG = re.compile(r"^n(\d+)_m(\d+)_dt(\d+)")
 
 
 def evaluation_key(method: str, seed: int | None) -> str:
@@ -193,12 +193,6 @@ class MethodEvaluations:
 
 def _episode_returns(evaluation: dict) -> np.ndarray:
     return np.array([e["cumulative_reward"] for e in evaluation["episodes"]], dtype=float)
-
-
-def config_sort_key(name: str) -> tuple:
-    """Paper order: by containers, then PUs, then δ (n5_m2_dt60 < n5_m2_dt120 < n5_m5_dt60 < n11…)."""
-    m = _CONFIG.match(name)
-    return (0, *map(int, m.groups()), name) if m else (1, 0, 0, 0, name)
 
 
 def method_sort_key(group: MethodEvaluations) -> tuple:
