@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from throughput import _load  # benchmarks/, this script's folder
+
 PLANTS = ("n5_m2_dt120", "n11_m2_dt120", "n16_m2_dt120", "n32_m4_dt120", "n64_m8_dt120", "n128_m16_dt120")
 BATCH = 1024
 
@@ -151,13 +153,6 @@ def markdown(rows: list[dict], command: str, started: str) -> str:
               f"timed over {rows[0]['planner']['steps']} steps of validation episodes from seed 20000 "
               "(δ = 120 s, T = 600), steps without a choice included.", ""]
     return "\n".join(lines)
-
-
-def _load() -> str:
-    try:
-        return " ".join(f"{x:.2f}" for x in os.getloadavg())
-    except OSError:
-        return "?"
 
 
 def main(argv=None) -> list[dict]:
