@@ -75,11 +75,12 @@ VERSION = 0
 #: The policy whose decisions label every container-agent step.
 LABELLER = "planner_agents"
 #: The demonstrated policies: each centralised controller with a container-agent counterpart (the
-#: methods registry's ``counterpart``), and that counterpart; not the shielded planners, whose
-#: container-agent steps the labeller (the plain planner) would label with decisions they do not take.
+#: methods registry's ``counterpart``), and that counterpart; not the shielded planners
+#: (``shield_by_default``), whose container-agent steps the labeller (the plain planner) would label
+#: with decisions they do not take.
 POLICIES: dict[str, str] = {m.counterpart: m.name for m in METHODS.values()
                             if m.controller is not None and m.view == "decentralised" and m.counterpart in CONTROLLERS
-                            and not getattr(m.controller, "shielded", False)}
+                            and not getattr(m.controller, "shield_by_default", False)}
 #: The paper rows' distinct plants under the test protocol: a δ = 60 s row is tested at δ = 120 s, on
 #: the plant of the δ = 120 s row of the same n and m, so its datasets would repeat that row's.
 TEST_PLANTS: tuple[str, ...] = tuple(row for row in PAPER_ROWS if row.endswith("_dt120"))

@@ -190,7 +190,7 @@ class RolloutPlanner:
     name = "planner"
     view = "centralised"
     max_requests: int | None = 1  # per step; None: as many as free PUs (container agents)
-    shielded = False  # the deadline check on by default (the shielded planners below)
+    shield_by_default = False  # the deadline check on unless told otherwise (the shielded planners below)
 
     def __init__(self, params: PlantParams | None = None, *, futures: int = 16, horizon: int = 8,
                  base: str = "fullest", margin: float = 1.0, min_reward: float = 0.0,
@@ -397,7 +397,7 @@ class ShieldedPlanner(RolloutPlanner):
     """The rollout planner with the deadline check on (ε = 1e-4, W = 24)."""
 
     name = "planner_shielded"
-    shielded = True
+    shield_by_default = True
 
     def __init__(self, params: PlantParams | None = None, **settings: Any):
         super().__init__(params, **{**SHIELD, **settings})
@@ -407,7 +407,7 @@ class ShieldedPlannerAgents(PlannerAgents):
     """The rollout planner for all container agents with the deadline check on (ε = 1e-4, W = 24)."""
 
     name = "planner_agents_shielded"
-    shielded = True
+    shield_by_default = True
 
     def __init__(self, params: PlantParams | None = None, **settings: Any):
         super().__init__(params, **{**SHIELD, **settings})
