@@ -273,7 +273,7 @@ class RolloutPlanner:
         check = None
         if self.safety_risk is not None:
             check = DeadlineCheck(volumes[0], state.pu_timers_s[0], params, self.safety_risk,
-                                  self.safety_horizon_steps)
+                                  self.safety_horizon_steps, one_per_step=self.max_requests == 1)
         if not eligible.any() and (check is None or check.safe(np.zeros(n, dtype=bool))):
             return np.zeros(n, dtype=bool)
         base = self._base(state, params, limit, self.margin)[0]

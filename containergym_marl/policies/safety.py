@@ -24,7 +24,8 @@ looked at: a container with P(W) <= ε needs no emptying within it and is left o
 timers of the next state: a PU taken now is busy g_i(v_i) (paper eq. 2), the others count down by δ.
 A PU whose timer is q at the next state is free from ``1 + ceil(q / δ)`` steps on (counted from the
 decision's step). The containers with a deadline in the window are served *earliest deadline first*
-(EDF), each on the PU that frees first, as soon as it frees, and that PU is then busy
+(EDF), each on the PU that frees first, as soon as it frees (in the centralised view, whose action
+empties one container, at most one a step), and that PU is then busy
 g_i(v + sμδ) (the expected volume then, at most v_max) from that step. Emptying as early as possible
 is what makes a deadline easiest to meet (g grows with the volume); EDF (Jackson's rule) is the
 order that minimises the largest lateness on one machine, and a good list order on m. Container i
@@ -52,6 +53,10 @@ import numpy as np
 
 from containergym_marl.config.pu_time import jit, pu_time_s
 from containergym_marl.core.params import PlantParams
+
+#: The check's version, for results kept across changes of its decisions. 1: the centralised view's
+#: schedule could start two emptyings in one step (it empties at most one); 2: one a step there.
+CHECK_VERSION = 2
 
 
 @jit
@@ -94,11 +99,14 @@ class DeadlineCheck:
         params: the plant.
         epsilon: ε, the largest overflow probability a container may be left with (per container).
         horizon_steps: W, the window of the check (steps).
+        one_per_step: the schedule starts at most one emptying a step (the centralised view's action
+            empties one container): two PUs free at the same step serve their containers a step apart.
     """
 
     def __init__(self, volumes: np.ndarray, pu_timers_s: np.ndarray, params: PlantParams, epsilon: float,
-                 horizon_steps: int):
+                 horizon_steps: int, one_per_step: bool = False):
         self.params, self.epsilon, self.horizon_steps = params, float(epsilon), int(horizon_steps)
+        self.one_per_step = bool(one_per_step)
         self.volumes = np.asarray(volumes, dtype=np.float64)
         self.pu_timers_s = np.asarray(pu_timers_s, dtype=np.float64)
         self.risk = waiting_risk(self.volumes, params, self.horizon_steps)  # (n, W)
@@ -131,11 +139,15 @@ class DeadlineCheck:
             else:
                 free_at.append(1 + math.ceil(max(q - dt, 0.0) / dt - 1e-9))
         out = np.zeros(p.n_containers)
+        last_start = 0  # this step's emptying, if any: the schedule's first start is a later step
         for i in self.due:
             if emptied[i]:
                 continue
             j = int(np.argmin(free_at))
-            start = free_at[j]  # fills container i waits
+            start = free_at[j]  # fills container i waits (the starts never decrease: list scheduling, EDF)
+            if self.one_per_step:
+                start = max(start, last_start + 1)
+            last_start = start
             out[i] = self.risk[i, min(start, self.horizon_steps) - 1]
             free_at[j] = start + self._busy_steps(i, self.volumes[i] + start * p.fill_mean_per_step[i])
         return out

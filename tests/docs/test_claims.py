@@ -450,26 +450,17 @@ def fine_tuning_cost():
     return len(costs) == 5 and all(c["wall_s"] < 240 for c in costs)
 
 
-def shield_lowers_without_removing():
-    """The shield's fresh episodes on n11_m2 (studies/planner_validation.py --parts safety): fewer overflowing
-    episodes per episode than the defaults' on the same plant and view where both ran, and not none."""
-    blocks = [b for b in json.loads(PLANNER_VALIDATION.read_text())["blocks"]
-              if b["part"] == "safety" and b["first_seed"] >= 30_000]
-    rates = {}
-    for b in blocks:
-        k = (b["plant"], b["view"], b["settings"].get("safety_risk") is not None)
-        done, over = rates.get(k, (0, 0))
-        rates[k] = (done + len(b["overflows"]), over + sum(b["overflows"]))
-    shielded = {k[:2]: v for k, v in rates.items() if k[2]}
-    plain = {k[:2]: v for k, v in rates.items() if not k[2]}
-    both = [k for k in shielded if k in plain and k[0] == "n11_m2_dt120"]
-    return (bool(both) and all(shielded[k][1] / shielded[k][0] < plain[k][1] / plain[k][0] for k in both)
-            and sum(v[1] for v in shielded.values()) > 0)
+def shield_still_overflows():
+    """The shielded container agents' planner on fresh episodes of n11_m2 (studies/planner_validation.py
+    --parts safety): at least one overflowing episode."""
+    return sum(sum(b["overflows"]) for b in json.loads(PLANNER_VALIDATION.read_text())["blocks"]
+               if b["part"] == "safety" and b["first_seed"] >= 30_000 and b["plant"] == "n11_m2_dt120"
+               and b["view"] == "planner_agents" and b["settings"].get("safety_risk") is not None) > 0
 
 
 PLANNER_CLAIMS = {
-    "On the fresh episodes of `n11_m2` the check lowers the overflow rate without removing every overflow":
-        shield_lowers_without_removing,
+    "on the fresh episodes of `n11_m2` the container agents' planner with it still overflowed":
+        shield_still_overflows,
     "The planner, in both views and with the default setting, scores above both rule-based controllers on "
     "every row, with no overflowing test episode.": planner_beats_rules,
     "the strong setting scores below the default one on `n11_m2_dt120` and `n16_m2_dt120`, in both views.":

@@ -135,3 +135,34 @@ def test_the_check_refuses_more_emptyings_than_free_pus():
     check = DeadlineCheck(np.full(5, 10.0), np.array([50.0, 0.0]), _params(), 1e-3, 8)
     with pytest.raises(ValueError, match="emptied"):
         check.schedule_risk(np.array([True, True, False, False, False]))
+
+
+def test_the_centralised_schedule_starts_one_emptying_a_step():
+    """Both PUs free, two containers that can each wait one fill (deadline 1 at ε = 1e-3), waiting now.
+    The container agents can empty both at the next step (on the two PUs): both within their deadline.
+    The centralised controller empties one container a step, so the second waits two fills: past its
+    deadline, which the check with ``one_per_step`` sees and the one without it does not."""
+    params = _params()
+    first = 36.0  # C1-20: deadline 1 (test_waiting_risk_is_the_union_of_the_k_step_normal_tails)
+    second = next(v for v in np.arange(30.0, 40.0, 0.05)  # C1-30 at the lowest volume with deadline 1
+                  if deadlines(waiting_risk(np.array([first, v, 5.0, 5.0, 5.0]), params, 24), 1e-3)[1] == 1)
+    volumes, wait = np.array([first, second, 5.0, 5.0, 5.0]), np.zeros(5, dtype=bool)
+    agents = DeadlineCheck(volumes, np.zeros(2), params, 1e-3, 24)
+    central = DeadlineCheck(volumes, np.zeros(2), params, 1e-3, 24, one_per_step=True)
+    assert agents.deadline[:2].tolist() == central.deadline[:2].tolist() == [1, 1]
+    assert agents.schedule_risk(wait)[:2].tolist() == [agents.risk[0, 0], agents.risk[1, 0]]  # both at step 1
+    assert max(agents.schedule_risk(wait)[:2]) <= 1e-3
+    order = central.due.tolist()[:2]  # EDF, ties riskier first: the second served at step 2
+    assert central.schedule_risk(wait)[order[1]] == central.risk[order[1], 1] > 1e-3
+    # emptying one of them now leaves the other the next step, in both views: within its deadline
+    now = np.eye(5, dtype=bool)[order[0]]
+    assert central.schedule_risk(now)[order[1]] == central.risk[order[1], 0] <= 1e-3
+    # the planners: a look-ahead that prefers waiting is overruled in the centralised view (one emptying a
+    # step), and in the agents' view only if waiting is unsafe there
+    prefer_waiting = lambda state, params, candidates, futures: np.repeat(  # noqa: E731
+        (~candidates.any(axis=1)).astype(float)[:, None], futures, axis=1)
+    planner, agents_planner = RolloutPlanner(**SMALL, safety_risk=1e-3), PlannerAgents(**SMALL, safety_risk=1e-3)
+    for p in (planner, agents_planner):
+        p._values = prefer_waiting
+    assert planner.decide(_state(volumes, [0.0, 0.0]), params).sum() == 1 and planner.shielded == 1
+    assert agents_planner.decide(_state(volumes, [0.0, 0.0]), params).any() == (not agents.safe(wait))
