@@ -724,7 +724,7 @@ def test_reward_peaks_are_bounded(tmp_path):
 
 # ---- 7. non-editable install ---------------------------------------------------------------
 def test_wheel_install_loads_builtin_configs(tmp_path):
-    """A built wheel, used without the source tree, still finds the nine built-in configs."""
+    """A built wheel, used without the source tree, still finds the built-in configs and the rule that wrote the larger ones."""
     # Build from a copy so the build does not leave build/ or *.egg-info in the working tree; the copy
     # leaves out what no wheel holds (environments, published results, runs: copying and deleting
     # those took most of this test's two minutes)
