@@ -286,13 +286,20 @@ def _worker(method: str, journal: str, runs: str, rows, seeds, rule, timesteps, 
 
 
 def enqueue_finalists(study, count: int, min_runs: int) -> list[int]:
-    """Queue the ``count`` settings with the largest advantage over the default setting (their mean
-    score minus the default's on the same runs: a setting pruned on the easy n = 5 runs is not ranked
-    against another's mean over harder ones) over at least ``min_runs`` runs that no trial has
-    finished all runs of, as finalists: the pruner never stops them, so each is judged on every run,
-    as the default is (a setting pruned by a hair at a few runs gets its full comparison). Their runs
-    so far are reused. Returns the numbers of the trials they come from."""
+    """Make ``count`` finalists in all: queue the settings with the largest advantage over the default
+    setting (their mean score minus the default's on the same runs: a setting pruned on the easy n = 5
+    runs is not ranked against another's mean over harder ones) over at least ``min_runs`` runs that
+    no trial has finished all runs of, as finalists: the pruner never stops them, so each is judged on
+    every run, as the default is (a setting pruned by a hair at a few runs gets its full comparison).
+    Their runs so far are reused. Finalists queued, running or finished already count, so the same
+    command run again after an interruption queues none more. Returns the numbers of the trials the
+    new finalists come from."""
     optuna = require_optuna()
+    alive = (optuna.trial.TrialState.WAITING, optuna.trial.TrialState.RUNNING, optuna.trial.TrialState.COMPLETE)
+    count -= len({settings_key(t.params or t.system_attrs.get("fixed_params", {}))
+                  for t in study.get_trials(deepcopy=False) if t.user_attrs.get("finalist") and t.state in alive})
+    if count <= 0:
+        return []
     complete = {settings_key(t.params) for t in study.get_trials(deepcopy=False)
                 if t.state == optuna.trial.TrialState.COMPLETE}
     # a queued trial's setting is in its fixed params until a worker takes it
@@ -348,8 +355,9 @@ def requeue_interrupted(study) -> int:
     for t in stale:
         study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)
         attrs = {"requeued_from": t.number,
-                 **{k: True for k in ("default", "finalist") if t.user_attrs.get(k)}}
-        study.enqueue_trial(t.params, user_attrs=attrs)
+                 **{k: t.user_attrs[k] for k in ("default", "finalist", "finalist_of") if k in t.user_attrs}}
+        # a trial killed before its first suggestion has its settings only in the fixed parameters
+        study.enqueue_trial(t.params or t.system_attrs.get("fixed_params", {}), user_attrs=attrs)
     return len(stale)
 
 
@@ -618,7 +626,8 @@ def main(argv=None) -> None:
             if ns.finalists:
                 finalists = enqueue_finalists(study, ns.finalists, min_runs=WARMUP_RUNS)
                 print(f"finalists queued, the settings of trial(s) {finalists}")
-                total = max(total, done + len(finalists))
+                waiting = len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.WAITING,)))
+                total = max(total, done + waiting)  # every queued trial runs, finalists requeued included
             if done < total:
                 args = (ns.method, str(journal), str(runs), rows, seeds, rule, timesteps, total)
                 ctx = multiprocessing.get_context("spawn")

@@ -53,6 +53,7 @@ except ImportError as error:  # a clear message instead of a bare ModuleNotFound
 
     raise missing_extra("containergym_marl.training.benchmarl_task", "clients", error) from error
 
+from containergym_marl.config import list_configs
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.envs.torchrl_env import GROUP, ContainerAgentsTorchRLEnv
 
@@ -117,18 +118,8 @@ class ContainerGymTaskClass(TaskClass):
         return ENV_NAME
 
 
-class ContainerGymTask(Task):
+class _ContainerGymTasks(Task):
     """The ContainerGym tasks, one per built-in plant config (``containergym_marl.list_configs()``)."""
-
-    N5_M2_DT60 = None
-    N5_M2_DT120 = None
-    N5_M5_DT60 = None
-    N5_M5_DT120 = None
-    N11_M2_DT60 = None
-    N11_M2_DT120 = None
-    N11_M11_DT60 = None
-    N11_M11_DT120 = None
-    N16_M2_DT120 = None
 
     @staticmethod
     def associated_class():
@@ -139,3 +130,9 @@ class ContainerGymTask(Task):
         (these tasks have no file in BenchMARL's ``conf/task`` folder)."""
         config = dict(DEFAULT_TASK_CONFIG) if path is None else _read_yaml_config(path)
         return self.get_task(config=config)
+
+
+#: One member per built-in plant config, named as the config in upper case, generated from
+#: ``list_configs()`` so that a plant added to the package is a task without an edit here.
+ContainerGymTask = _ContainerGymTasks("ContainerGymTask", [name.upper() for name in list_configs()],
+                                      module=__name__, qualname="ContainerGymTask")

@@ -218,7 +218,7 @@ def test_finalists_are_the_settings_that_beat_the_default_most_on_the_same_runs(
     script = _load_script()
     study = optuna.create_study(direction="maximize")
     keys = [(row, seed) for seed in (101, 102) for row in ("a", "b", "c", "d", "e")]
-    rates = [script.DEFAULT_TRIAL["learning_rate"]] + [1.1e-4 * i for i in range(1, 6)]
+    rates = [script.DEFAULT_TRIAL["learning_rate"]] + [1.1e-4 * i for i in range(1, 7)]
 
     def finished(rate: float, scores: list[float], state):
         params = {**script.DEFAULT_TRIAL, "learning_rate": rate}
@@ -240,6 +240,7 @@ def test_finalists_are_the_settings_that_beat_the_default_most_on_the_same_runs(
     later = finished(rates[3], [0.88] * 4 + [0.6] * 3, pruned)  # mean 0.76; +0.22 / 7 on the same runs
     lower = finished(rates[4], [0.6] * 7, pruned)  # -0.9 / 7
     finished(rates[5], [0.99] * 3, pruned)  # too few runs to rank
+    lowest = finished(rates[6], [0.55] * 5, pruned)  # -1.35 / 5: fourth
     rows = {r["number"]: r for r in script.trial_rows(study)}
     assert script.advantage(rows[early.number], rows[default.number]) == pytest.approx(0.02)
     assert script.advantage(rows[later.number], rows[default.number]) == pytest.approx(0.22 / 7)
@@ -250,6 +251,15 @@ def test_finalists_are_the_settings_that_beat_the_default_most_on_the_same_runs(
     assert all(t.user_attrs["finalist"] for t in waiting) and judged.number not in [
         t.user_attrs["finalist_of"] for t in waiting]
     assert script.enqueue_finalists(study, 2, min_runs=4) == []  # queued already
+    assert script.enqueue_finalists(study, 3, min_runs=4) == []  # the same command again queues none more
+    # an interrupted finalist is queued again as a finalist of the same trial, and still counts
+    trial = study.ask()  # takes the first finalist (later's setting)
+    assert trial.user_attrs["finalist_of"] == later.number
+    assert script.requeue_interrupted(study) == 1
+    requeued = study.get_trials(states=(optuna.trial.TrialState.WAITING,))[-1]
+    assert requeued.user_attrs["finalist"] and requeued.user_attrs["finalist_of"] == later.number
+    assert script.enqueue_finalists(study, 3, min_runs=4) == []
+    assert script.enqueue_finalists(study, 4, min_runs=4) == [lowest.number]  # one more in all
 
 
 def test_a_setting_proposed_again_takes_the_earlier_verdict_without_training(tmp_path):
