@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION, overflow_probabilities
 from containergym_marl.config import PlantConfig
 from containergym_marl.core.observations import AgentObservations
 from containergym_marl.core.simulator import PlantSimulator
@@ -62,11 +62,13 @@ def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol =
             obs = agent_obs(sim.state, sim.previous_requests, sim.previous_granted).reshape(episodes * n, -1)
             masks = np.stack([np.ones(episodes * n, dtype=bool), np.repeat(free, n)], axis=1)
             requests = _agent_requests(np.asarray(policy.act_batch(obs, masks)), episodes, n)
+        before = sim.state.volumes.copy()
         out = sim.step(requests)
         returns += active * out.plant_reward  # only the episodes still running
         totals.add(Steps(requested=out.requested, granted=out.granted, denied=out.denied,
                          container_reward=out.container_reward, pu_busy=sim.state.pu_timers_s > 0,
-                         terminated=out.terminated), active)
+                         terminated=out.terminated,
+                         overflow_probability=overflow_probabilities(before, out.granted, params)), active)
         done = out.terminated | out.truncated
         active &= ~done
         if done.any():

@@ -38,7 +38,8 @@ class Steps:
     """What one or more steps did. The last axis is the containers (``requested``, ``granted``,
     ``denied``, ``container_reward``) or the PUs (``pu_busy``: the PU is busy after the step); the
     leading axes are the steps of one episode (a record) or the simulations of one batched step.
-    ``terminated``: the step ended the episode with an overflow (leading axes only)."""
+    ``terminated``: the step ended the episode with an overflow; ``overflow_probability``: the
+    probability that it would, given the state before the step and its emptyings (leading axes only)."""
 
     requested: np.ndarray
     granted: np.ndarray
@@ -46,6 +47,7 @@ class Steps:
     container_reward: np.ndarray
     pu_busy: np.ndarray
     terminated: np.ndarray
+    overflow_probability: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,7 @@ class Metric:
             return str(bool(value))
         if self.kind == "int":
             return str(int(value))
-        return "–" if math.isnan(value) else f"{value:.2f}"
+        return "–" if math.isnan(value) else format(value, self.fmt)
 
 
 def _requests_with(condition: Callable[[np.ndarray], np.ndarray]) -> Callable[[Steps], np.ndarray]:
@@ -97,6 +99,14 @@ METRICS: tuple[Metric, ...] = (
     Metric("overflow", lambda s: s.terminated, "bool", "overflow_rate", "overflow rate", "overflow", "episodes",
            "the episode ended with an overflow", column="overflow_rate",
            shows=frozenset({"table", "terminal", "row", "cli"})),
+    # Σ_t P(overflow at step t | the state before it, its emptyings) over the steps of the episode: an
+    # overflow ends it, so the mean over episodes is an unbiased estimate of the overflow rate, as the
+    # share of overflowing episodes is. Where a policy keeps every step's risk small, it measures rates
+    # (1e-4 an episode) that no affordable number of episodes can count.
+    Metric("overflow_risk", lambda s: s.overflow_probability, "float", "overflow_risk", "overflow risk", "risk",
+           "expected overflows", "the episode's summed step probabilities of an overflow (given the state "
+           "before each step and its emptyings): its mean over episodes estimates the overflow rate",
+           fmt=".2g"),
     Metric("emptyings", lambda s: s.granted.sum(-1), "int", "emptyings_mean", "emptyings", "emptyings",
            "containers", "containers emptied (granted requests)", column="emptyings", fmt=".1f",
            shows=frozenset({"table", "row", "cli"})),

@@ -93,7 +93,8 @@ class EpisodeMetrics:
         terminated = np.zeros(rec.steps, dtype=bool)
         terminated[-1:] = rec.terminated
         steps = Steps(requested=rec.requested, granted=rec.granted, denied=rec.denied,
-                      container_reward=rec.container_reward, pu_busy=rec.pu_timers_s[1:] > 0, terminated=terminated)
+                      container_reward=rec.container_reward, pu_busy=rec.pu_timers_s[1:] > 0, terminated=terminated,
+                      overflow_probability=rec.overflow_probability)
         return cls(int(rec.seed) if rec.seed is not None else -1, rec.cumulative_reward, episode_values(steps))
 
     def to_dict(self) -> dict[str, Any]:

@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from containergym_marl.core.dynamics import overflow_probabilities
 from containergym_marl.core.simulator import PlantSimulator
 
 _ARRAYS = ("volumes", "pu_timers_s", "requested", "granted", "denied", "pu_index",
-           "emptied_volume", "container_reward", "plant_reward")
+           "emptied_volume", "container_reward", "plant_reward", "overflow_probability")
 
 
 @dataclass
@@ -25,7 +26,8 @@ class EpisodeRecord:
     Arrays: ``volumes`` (T+1, n) and ``pu_timers_s`` (T+1, m) hold the state after the reset and
     after every step; ``requested``/``granted``/``denied`` (T, n) bool, ``pu_index`` (T, n) int
     (-1 = none), ``emptied_volume`` and ``container_reward`` (T, n) and ``plant_reward`` (T,) hold
-    what each step did. ``container_reward`` is the emptying reward or penalty before any overflow
+    what each step did; ``overflow_probability`` (T,) is each step's probability of an overflow given
+    the state before it and its emptyings (NaN in files written without it). ``container_reward`` is the emptying reward or penalty before any overflow
     replacement; ``plant_reward`` is the reward the centralised view returns (r_min on overflow).
     ``overflowed_containers`` names the containers whose overflow ended the episode (empty if none).
     """
@@ -45,6 +47,7 @@ class EpisodeRecord:
     emptied_volume: np.ndarray
     container_reward: np.ndarray
     plant_reward: np.ndarray
+    overflow_probability: np.ndarray
     terminated: bool
     truncated: bool
     meta: dict = field(default_factory=dict)
@@ -90,7 +93,10 @@ class EpisodeRecord:
             meta = json.loads(str(data["meta"]))
             meta["container_names"] = tuple(meta["container_names"])
             meta["overflowed_containers"] = tuple(meta.get("overflowed_containers", ()))  # absent in older files
-            return cls(**meta, **{k: data[k] for k in _ARRAYS})
+            arrays = {k: data[k] for k in _ARRAYS if k in data.files}
+            # absent in older files: unknown
+            arrays.setdefault("overflow_probability", np.full(arrays["plant_reward"].shape, np.nan))
+            return cls(**meta, **arrays)
 
 
 class EpisodeRecorder:
@@ -114,6 +120,9 @@ class EpisodeRecorder:
 
     def add(self) -> None:
         out, s, b = self.sim.last_outcome, self.sim.state, self.index
+        before = self._rows["volumes"][-1]
+        self._rows["overflow_probability"].append(
+            float(overflow_probabilities(before[None], out.granted[b][None], self.sim.params)[0]))
         self._rows["volumes"].append(s.volumes[b].copy())
         self._rows["pu_timers_s"].append(s.pu_timers_s[b].copy())
         for key in ("requested", "granted", "denied", "pu_index", "emptied_volume", "container_reward"):

@@ -95,6 +95,39 @@ def test_records_and_the_cli_name_the_containers_whose_overflow_ended_the_episod
     assert not survivor.records[0].terminated and survivor.records[0].overflowed_containers == ()
 
 
+def test_overflow_risk_is_each_step_s_normal_tail_summed_over_the_episode():
+    """Each step's probability of an overflow, computed by hand from the config (fill rate and noise
+    per second, δ, v_max) with scipy's normal tail over the containers the step did not empty, and
+    the episode's ``overflow_risk`` as their sum."""
+    from scipy.stats import norm
+
+    cfg = load_config("n11_m2_dt120")
+    dt = 120.0
+    rate = np.array([c.fill_rate_per_s for c in cfg.containers]) * dt
+    noise = np.array([c.fill_noise_per_sqrt_s for c in cfg.containers]) * np.sqrt(dt)
+    v_max = np.array([c.max_volume for c in cfg.containers])
+    result = evaluate(RuleBasedAgents(PlantParams.from_config(cfg)), cfg, EvalProtocol(episodes=2, episode_length_steps=300))
+    for metrics, rec in zip(result.episodes, result.records):
+        tails = norm.sf(v_max, loc=rec.volumes[:-1] + rate, scale=noise)  # (T, n): P(v + fill >= v_max)
+        expected = 1.0 - np.prod(np.where(rec.granted, 1.0, 1.0 - tails), axis=1)
+        np.testing.assert_allclose(rec.overflow_probability, expected, rtol=1e-9, atol=1e-15)
+        assert expected.max() > 1e-9  # the rule runs containers close enough to v_max to test the sum
+        assert metrics.overflow_risk == pytest.approx(expected.sum(), rel=1e-9)
+
+
+def test_the_mean_overflow_risk_estimates_the_overflow_rate():
+    """Never emptying on episodes of 20 steps, about half the episodes overflow: the mean overflow
+    risk and the share of overflowing episodes agree within four standard errors of their paired
+    difference (both are unbiased for the overflow rate)."""
+    result = evaluate(NeverEmpty(), "n5_m2_dt120", EvalProtocol(episodes=400, episode_length_steps=20,
+                                                                  first_seed=20_000), keep_records=False)
+    overflow = np.array([e.overflow for e in result.episodes], dtype=float)
+    risk = np.array([e.overflow_risk for e in result.episodes])
+    assert 0.3 < overflow.mean() < 0.7
+    difference = overflow - risk
+    assert abs(difference.mean()) < 4 * difference.std(ddof=1) / np.sqrt(len(difference))
+
+
 def test_pu_utilisation_counts_busy_pu_steps():
     result = evaluate(RuleBasedController(PlantParams.from_config(load_config("n5_m2_dt120"))), "n5_m2_dt120", EvalProtocol(episodes=1))
     rec = result.records[0]
@@ -112,6 +145,7 @@ def test_decentralised_evaluation_counts_denials_and_records_round_trip(tmp_path
     rec.save_npz(tmp_path / "e.npz")
     back = EpisodeRecord.load_npz(tmp_path / "e.npz")
     np.testing.assert_array_equal(back.volumes, rec.volumes)
+    np.testing.assert_array_equal(back.overflow_probability, rec.overflow_probability)
     assert back.cumulative_reward == rec.cumulative_reward and back.view == "decentralised"
 
 

@@ -25,11 +25,12 @@ RUN = REPO / "results" / "paper_rows" / "runs" / "fast_shared_ppo_n11_m2_dt120_s
 SHORT = EvalProtocol(episodes=3, first_seed=30_000, episode_length_steps=60)
 
 
-def _steps(requested, granted, reward, busy, terminated) -> Steps:
+def _steps(requested, granted, reward, busy, terminated, risk=None) -> Steps:
     requested, granted = np.array(requested, bool), np.array(granted, bool)
+    terminated = np.array(terminated, bool)
     return Steps(requested=requested, granted=granted, denied=requested & ~granted,
-                 container_reward=np.array(reward, float), pu_busy=np.array(busy, bool),
-                 terminated=np.array(terminated, bool))
+                 container_reward=np.array(reward, float), pu_busy=np.array(busy, bool), terminated=terminated,
+                 overflow_probability=np.zeros(terminated.shape) if risk is None else np.array(risk, float))
 
 
 def test_an_episode_s_metrics_by_hand():
@@ -37,9 +38,9 @@ def test_an_episode_s_metrics_by_hand():
     # (r_pen -0.1); step 1: nothing; step 2: container 1 emptied at 0.5 and the episode overflows.
     steps = _steps(requested=[[1, 1], [0, 0], [0, 1]], granted=[[1, 0], [0, 0], [0, 1]],
                    reward=[[0.9, -0.1], [0, 0], [0, 0.5]], busy=[[1, 0], [1, 0], [1, 1]],
-                   terminated=[0, 0, 1])
+                   terminated=[0, 0, 1], risk=[0.0, 0.25, 0.5])
     assert episode_values(steps) == {
-        "steps": 3, "overflow": True, "emptyings": 2, "emptying_actions": 3,
+        "steps": 3, "overflow": True, "overflow_risk": 0.75, "emptyings": 2, "emptying_actions": 3,
         "good_emptying_share": pytest.approx(1 / 3), "negative_emptying_share": pytest.approx(1 / 3),
         "denied_requests": 1, "pu_utilisation": pytest.approx(4 / 6)}
 

@@ -89,7 +89,7 @@ def _overflowing_episode(denied: bool, pu_busy: bool):
     zeros = np.zeros((steps, n))
     return EpisodeRecord("toy", ("a", "b"), "decentralised", "p", 0, 120.0, volumes, timers, requested,
                          np.zeros((steps, n), bool), deny, np.full((steps, n), -1), zeros, zeros, np.zeros(steps),
-                         True, False, overflowed_containers=("a",))
+                         np.zeros(steps), True, False, overflowed_containers=("a",))
 
 
 def test_overflow_causes_tell_a_denied_request_from_a_missed_one_and_from_no_free_pu():
