@@ -30,6 +30,11 @@ rows of a plant are evaluated on the same plant: the training δ does not concer
   view from ``--safety-first-seed`` (default the fresh seeds 30000+, where the claim of no overflow is
   held; 20000 for validation episodes, on which its setting was chosen): whether it removes the
   overflows, at what return and time per step (issue 38).
+* ``risk``: the deadline check at ε = 1e-4, 1e-5 and 1e-6 and the defaults on the contended plants,
+  ``--risk-episodes`` (default 100) validation episodes each (seeds 20000+): the overflow rate each
+  leaves, estimated by the episodes' mean overflow risk (the summed exact probability of an overflow
+  at each step, :data:`~containergym_marl.evaluation.metrics.METRICS`), which sees rates of one in
+  10,000 episodes that counting overflows cannot: how ε is chosen (issue 38).
 
 Episodes run in blocks of 10 on ``--workers`` processes (the planner seeds its own generator from
 each episode's seed, so a block gives what a whole evaluation would). Writes ``--out``/validation.json
@@ -64,9 +69,11 @@ HORIZONS = (4, 8, 16, 24, 32, 48)
 WIDE = (16, 64, 128)
 VALIDATION_SEED, FRESH_SEED = 20_000, FRESH.first_seed
 BLOCK = 10
-PARTS = ("settings", "horizons", "wide", "fresh", "replay", "safety")
+PARTS = ("settings", "horizons", "wide", "fresh", "replay", "safety", "risk")
 #: the deadline check's setting (chosen on validation episodes 20000+; the shielded planners'), run next to the defaults
 SAFETY = SHIELD
+#: the deadline check's ε compared by the overflow risk they leave (W = the shield's)
+RISKS = (1e-4, 1e-5, 1e-6)
 #: how the overflowing fresh episodes are replayed
 REPLAYS = ({"seed": 1}, {"seed": 2}, {"futures": 64})
 
@@ -83,6 +90,9 @@ def settings_for(part: str) -> list[tuple[str, dict]]:
                 for plant in CONTENDED for k in WIDE]
     if part == "safety":  # the shield's episodes first (the claim), then the defaults' beside them
         return [(plant, s) for s in ({**DEFAULTS, **SAFETY}, dict(DEFAULTS)) for plant in CONTENDED]
+    if part == "risk":
+        checks = [{**DEFAULTS, **SAFETY, "safety_risk": risk} for risk in RISKS]
+        return [(plant, s) for s in (*checks, dict(DEFAULTS)) for plant in CONTENDED]
     return [(plant, dict(DEFAULTS)) for plant in PLANTS]
 
 
@@ -101,6 +111,7 @@ def run_block(job: tuple) -> dict:
     return {"key": key(*job), "part": part, "plant": plant, "view": view, "settings": settings,
             "first_seed": first_seed, "episodes": episodes, "returns": result.returns.tolist(),
             "overflows": [int(e.overflow) for e in result.episodes], "cpu_s": time.process_time() - cpu,
+            "risks": [e.overflow_risk for e in result.episodes],
             "steps": int(sum(e.steps for e in result.episodes)),
             **({"check": CHECK_VERSION} if settings.get("safety_risk") is not None else {})}
 
@@ -130,8 +141,10 @@ def summarise(blocks: list[dict]) -> list[dict]:
         k = json.dumps([b["part"], b["plant"], b["view"], b["settings"], b["first_seed"] >= FRESH_SEED], sort_keys=True)
         row = rows.setdefault(k, {"part": b["part"], "plant": b["plant"], "view": b["view"], "settings": b["settings"],
                                   "first_seed": b["first_seed"], "returns": [], "overflows": [], "cpu_s": 0.0,
-                                  "steps": 0})
+                                  "steps": 0, "risks": []})
         row["returns"] += b["returns"]
+        # blocks run before the overflow risk was measured have none: the row's risk is then unknown
+        row["risks"] += b.get("risks", [float("nan")] * b["episodes"])
         row["overflows"] += b["overflows"]
         row["cpu_s"] += b["cpu_s"]
         row["steps"] += b["steps"]
@@ -140,7 +153,9 @@ def summarise(blocks: list[dict]) -> list[dict]:
         row.update(episodes=len(r), return_mean=float(r.mean()), return_sem=float(r.std(ddof=1) / np.sqrt(len(r)))
                    if len(r) > 1 else 0.0, overflowing_episodes=int(sum(row["overflows"])),
                    overflowing_seeds=[row["first_seed"] + i for i, o in enumerate(row["overflows"]) if o],
-                   ms_cpu_per_step=1e3 * row["cpu_s"] / max(row["steps"], 1))
+                   ms_cpu_per_step=1e3 * row["cpu_s"] / max(row["steps"], 1),
+                   risk_mean=float(np.mean(row["risks"])),
+                   risk_sem=float(np.std(row["risks"], ddof=1) / np.sqrt(len(r))) if len(r) > 1 else 0.0)
     return list(rows.values())
 
 
@@ -161,13 +176,14 @@ def report(rows: list[dict], note: str = "") -> str:
               "wide": "## More futures on uncertain decisions, on the contended plants (validation seeds "
                       f"{VALIDATION_SEED}+)",
               "fresh": f"## The defaults on fresh episodes (seeds {FRESH_SEED}+)",
-              "safety": "## The deadline check next to the defaults, on the contended plants"}
+              "safety": "## The deadline check next to the defaults, on the contended plants",
+              "risk": "## The deadline check's ε by the overflow rate it leaves, on the contended plants"}
     for part, title in titles.items():
         mine = [r for r in rows if r["part"] == part and part != "replay"]
         if not mine:
             continue
-        if part == "safety":
-            lines += safety_table(mine)
+        if part in ("safety", "risk"):
+            lines += safety_table(mine, title)
             continue
         lines += [title, "", "| plant | setting | episodes | planner | overflows | planner_agents | overflows | "
                   "ms CPU/step (agents) |", "|---|---|---|---|---|---|---|---|"]
@@ -206,20 +222,30 @@ def report(rows: list[dict], note: str = "") -> str:
     return "\n".join(lines)
 
 
-def safety_table(rows: list[dict]) -> list[str]:
-    """The safety part's rows: per plant, seed range and view, each setting's return, overflowing
-    episodes and CPU time per decision."""
-    lines = ["## The deadline check next to the defaults, on the contended plants", "",
-             "CPU per step: the mean over every step of the episodes (steps without a choice included).", "",
-             "| plant | seeds | view | setting | episodes | return | overflows | ms CPU/step |",
-             "|---|---|---|---|---|---|---|---|"]
+def safety_table(rows: list[dict], title: str) -> list[str]:
+    """The safety and risk parts' rows: per plant, seed range and view, each setting's return,
+    overflowing episodes, overflow risk and CPU time per decision."""
+    lines = [title, "",
+             "Overflow risk: the episodes' mean summed probability of an overflow at each step (± its standard "
+             "error), per 1,000 episodes: an estimate of the overflowing episodes to expect in 1,000 (– where "
+             "episodes ran without it). CPU per step: the mean over every step of the episodes (steps without a "
+             "choice included).", "",
+             "| plant | seeds | view | setting | episodes | return | overflows | overflow risk per 1,000 | "
+             "ms CPU/step |", "|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (r["plant"], r["first_seed"] >= FRESH_SEED, r["view"],
                                          changed(r["settings"]) != "defaults")):
         seeds = f"{FRESH_SEED}+ (fresh)" if r["first_seed"] >= FRESH_SEED else f"{VALIDATION_SEED}+ (validation)"
         lines.append(f"| {r['plant'].rsplit('_', 1)[0]} | {seeds} | {r['view']} | {changed(r['settings'])} | "
                      f"{r['episodes']} | {r['return_mean']:.2f} ± {r['return_sem']:.2f} | {r['overflowing_episodes']} | "
-                     f"{r['ms_cpu_per_step']:.2f} |")
+                     f"{risk_text(r)} | {r['ms_cpu_per_step']:.2f} |")
     return lines + [""]
+
+
+def risk_text(row: dict) -> str:
+    """A row's overflow risk per 1,000 episodes, mean ± standard error, in 3 significant digits."""
+    if np.isnan(row["risk_mean"]):
+        return "–"
+    return f"{1e3 * row['risk_mean']:.3g} ± {1e3 * row['risk_sem']:.2g}"
 
 
 def main(argv=None) -> None:
@@ -231,6 +257,7 @@ def main(argv=None) -> None:
     p.add_argument("--safety-episodes", type=int, default=1000)
     p.add_argument("--safety-first-seed", type=int, default=FRESH_SEED,
                    help=f"first episode seed of the safety part ({FRESH_SEED}: fresh; {VALIDATION_SEED}: validation)")
+    p.add_argument("--risk-episodes", type=int, default=100)
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     p.add_argument("--out", default="results/planner_validation")
     p.add_argument("--note", default=None, help="where it ran (kept in validation.json, shown in validation.md)")
@@ -238,14 +265,16 @@ def main(argv=None) -> None:
     p.add_argument("--report", action="store_true", help="only validation.md, from the blocks in validation.json")
     ns = p.parse_args(argv)
     episodes = {"settings": ns.validation_episodes, "horizons": ns.validation_episodes, "wide": ns.wide_episodes,
-                "fresh": ns.fresh_episodes, "safety": ns.safety_episodes}
-    for label, value in (("--safety-episodes", ns.safety_episodes), ("--safety-first-seed", ns.safety_first_seed)):
+                "fresh": ns.fresh_episodes, "safety": ns.safety_episodes, "risk": ns.risk_episodes}
+    for label, value in (("--safety-episodes", ns.safety_episodes), ("--safety-first-seed", ns.safety_first_seed),
+                         ("--risk-episodes", ns.risk_episodes)):
         if value < 1:
             p.error(f"{label}: expected an integer >= 1, got {value}")
-    global PLANTS, CONTENDED, VARIED, HORIZONS, WIDE
+    global PLANTS, CONTENDED, VARIED, HORIZONS, WIDE, RISKS
     if ns.smoke:
         episodes = dict.fromkeys(episodes, 2)
         PLANTS, CONTENDED, VARIED, HORIZONS, WIDE = ("n5_m2_dt120",), ("n5_m2_dt120",), {"margin": (2.0,)}, (4,), (32,)
+        RISKS = (1e-5,)
         ns.out = ns.out if ns.out != p.get_default("out") else "runs/planner_validation_smoke"
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -31,23 +31,26 @@ def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
     first = subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "2", "--out", str(out)],
                            capture_output=True, text=True, timeout=300, check=True)
     assert "1 fresh block(s) outside seeds 30000+ dropped" in first.stdout
-    assert "14 block(s) to run, 0 reused" in first.stdout
+    assert "18 block(s) to run, 0 reused" in first.stdout
     blocks = json.loads((out / "validation.json").read_text())["blocks"]
-    assert {b["part"] for b in blocks} == {"settings", "horizons", "wide", "fresh", "safety"}
+    assert {b["part"] for b in blocks} == {"settings", "horizons", "wide", "fresh", "safety", "risk"}
     fresh = [b for b in blocks if b["part"] == "fresh" and b["view"] == "planner_agents"]
     assert [b["first_seed"] for b in fresh] == [FRESH.first_seed]  # the one fresh range, 30000+
     plain = evaluate(PlannerAgents(), "n5_m2_dt120", EvalProtocol(episodes=2, first_seed=FRESH.first_seed),
                      keep_records=False)
     np.testing.assert_allclose(fresh[0]["returns"], plain.returns)
+    np.testing.assert_allclose(fresh[0]["risks"], [e.overflow_risk for e in plain.episodes])
     text = (out / "validation.md").read_text()
     assert "| n5_m2 | max_futures = 32 | 2 |" in text  # the widened look-ahead's part
     assert "| n5_m2 | margin = 2 | 2 |" in text and "## The defaults on fresh episodes (seeds 30000+)" in text
     # the deadline check's part: its setting next to the defaults, on the fresh seeds by default
     assert "| n5_m2 | 30000+ (fresh) | planner_agents | safety_risk = 0.0001, safety_horizon_steps = 24 | 2 |" in text
     assert "| n5_m2 | 30000+ (fresh) | planner_agents | defaults | 2 |" in text
+    # the risk part: the check at another ε on validation episodes
+    assert "| n5_m2 | 20000+ (validation) | planner | safety_risk = 1e-05, safety_horizon_steps = 24 | 2 |" in text
     again = subprocess.run([sys.executable, SCRIPT, "--smoke", "--workers", "1", "--out", str(out)],
                            capture_output=True, text=True, timeout=300, check=True)
-    assert "0 block(s) to run, 14 reused" in again.stdout
+    assert "0 block(s) to run, 18 reused" in again.stdout
 
 
 def test_each_overflowing_fresh_episode_is_replayed_with_another_seed_and_more_futures():
@@ -90,8 +93,27 @@ def test_the_safety_part_runs_its_setting_next_to_the_defaults_from_the_seed_ask
     assert sorted((r["first_seed"], r["overflowing_episodes"]) for r in rows) == [(20_000, 1), (30_000, 0)]
     text = script.report(rows)
     assert "| n16_m2 | 20000+ (validation) | planner | safety_risk = 0.0001, safety_horizon_steps = 24 | 2 | " \
-           "111.00 ± 1.00 | 1 | 2.00 |" in text
+           "111.00 ± 1.00 | 1 | – | 2.00 |" in text  # blocks without risks: unknown, not 0
     assert "| n16_m2 | 30000+ (fresh) | planner |" in text
+
+
+def test_the_risk_part_compares_each_epsilon_and_the_defaults_by_their_overflow_risk():
+    script = load_script("studies/planner_validation.py")
+    jobs = script.jobs_for(["risk"], {"risk": 20})
+    assert {j[4] for j in jobs} == {20_000, 20_010}  # validation episodes: where ε is chosen
+    assert sorted({j[3].get("safety_risk", 0.0) for j in jobs}) == [0.0, *sorted(script.RISKS)]
+    assert {j[3].get("safety_horizon_steps") for j in jobs if "safety_risk" in j[3]} == {
+        script.SAFETY["safety_horizon_steps"]}
+    block = {"part": "risk", "plant": "n11_m2_dt120", "view": "planner_agents", "settings": {**script.DEFAULTS,
+             **script.SAFETY, "safety_risk": 1e-5}, "episodes": 2, "returns": [95.0, 96.0], "overflows": [0, 0],
+             "cpu_s": 2.0, "steps": 1000}
+    rows = script.summarise([dict(block, first_seed=20_000, risks=[1e-5, 3e-5]),
+                             dict(block, first_seed=20_002, risks=[2e-5, 2e-5])])
+    assert len(rows) == 1 and rows[0]["risk_mean"] == pytest.approx(2e-5)
+    assert rows[0]["risk_sem"] == pytest.approx(np.std([1e-5, 3e-5, 2e-5, 2e-5], ddof=1) / 2)
+    text = script.report(rows)
+    assert "| n11_m2 | 20000+ (validation) | planner_agents | safety_risk = 1e-05, safety_horizon_steps = 24 | 4 | " \
+           "95.50 ± 0.29 | 0 | 0.02 ± 0.0041 | 2.00 |" in text
 
 
 def test_the_safety_part_refuses_a_bad_episode_count(capsys):
