@@ -55,7 +55,7 @@ import numpy as np
 from containergym_marl.evaluation.protocol import FRESH
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.planner import SHIELD
-from containergym_marl.policies.safety import CHECK_VERSION
+from containergym_marl.policies.safety import CHECK_VERSION, DECISIONS_CHANGED
 
 #: one row per test plant (the δ of a row's training settings does not concern the planner)
 PLANTS = ("n5_m2_dt120", "n5_m5_dt120", "n11_m2_dt120", "n11_m11_dt120", "n16_m2_dt120")
@@ -248,6 +248,13 @@ def risk_text(row: dict) -> str:
     return f"{1e3 * row['risk_mean']:.3g} ± {1e3 * row['risk_sem']:.2g}"
 
 
+def current_blocks(blocks: list[dict]) -> list[dict]:
+    """The blocks that stand: a shielded block run before its view's shielded decisions last changed
+    (:data:`~containergym_marl.policies.safety.DECISIONS_CHANGED`) is left out, to be run again."""
+    return [b for b in blocks if b["settings"].get("safety_risk") is None
+            or b.get("check", 1) >= DECISIONS_CHANGED[b["view"]]]
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS)
@@ -287,12 +294,9 @@ def main(argv=None) -> None:
     if len(kept) < len(blocks):
         print(f"{len(blocks) - len(kept)} fresh block(s) outside seeds {FRESH_SEED}+ dropped", flush=True)
     blocks = kept
-    # the centralised planner's shielded blocks of an earlier check (its decisions changed) are run again
-    kept = [b for b in blocks if b["view"] != "planner" or b["settings"].get("safety_risk") is None
-            or b.get("check", 1) == CHECK_VERSION]
+    kept = current_blocks(blocks)
     if len(kept) < len(blocks):
-        print(f"{len(blocks) - len(kept)} block(s) of the centralised planner's earlier deadline check dropped",
-              flush=True)
+        print(f"{len(blocks) - len(kept)} block(s) of an earlier deadline check dropped", flush=True)
     blocks = kept
     done = {b["key"] for b in blocks}
     parts = [part for part in ns.parts if part != "replay"]

@@ -110,6 +110,7 @@ every controller from the training config) are not needed.
 from __future__ import annotations
 
 import hashlib
+import itertools
 from typing import Any, Callable
 
 import numpy as np
@@ -120,6 +121,8 @@ from containergym_marl.core.whatif import Futures, simulate_futures
 from containergym_marl.policies.rule_based import within_margin
 from containergym_marl.policies.safety import DeadlineCheck
 
+#: The earliest-due containers whose every one or two the container agents' shield weighs
+SHIELD_POOL = 8
 #: Last word of the planner's seed entropy, so its streams differ from the environment's (which
 #: are seeded from the episode seed alone).
 _STREAM_TAG = 0x706C616E  # "plan"
@@ -295,12 +298,23 @@ class RolloutPlanner:
     def _shielded(self, state: PlantState, params: PlantParams, check: DeadlineCheck, base: np.ndarray,
                   eligible: np.ndarray, limit: int, candidates: np.ndarray, values: np.ndarray | None) -> np.ndarray:
         """The decision when the look-ahead's choice fails the deadline check: the best-valued safe
-        candidate, the containers due in the check's window candidates too; if none is safe, the one
-        of least total schedule risk."""
+        candidate, the containers due in the check's window candidates too (each set of up to
+        ``limit`` of them and of the base policy's requests: the sets built around the base's choice
+        can all be unsafe where emptying two due containers now is safe); if none is safe, the one of
+        least total schedule risk."""
         self.shielded += 1
         due = np.zeros(params.n_containers, dtype=bool)
         due[check.due] = True
         extended = self._candidates(base, eligible | due, limit, state.volumes[0] / params.max_volume)
+        if limit > 1:  # more than one emptying a step (the container agents): sets the base's choice misses
+            # every one or two of the earliest-due containers and of the base's requests, and the
+            # earliest-due first k for each k up to the free PUs (kept few where many PUs are free)
+            pool = np.union1d(check.due[:SHIELD_POOL], np.flatnonzero(base))
+            chosen = [*(c for size in (1, 2) for c in itertools.combinations(pool, size)),
+                      *(check.due[:k] for k in range(3, limit + 1))]
+            subsets = [np.isin(np.arange(params.n_containers), c) for c in chosen]
+            unique = dict.fromkeys(c.tobytes() for c in (*extended, *subsets))
+            extended = np.frombuffer(b"".join(unique), dtype=bool).reshape(len(unique), params.n_containers)
         if len(extended) > len(candidates):
             candidates = extended
             values = self._values(state, params, candidates, self.futures)

@@ -118,6 +118,32 @@ def test_the_shield_replaces_an_unsafe_look_ahead_choice(monkeypatch):
         assert shielded.shielded == 1
 
 
+def test_the_container_agents_shield_weighs_sets_without_the_look_ahead_s_choice(monkeypatch):
+    """n5_m2, both PUs free; C1-20 at its optimum, the one request of the base policy (stubbed) and the
+    look-ahead's favourite (values stubbed); C1-50 and C1-60 half a unit below v_max, each unable to
+    wait one fill (deadline 0). Every set holding C1-20 leaves one of them waiting, and waiting leaves
+    both: all unsafe. Only emptying both now is safe, and the shield takes it (its earlier candidates,
+    all built around the base's request, did not hold it: found on validation episode 20049 of n16_m2,
+    where it let a container reach a step's overflow probability of 0.17)."""
+    params = _params()
+    v_max = np.asarray(params.max_volume)
+    volumes = [float(params.target_volume[0]), 5.0, 5.0, v_max[3] - 0.5, v_max[4] - 0.5]
+    state = _state(volumes, [0.0, 0.0])
+    check = DeadlineCheck(np.array(volumes), np.zeros(2), params, 1e-4, 24)
+    assert check.deadline[[3, 4]].tolist() == [0, 0]
+    for around_base in ([], [0], [0, 3], [0, 4]):
+        assert not check.safe(np.isin(np.arange(5), around_base)), around_base
+    assert check.safe(np.isin(np.arange(5), [3, 4]))
+
+    def values(self, state, params, candidates, futures):
+        return np.repeat(np.where(candidates[:, 0], 1.0, 0.0)[:, None], futures, axis=1)
+
+    monkeypatch.setattr(PlannerAgents, "_values", values)
+    shielded = PlannerAgents(**SMALL, safety_risk=1e-4)
+    shielded._base = lambda state, params, limit, margin: np.isin(np.arange(params.n_containers), [0])[None, :]
+    assert np.flatnonzero(shielded.decide(state, params)).tolist() == [3, 4] and shielded.shielded == 1
+
+
 @pytest.mark.parametrize("kwargs, field", [({"safety_risk": 0.0}, "safety_risk"),
                                            ({"safety_risk": 1.0}, "safety_risk"),
                                            ({"safety_risk": float("nan")}, "safety_risk"),

@@ -116,6 +116,17 @@ def test_the_risk_part_compares_each_epsilon_and_the_defaults_by_their_overflow_
            "95.50 ± 0.29 | 0 | 0.02 ± 0.0041 | 2.00 |" in text
 
 
+def test_shielded_blocks_from_before_their_view_s_decisions_changed_are_run_again():
+    script = load_script("studies/planner_validation.py")
+    shielded = {**script.DEFAULTS, **script.SAFETY}
+    blocks = [{"view": "planner", "settings": shielded, "check": 2},  # the centralised shield's decisions stand
+              {"view": "planner", "settings": shielded, "check": 1},
+              {"view": "planner_agents", "settings": shielded, "check": 2},  # the agents' changed at 3
+              {"view": "planner_agents", "settings": shielded, "check": 3},
+              {"view": "planner_agents", "settings": dict(script.DEFAULTS)}]  # no shield: any version
+    assert script.current_blocks(blocks) == [blocks[0], blocks[3], blocks[4]]
+
+
 def test_the_safety_part_refuses_a_bad_episode_count(capsys):
     script = load_script("studies/planner_validation.py")
     with pytest.raises(SystemExit):
