@@ -451,16 +451,20 @@ def fine_tuning_cost():
 
 
 def shield_still_overflows():
-    """The shielded container agents' planner on fresh episodes of n11_m2 (studies/planner_validation.py
-    --parts safety): at least one overflowing episode."""
-    return sum(sum(b["overflows"]) for b in json.loads(PLANNER_VALIDATION.read_text())["blocks"]
-               if b["part"] == "safety" and b["first_seed"] >= 30_000 and b["plant"] == "n11_m2_dt120"
-               and b["view"] == "planner_agents" and b["settings"].get("safety_risk") is not None) > 0
+    """The shielded container agents' planner, check versions 1-2 (a block without a version is 1), on fresh episodes of n11_m2
+    (studies/planner_validation.py --parts safety): at least one overflowing episode; and none of
+    version 3 there yet (the page says so)."""
+    blocks = [b for b in json.loads(PLANNER_VALIDATION.read_text())["blocks"]
+              if b["part"] == "safety" and b["first_seed"] >= 30_000 and b["plant"] == "n11_m2_dt120"
+              and b["view"] == "planner_agents" and b["settings"].get("safety_risk") is not None]
+    return (sum(sum(b["overflows"]) for b in blocks if b.get("check", 1) < 3) > 0
+            and not any(b.get("check", 1) >= 3 for b in blocks))
 
 
 PLANNER_CLAIMS = {
-    "on the fresh episodes of `n11_m2` the container agents' planner with it still overflowed":
-        shield_still_overflows,
+    "Before version 3 of the check, the container agents' planner still overflowed on the fresh episodes of "
+    "`n11_m2`": shield_still_overflows,
+    "the table below holds no fresh episodes of it yet": shield_still_overflows,
     "The planner, in both views and with the default setting, scores above both rule-based controllers on "
     "every row, with no overflowing test episode.": planner_beats_rules,
     "the strong setting scores below the default one on `n11_m2_dt120` and `n16_m2_dt120`, in both views.":
