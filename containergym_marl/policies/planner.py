@@ -163,6 +163,12 @@ def index_base(state: PlantState, params: PlantParams, max_requests: int, margin
 BASE_POLICIES: dict[str, Callable[..., np.ndarray]] = {"fullest": fullest_base, "index": index_base}
 
 
+def _unique_rows(rows: list[np.ndarray]) -> np.ndarray:
+    """(C, n) bool: the distinct request sets of ``rows`` (each (n,) bool), in their first order."""
+    unique = dict.fromkeys(r.tobytes() for r in rows)
+    return np.frombuffer(b"".join(unique), dtype=bool).reshape(len(unique), rows[0].size)
+
+
 class RolloutPlanner:
     """Rollout planner for the centralised view (at most one emptying per step).
 
@@ -312,9 +318,7 @@ class RolloutPlanner:
             pool = np.union1d(check.due[:SHIELD_POOL], np.flatnonzero(base))
             chosen = [*(c for size in (1, 2) for c in itertools.combinations(pool, size)),
                       *(check.due[:k] for k in range(3, limit + 1))]
-            subsets = [np.isin(np.arange(params.n_containers), c) for c in chosen]
-            unique = dict.fromkeys(c.tobytes() for c in (*extended, *subsets))
-            extended = np.frombuffer(b"".join(unique), dtype=bool).reshape(len(unique), params.n_containers)
+            extended = _unique_rows([*extended, *(np.isin(np.arange(params.n_containers), c) for c in chosen)])
         if len(extended) > len(candidates):
             candidates = extended
             values = self._values(state, params, candidates, self.futures)
@@ -364,8 +368,7 @@ class RolloutPlanner:
                 c[least_full] = False
             c[i] = True
             out.append(c)
-        unique = dict.fromkeys(c.tobytes() for c in out)
-        return np.frombuffer(b"".join(unique), dtype=bool).reshape(len(unique), base.size)
+        return _unique_rows(out)
 
     def future_values(self, futures: Futures, params: PlantParams, step: int) -> np.ndarray:
         """(C, K) value of every simulated future from absolute step ``step`` (see the module doc)."""
