@@ -7,7 +7,9 @@ fresh processes, alternated, the same algorithm, plant, settings and seed in bot
 
 Each run is one ``containergym_marl.training.train`` call (one torch thread) in a new Python process
 whose ``PYTHONPATH`` is the checkout; it reports the CPU seconds of the call alone
-(``time.process_time``: start-up and imports left out) and a hash of the final model, so the two
+(``time.process_time``: start-up and imports left out), its wall time (what waiting for the disk
+adds: the run's files are written where a real run writes them, ``--dir``, by default a temporary
+folder on the system's disk), the calls of ``os.fsync`` and the wall time spent in them, and a hash of the final model, so the two
 sides are also shown to train the same numbers (or not). The runs alternate (this, other, this, …)
 so a busy machine slows both alike; the ratio is the median over rounds of other / this.
 """
@@ -30,10 +32,19 @@ warnings.simplefilter("ignore")
 import torch
 from containergym_marl.training import TrainArgs, train
 algo, config, samples, out, hp = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4], json.loads(sys.argv[5])
-start = time.process_time()
+import os
+flushes = [0, 0.0]  # calls of os.fsync, wall seconds in them (waiting for the disk)
+real_fsync = os.fsync
+def timed_fsync(fd):
+    t = time.perf_counter()
+    real_fsync(fd)
+    flushes[0] += 1
+    flushes[1] += time.perf_counter() - t
+os.fsync = timed_fsync
+start, wall = time.process_time(), time.perf_counter()
 run = train(TrainArgs(algo=algo, config=config, seed=1, timesteps=samples, out=out, progress_bar=False,
                       torch_threads=1, hyperparams=hp))
-cpu = time.process_time() - start
+cpu, wall = time.process_time() - start, time.perf_counter() - wall
 model = torch.load(run / "final_model.pt", weights_only=True)
 digest = hashlib.sha256()
 def walk(x):
@@ -44,7 +55,7 @@ def walk(x):
             walk(x[k])
 walk(model)
 trained = json.loads((run / "run.json").read_text())["timesteps"]
-print(json.dumps({"cpu_s": cpu, "samples": trained, "model_sha256": digest.hexdigest()}))
+print(json.dumps({"cpu_s": cpu, "wall_s": wall, "fsyncs": flushes[0], "fsync_wall_s": flushes[1], "samples": trained, "model_sha256": digest.hexdigest()}))
 """
 
 
@@ -65,6 +76,7 @@ def main(argv=None) -> dict:
     p.add_argument("--hp", default="{}", help="settings as JSON, the same for both sides (default: this checkout's "
                                                "settings file, passed to both)")
     p.add_argument("--json", default=None, help="also write the measurements here")
+    p.add_argument("--dir", default=None, help="where the runs write (default: a temporary folder)")
     ns = p.parse_args(argv)
     hp = json.loads(ns.hp)
     if not hp:
@@ -73,24 +85,32 @@ def main(argv=None) -> dict:
         hp = read_settings(settings_file(ns.algo))[0]
     sides = {"this": REPO, "other": ns.other.resolve()}
     results: dict[str, list[dict]] = {name: [] for name in sides}
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory(dir=ns.dir) as tmp:
         for r in range(ns.rounds):
             for name, checkout in sides.items():
                 results[name].append(one_run(checkout, ns.algo, ns.config, ns.samples, hp, Path(tmp) / f"{name}_{r}"))
     ratios = [o["cpu_s"] / t["cpu_s"] for t, o in zip(results["this"], results["other"])]
+    wall_ratios = [o["wall_s"] / t["wall_s"] for t, o in zip(results["this"], results["other"])]
     same = {r["model_sha256"] for side in results.values() for r in side}
     lines = [f"# {ns.algo} on {ns.config}, {ns.samples:,} samples per run, {ns.rounds} round(s), settings {hp}", "",
-             "| checkout | CPU s per run (each round) | samples / CPU-s (median) |", "|---|---|---|"]
+             "| checkout | CPU s per run (each round) | samples / CPU-s (median) | wall s per run (each round) | "
+             "flushes to disk per run: calls, wall s (median) |", "|---|---|---|---|---|"]
     for name, runs in results.items():
         rate = statistics.median(r["samples"] / r["cpu_s"] for r in runs)
         each = ", ".join(format(r["cpu_s"], ".1f") for r in runs)
-        lines.append(f"| {name} ({sides[name]}) | {each} | {rate:,.0f} |")
+        walls = ", ".join(format(r["wall_s"], ".1f") for r in runs)
+        calls = statistics.median(r["fsyncs"] for r in runs)
+        waited = statistics.median(r["fsync_wall_s"] for r in runs)
+        lines.append(f"| {name} ({sides[name]}) | {each} | {rate:,.0f} | {walls} | {calls:.0f}, {waited:.2f} |")
     each = ", ".join(format(x, ".2f") for x in ratios)
-    lines += ["", f"other / this CPU time: {statistics.median(ratios):.2f}x (median of {each}); final models "
+    each_wall = ", ".join(format(x, ".2f") for x in wall_ratios)
+    lines += ["", f"other / this CPU time: {statistics.median(ratios):.2f}x (median of {each}); wall time: "
+              f"{statistics.median(wall_ratios):.2f}x (median of {each_wall}); final models "
               + ("identical" if len(same) == 1 else "differ") + " on both sides"]
     print("\n".join(lines))
     report = {"algo": ns.algo, "config": ns.config, "samples": ns.samples, "hyperparams": hp,
               "runs": {k: v for k, v in results.items()}, "ratio_median": statistics.median(ratios),
+              "wall_ratio_median": statistics.median(wall_ratios),
               "identical_models": len(same) == 1}
     if ns.json:
         Path(ns.json).write_text(json.dumps(report, indent=1) + "\n")

@@ -109,9 +109,13 @@ def open_file(path: str | Path, mode: str = "rb", within: str | Path | None = No
         raise
 
 
-def atomic_write(path: str | Path, write: Callable[[Path], None], within: str | Path | None = None) -> Path:
+def atomic_write(path: str | Path, write: Callable[[Path], None], within: str | Path | None = None,
+                 durable: bool = True) -> Path:
     """Write ``path`` crash-safe: ``write(tmp)`` fills a temporary file in the same directory, which
     is flushed to disk and renamed over ``path``. A reader sees the old or the new file, never a part.
+    ``durable=False`` leaves out the two flushes to disk (file and folder), for a file that is
+    rewritten often and made durable later (:func:`sync_file`): a process killed at any point still
+    leaves the old or the new file; only a crash of the machine may lose the newest writes.
     The file keeps its permissions when it existed; a new one gets what ``open`` would give it
     (0o666 less the umask), not the temporary file's private 0o600. ``within`` is the folder the
     caller was given (a run, results or output folder): no component of ``path`` below it may be a
@@ -129,14 +133,27 @@ def atomic_write(path: str | Path, write: Callable[[Path], None], within: str | 
     try:
         write(tmp)
         os.chmod(tmp, mode)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
+        if durable:
+            sync_file(tmp)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    _fsync_dir(path.parent)
+    if durable:
+        _fsync_dir(path.parent)
     return path
+
+
+def sync_file(path: str | Path) -> None:
+    """Flush ``path``'s written data to disk (nothing when it does not exist)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    except FileNotFoundError:
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def temporary_target(name: str) -> str | None:

@@ -25,7 +25,10 @@ A run directory holds everything needed to inspect, resume and evaluate a run::
 
 Every file is written crash-safe: to a temporary file in the same directory, flushed to disk, then
 renamed over the target, so a reader sees the old or the new file, never a part (metrics.csv is
-appended one fsynced row at a time, and a partial last row is ignored with a warning); the
+appended one row at a time, and a partial last row is ignored with a warning). The native trainers
+write metrics.csv and the best model several times a second, so those two reach the disk with each
+checkpoint and at the end of the run rather than at every write (a killed process loses nothing; a
+crash of the machine at most what --resume drops anyway); every other file is flushed as written. The
 temporary file of a write cut short by a kill has a hidden name no reader takes, and the next
 process that trains the run removes it (:func:`remove_stale_temporaries`). Readers
 treat an unreadable model file as broken and say so; --resume falls back to the newest intact
@@ -273,10 +276,12 @@ UPDATE_FIELDS = ("entropy", "approx_kl", "clip_fraction", "explained_variance", 
 METRIC_HEADERS = (METRIC_FIELDS, METRIC_FIELDS + UPDATE_FIELDS)
 
 
-def append_metrics(run: Path, row: dict) -> None:
-    """Append one row to metrics.csv, flushed to disk before returning. A new file with a row of the
-    update diagnostics (:data:`UPDATE_FIELDS`) gets the longer header; a file keeps the header it
-    has (a run begun before the diagnostics existed goes on without them, the rest is nan)."""
+def append_metrics(run: Path, row: dict, durable: bool = True) -> None:
+    """Append one row to metrics.csv, flushed to disk before returning unless ``durable`` is False (a
+    trainer that writes a row every few hundred milliseconds: its rows reach the disk with the next
+    checkpoint, and --resume drops the rows after the newest checkpoint anyway). A new file with a
+    row of the update diagnostics (:data:`UPDATE_FIELDS`) gets the longer header; a file keeps the
+    header it has (a run begun before the diagnostics existed goes on without them, the rest is nan)."""
     with open_file(Path(run) / "metrics.csv", "a+", within=run, newline="", encoding="utf-8", errors="replace") as f:
         new = os.fstat(f.fileno()).st_size == 0
         if new:
@@ -290,7 +295,8 @@ def append_metrics(run: Path, row: dict) -> None:
             w.writeheader()
         w.writerow(row)
         f.flush()
-        os.fsync(f.fileno())
+        if durable:
+            os.fsync(f.fileno())
 
 
 def _header(lines: list[str]) -> tuple[str, ...]:

@@ -165,9 +165,10 @@ class ActorCritic:
         except (TypeError, RuntimeError, ValueError) as exc:
             raise ValueError(f"{source}: its shape and weights do not match ({type(exc).__name__}: {exc})") from exc
 
-    def save(self, path: str | Path) -> Path:
-        """Write the file crash-safe (temporary file, then rename)."""
-        return save_tensors(path, self.to_dict())
+    def save(self, path: str | Path, durable: bool = True) -> Path:
+        """Write the file crash-safe (temporary file, then rename); ``durable=False``: without the
+        flushes to disk (:func:`~containergym_marl.files.atomic_write`)."""
+        return save_tensors(path, self.to_dict(), durable)
 
     def save_safetensors(self, path: str | Path) -> Path:
         """Write the model as safetensors (see the module doc), crash-safe."""
@@ -322,12 +323,12 @@ def check_state_dict(state_dict: Any, shapes: dict[str, tuple[int, ...]], source
             raise ValueError(f"{source}: {key} must be a float tensor of shape {shape}, got {got}")
 
 
-def save_tensors(path: str | Path, data: Any) -> Path:
+def save_tensors(path: str | Path, data: Any, durable: bool = True) -> Path:
     """``torch.save(data)`` crash-safe (temporary file, then rename)."""
     from containergym_marl.files import atomic_write
 
     torch = _torch()
-    return atomic_write(path, lambda tmp: torch.save(data, tmp))
+    return atomic_write(path, lambda tmp: torch.save(data, tmp), durable=durable)
 
 
 class _ActorCriticPolicy:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from containergym_marl.files import atomic_write, atomic_write_text
+from containergym_marl.files import atomic_write, atomic_write_text, sync_file
 from containergym_marl.policies.actor_critic import ZIP_ERRORS
 from containergym_marl.rundir import RunWarning, checkpoint_files
 
@@ -86,6 +86,13 @@ def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -
     return max(samples // num_slots, 1) * num_slots
 
 
+def sync_run_files(run: Path, best: Path) -> None:
+    """Flush to disk what a native trainer writes without flushing (metrics.csv, the best model),
+    before a checkpoint vouches for them or the run is marked finished."""
+    sync_file(Path(run) / "metrics.csv")
+    sync_file(best)
+
+
 def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_buffer: bool = False,
                     suffix: str = ".zip") -> int:
     """Save a checkpoint at ``model.num_timesteps``: the best model so far (a hard link, or a copy),
@@ -97,6 +104,7 @@ def save_checkpoint(run: Path, model: Any, progress: TrainingProgress, replay_bu
     steps = int(model.num_timesteps)
     files = checkpoint_files(run, steps, suffix)
     best = Path(run) / f"best_model{suffix}"
+    sync_run_files(run, best)
     if best.is_file():
         _link_or_copy(best, files["best"])
     if replay_buffer:

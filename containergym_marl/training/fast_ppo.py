@@ -417,7 +417,7 @@ def save_if_best(best_file: Path, model: ActorCritic, progress: TrainingProgress
         return False
     progress.best_train_return, progress.best_timesteps = recent, steps
     model.meta["timesteps"] = steps
-    model.save(best_file)
+    model.save(best_file, durable=False)  # made durable with the next checkpoint, or at the end
     return True
 
 
@@ -438,7 +438,7 @@ def log_rollout(run: Path, progress: TrainingProgress, steps: int, wall: float, 
         "wall_time_s": wall,
         **{name: (diagnostics or {}).get(name, math.nan) for name in UPDATE_FIELDS if name != "time_limit_share"},
         "time_limit_share": progress.time_limit_share,
-    })
+    }, durable=False)
 
 
 def save_final(state: TrainingState, path: Path) -> None:

@@ -61,6 +61,7 @@ from containergym_marl.training.checkpoints import (
     load_replay_buffer,
     read_progress,
     save_checkpoint,
+    sync_run_files,
 )
 from containergym_marl.training.native import env_options
 from containergym_marl.training.train_args import TrainArgs, memory_estimate, prepare_run_dir
@@ -442,5 +443,6 @@ def _finish(run: Path, spec: AlgorithmSpec, args: TrainArgs, timesteps: int, pro
         **(extra or {}),
     }
     # run.json first: the final model is the mark of a finished run (compare reuses such runs).
+    sync_run_files(run, run / best_name)
     atomic_write_text(run / "run.json", json.dumps(summary, indent=2))
     save_final(run / spec.model_file("final"))

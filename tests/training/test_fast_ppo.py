@@ -4,6 +4,8 @@ written, the optional action mask."""
 
 from __future__ import annotations
 
+import os
+import re
 import warnings
 from pathlib import Path
 
@@ -431,3 +433,31 @@ def test_a_version_1_checkpoint_resumes_its_torch_adam_state_on_the_flat_adam(tm
     assert torch.equal(state.optimizer.exp_avg, moments)
     for ours, theirs in zip(state.model.net.parameters(), model.net.parameters()):
         assert torch.equal(ours, theirs)
+
+
+def test_the_rows_and_best_model_reach_the_disk_with_each_checkpoint_not_at_every_update(tmp_path, monkeypatch):
+    """The native trainer writes a metrics row (and often a best model) every update; flushing each to
+    disk cost about as much wall time as an update of a small plant. They are flushed before each
+    checkpoint is written (the checkpoint vouches for them: --resume keeps the rows up to it) and
+    before run.json marks the run finished."""
+    synced: list[str] = []
+    real_fsync = os.fsync
+
+    def recording_fsync(fd):
+        synced.append(os.readlink(f"/proc/self/fd/{fd}"))
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", recording_fsync)
+    run = train(TrainArgs(algo="fast_shared_ppo", out=str(tmp_path / "r"), timesteps=3000, checkpoint_every=1000,
+                          **TINY))
+    rows, names = len(read_metrics(run)), [Path(p).name for p in synced]
+    written = [i for i, name in enumerate(names) if re.fullmatch(r"\.?ckpt_\d+_steps\.pt\..*tmp", name)]
+    assert rows > 10 and len(written) == len(checkpoints(run)) >= 2
+    # metrics.csv: once before each checkpoint and once before run.json, not once a row
+    assert names.count("metrics.csv") == len(written) + 1
+    before = [i for i, name in enumerate(names) if name == "metrics.csv"]
+    assert all(any(prev < w and not any(prev < o < w for o in written) for prev in before) for w in written)
+    assert names.index("metrics.csv", before[-1]) < next(i for i, n in enumerate(names) if n.startswith(".run.json"))
+    # the best model: flushed with the checkpoints and at the end, never at its own (frequent) saves
+    assert names.count("best_model.pt") <= len(written) + 1
+    assert not any(n.startswith(".best_model.pt.") for n in names)
