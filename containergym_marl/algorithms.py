@@ -243,6 +243,11 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       "decentralised imitation of planner_agents (DAgger): fast_shared_ppo's shared policy, "
                       "trained on the planner's decisions in the states it visits itself",
                       native="containergym_marl.training.dagger:IMITATION", **{**_NATIVE, "default_n_envs": 64}),
+        AlgorithmSpec("dagger_response_agents", None, SharedActorCriticPolicy,
+                      "dagger_agents labelled by each agent's best response to the others' requests as the "
+                      "policy made them (the planner's look-ahead, the arbitration counted)",
+                      native="containergym_marl.training.dagger:RESPONSE_IMITATION",
+                      **{**_NATIVE, "default_n_envs": 64}),
         # the fine-tuning's default reward is the plant's, the objective the planner it imitates plans for
         AlgorithmSpec("dagger_ppo_agents", None, SharedActorCriticPolicy,
                       "dagger_agents for half the budget, then fast_shared_ppo from the imitated policy, "

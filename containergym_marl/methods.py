@@ -104,6 +104,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     # imitation of planner_agents: the centralised planner is their counterpart, as planner_agents'
     _learned("dagger_agents", counterpart="planner"),
     _learned("dagger_ppo_agents", "team", counterpart="planner"),
+    _learned("dagger_response_agents", counterpart="planner"),
     _learned("mappo", "team", counterpart="ppo"),  # trained by baselines/train_mappo.py; compare reads its files
 )}
 #: The controllers (rules and planners) by name: what ``containergym-marl evaluate NAME`` builds.

@@ -404,6 +404,32 @@ class PlannerAgents(RolloutPlanner):
         requests = self.decide(sim.state, sim.params)
         return {agent: int(requests[i]) for i, agent in enumerate(env.possible_agents) if agent in observations}
 
+    def respond(self, state: PlantState, params: PlantParams, requests: np.ndarray) -> np.ndarray:
+        """(n,) bool: each container agent's best response to the others' ``requests`` ((n,) bool, as
+        the agents made them), by this planner's look-ahead: agent i requests where the futures of
+        ``requests`` with i's request on are worth more than with it off, every other agent's request
+        as it was and the plant's arbitration deciding which requests are granted (a request no free
+        PU takes is denied, and costs). The n + 1 request sets (``requests`` and each agent's flip)
+        are valued on the same K futures. No look-ahead where no PU is free (every request would be
+        denied) or no container is eligible and none requested (what :meth:`decide` does there):
+        nothing is requested."""
+        self.decisions += 1
+        self._start_of_step(state)
+        n = params.n_containers
+        requests = np.asarray(requests, dtype=bool).reshape(n)
+        if not (state.pu_timers_s[0] == 0.0).any():
+            return np.zeros(n, dtype=bool)
+        volumes = state.volumes[:1]
+        eligible = within_margin(volumes, params, self.margin)[0] | (emptying_rewards(volumes, params)[0] >= self.min_reward)
+        if not eligible.any() and not requests.any():
+            return np.zeros(n, dtype=bool)
+        self.planned += 1
+        flips = np.logical_xor(requests[None, :], np.eye(n, dtype=bool))  # row i: agent i's request flipped
+        worth = self._values(state, params, np.vstack([requests[None, :], flips]), self.futures).mean(axis=1)
+        with_request = np.where(requests, worth[0], worth[1:])
+        without = np.where(requests, worth[1:], worth[0])
+        return with_request > without  # a tie: no request
+
 
 #: The deadline check's setting of the shielded planners, chosen on validation episodes (seeds 20000+):
 #: at ε = 1e-2 and 1e-3 some of the episodes where the plain planner overflows still did, at 1e-4 none.

@@ -35,7 +35,14 @@ every container). The model records it, and its evaluation builds the same obser
    with its defaults, the reference the method is measured against) decides for all agents from the
    global state; agent i's label is 1 where the planner would have container i request. One planner
    per simulation, reset with the simulation's seed, as an evaluation resets it: the labels are
-   what ``planner_agents`` decides in the same states.
+   what ``planner_agents`` decides in the same states. With ``labels=response``
+   (``dagger_response_agents``), where the learner acts agent i's label is instead its best
+   response to the other agents' requests as the learner made them: whether the planner's
+   look-ahead values those requests higher with i's request on or off, the plant's arbitration
+   deciding which are granted (:meth:`~containergym_marl.policies.planner.PlannerAgents.respond`).
+   The planner's own decision never has more requests than free PUs, so its labels cannot teach an
+   agent what its request does when the others' requests already take every free PU, which is
+   where the imitation's overflows on the contended plants begin (a denied request).
 3. *aggregate*: the (observation, label) pairs join the data set; the latest ``dataset_size`` are
    kept (DAgger keeps all; the cap bounds memory and the checkpoint).
 4. *train*: ``n_epochs`` × new samples / ``minibatch_size`` Adam steps, each on a minibatch drawn
@@ -107,6 +114,9 @@ FINE_TUNE_IMITATION_SHARE = 0.5
 MODEL_SETTINGS = ("hidden", "action_mask")
 #: The record of the imitation phase in the run directory, rewritten after every iteration.
 RECORD = "imitation.json"
+#: What an agent's label is: the planner's decision for all agents (``planner``), or the agent's best
+#: response to the others' requests as the learner made them (``response``: the arbitration counted).
+LABELS = ("planner", "response")
 
 
 @dataclass(frozen=True)
@@ -139,6 +149,9 @@ class DAggerArgs:
     # what every container agent sees (core.observations.OBSERVATIONS): the view's usual observation, or it with
     # the global state (an oracle), the last 4 observations stacked, or last step's requests and grants of all
     observation: str = DEFAULT_OBSERVATION
+    # each agent's label (LABELS): the planner's decision for all agents, or, where the learner acts, its best
+    # response by the planner's look-ahead to the other agents' requests as the learner made them
+    labels: str = "planner"
     ppo: fast_ppo.PPOArgs | None = None  # the fine-tuning's settings (``ppo_<field>``); None: no fine-tuning
 
     @classmethod
@@ -193,6 +206,8 @@ class DAggerArgs:
             raise ValueError(f"hp: imitation_share must be in (0, 1), got {self.imitation_share}")
         fast_ppo.check_hidden(self.hidden)
         check_observation(self.observation, "hp: observation")
+        if self.labels not in LABELS:
+            raise ValueError(f"hp: labels must be one of {LABELS}, got {self.labels!r}")
 
     def learning_rate_at(self, samples: int, budget: int) -> float:
         """Adam's step size after ``samples`` of an imitation budget of ``budget`` samples."""
@@ -221,6 +236,16 @@ class Labeller:
         t0 = time.process_time()
         state, params = simulator.state, simulator.params
         out = np.stack([p.decide(state.select(slice(b, b + 1)), params) for b, p in enumerate(self.planners)])
+        self.cpu_s += time.process_time() - t0
+        return out
+
+    def respond(self, simulator, requests: np.ndarray) -> np.ndarray:
+        """(B, n) bool: each agent's best response to the other agents' ``requests`` ((B, n) bool) in
+        each simulation's current state (:meth:`~containergym_marl.policies.planner.PlannerAgents.respond`)."""
+        t0 = time.process_time()
+        state, params = simulator.state, simulator.params
+        out = np.stack([p.respond(state.select(slice(b, b + 1)), params, requests[b])
+                        for b, p in enumerate(self.planners)])
         self.cpu_s += time.process_time() - t0
         return out
 
@@ -377,7 +402,7 @@ class Rollout:
     """One iteration's data, [T, S] for T steps of S = B × n agent slots (slot b·n + i: agent i of simulation b)."""
 
     obs: torch.Tensor  # [T, S, F] what each agent saw
-    labels: torch.Tensor  # [T, S] the planner's decision for it (1: request)
+    labels: torch.Tensor  # [T, S] its label (1: request): the planner's decision, or the agent's best response
     actions: torch.Tensor  # [T, S] what it did (the learner's action, or the label where the planner acted)
     rewards: torch.Tensor  # [T, S] its reward, time-limit cuts bootstrapped
     values: torch.Tensor  # [T, S] the critic's value of its observation
@@ -407,10 +432,12 @@ class Episodes:
 
 def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Tensor, labeller: Labeller,
             n_steps: int, gamma: float, generator: torch.Generator, expert_acts: bool, greedy: bool,
-            episodes: Episodes) -> tuple[Rollout, torch.Tensor, torch.Tensor]:
+            episodes: Episodes, labels: str = "planner") -> tuple[Rollout, torch.Tensor, torch.Tensor]:
     """``n_steps`` steps of every simulation of ``env`` from observations ``obs``, the planner
-    labelling every agent's decision; the planner acts where ``expert_acts``, the learner otherwise.
-    Returns the rollout, the next observations and their episode-start flags."""
+    labelling every agent's decision (``labels``, :data:`LABELS`: its own decision, or where the
+    learner acts each agent's best response to the learner's other requests); the planner acts where
+    ``expert_acts``, the learner otherwise. Returns the rollout, the next observations and their
+    episode-start flags."""
     slots = env.num_envs
     buf = {k: torch.zeros((n_steps, slots)) for k in ("rewards", "values", "starts")}
     obs_buf = torch.zeros((n_steps, slots, obs.shape[-1]))
@@ -418,16 +445,18 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
     act_buf = torch.zeros((n_steps, slots), dtype=torch.long)
     with torch.no_grad():
         for t in range(n_steps):
-            labels = torch.from_numpy(labeller.label(env.simulator).reshape(-1).astype(np.int64))
             if expert_acts:
-                actions = labels
+                actions = step_labels = torch.from_numpy(labeller.label(env.simulator).reshape(-1).astype(np.int64))
             else:
                 logits = model.logits(obs)
                 if greedy:
                     actions = logits.argmax(-1)
                 else:  # Gumbel-max: a sample, from the run's generator
                     actions = (logits - torch.log(-torch.log(torch.rand(logits.shape, generator=generator)))).argmax(-1)
-            obs_buf[t], label_buf[t], act_buf[t] = obs, labels, actions
+                made = (labeller.label(env.simulator) if labels == "planner"
+                        else labeller.respond(env.simulator, actions.numpy().reshape(env.num_sims, -1).astype(bool)))
+                step_labels = torch.from_numpy(made.reshape(-1).astype(np.int64))
+            obs_buf[t], label_buf[t], act_buf[t] = obs, step_labels, actions
             buf["values"][t], buf["starts"][t] = model.value(obs), episode_start
             next_obs, rewards, dones, infos = env.step(actions.numpy())
             rewards = torch.from_numpy(rewards)
@@ -488,7 +517,7 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
     while state.num_timesteps < budget:
         expert_acts = state.iteration < hp.expert_iterations
         rollout, obs, episode_start = collect(model, env, obs, episode_start, labeller, hp.n_steps, gamma, generator,
-                                              expert_acts, hp.greedy, episodes)
+                                              expert_acts, hp.greedy, episodes, hp.labels)
         returns = fast_ppo.compute_gae(rollout.rewards, rollout.values, rollout.starts, rollout.last_value,
                                        rollout.last_start, gamma, hp.gae_lambda) + rollout.values
         flat_obs, flat_labels = rollout.obs.view(-1, rollout.obs.shape[-1]), rollout.labels.view(-1)
@@ -574,11 +603,11 @@ class DAggerTrainer:
     """DAgger, and with ``fine_tune`` the native PPO after it, as ``train`` runs them
     (:class:`~containergym_marl.training.native.NativeTrainer`)."""
 
-    def __init__(self, fine_tune: bool):
-        self.fine_tune = fine_tune
+    def __init__(self, fine_tune: bool, labels: str = "planner"):
+        self.fine_tune, self.labels = fine_tune, labels
 
     def settings(self, hyperparams: dict[str, Any]) -> DAggerArgs:
-        return DAggerArgs.from_hyperparams(hyperparams, fine_tune=self.fine_tune)
+        return DAggerArgs.from_hyperparams({"labels": self.labels, **hyperparams}, fine_tune=self.fine_tune)
 
     def memory(self, settings: DAggerArgs, shapes: MemoryShapes) -> dict[str, int]:
         """The data set (F float32 + 1 byte a sample), the labelling planner's futures (K × H
@@ -615,10 +644,13 @@ class DAggerTrainer:
         return {"imitation": summary(run)}
 
 
-#: The registry's trainers: ``dagger_agents`` (DAgger alone) and ``dagger_ppo_agents`` (then PPO).
+#: The registry's trainers: ``dagger_agents`` (DAgger alone), ``dagger_ppo_agents`` (then PPO) and
+#: ``dagger_response_agents`` (DAgger on each agent's best response to the others' requests).
 IMITATION = DAggerTrainer(fine_tune=False)
 IMITATION_THEN_PPO = DAggerTrainer(fine_tune=True)
+RESPONSE_IMITATION = DAggerTrainer(fine_tune=False, labels="response")
 
-__all__ = ["DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_PPO", "Dataset", "Episodes",
+__all__ = ["DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_PPO", "LABELS",
+           "RESPONSE_IMITATION", "Dataset", "Episodes",
            "Labeller", "Rollout", "collect", "learn",
            "load_checkpoint", "new_state", "summary", "train", "update"]

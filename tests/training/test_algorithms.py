@@ -19,10 +19,11 @@ def test_registry_entries_load_their_classes_and_views():
     from stable_baselines3 import DQN, PPO
 
     classes = {"ppo": PPO, "trpo": TRPO, "dqn": DQN, "maskable_ppo": MaskablePPO, "shared_ppo": PPO}
-    assert set(ALGORITHMS) == set(classes) | {"fast_ppo", "fast_shared_ppo", "dagger_agents", "dagger_ppo_agents"}
+    native = ("fast_ppo", "fast_shared_ppo", "dagger_agents", "dagger_ppo_agents", "dagger_response_agents")
+    assert set(ALGORITHMS) == set(classes) | set(native)
     for name, cls in classes.items():
         assert get_algorithm(name).load_class() is cls
-    for name in ("fast_ppo", "fast_shared_ppo", "dagger_agents", "dagger_ppo_agents"):  # native: tensor-only files
+    for name in native:  # tensor-only files
         spec = get_algorithm(name)
         assert spec.native and not spec.sb3 and spec.model_file("best") == "best_model.pt"
         with pytest.raises(ValueError, match="not a Stable-Baselines3 algorithm"):
@@ -30,9 +31,11 @@ def test_registry_entries_load_their_classes_and_views():
     assert get_algorithm("fast_shared_ppo").method_name("team") == "fast_shared_ppo_team"
     from containergym_marl.training import dagger, fast_ppo
 
-    trainers = [get_algorithm(a).trainer() for a in ("fast_ppo", "fast_shared_ppo", "dagger_agents", "dagger_ppo_agents")]
-    assert trainers == [fast_ppo.TRAINER, fast_ppo.TRAINER, dagger.IMITATION, dagger.IMITATION_THEN_PPO]
+    trainers = [get_algorithm(a).trainer() for a in native]
+    assert trainers == [fast_ppo.TRAINER, fast_ppo.TRAINER, dagger.IMITATION, dagger.IMITATION_THEN_PPO,
+                        dagger.RESPONSE_IMITATION]
     assert not dagger.IMITATION.fine_tune and dagger.IMITATION_THEN_PPO.fine_tune
+    assert [t.settings({}).labels for t in trainers[2:]] == ["planner", "planner", "response"]
     with pytest.raises(ValueError, match="not trained by a native trainer"):
         get_algorithm("ppo").trainer()
     assert get_algorithm("dagger_agents").policy_adapter is get_algorithm("fast_shared_ppo").policy_adapter

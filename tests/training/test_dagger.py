@@ -28,22 +28,24 @@ TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch
             overrides={"episode_length_steps": 20})
 
 
-def test_labels_are_planner_agents_decisions_in_the_learners_states():
+@pytest.mark.parametrize("labels", ["planner", "response"])
+def test_labels_are_planner_agents_decisions_in_the_learners_states(labels):
     """The learner (an untrained policy, so it often disagrees with the planner) acts in 2 simulations
     for 30 steps, across an episode end; replaying its actions in single environments with the
-    simulations' seeds, a PlannerAgents evaluated there as in an evaluation decides exactly the labels,
-    and every agent's observation is the one the learner saw."""
+    simulations' seeds, a PlannerAgents evaluated there as in an evaluation decides exactly the labels
+    (``response``: its best response to the learner's requests there, ``PlannerAgents.respond``), and
+    every agent's observation is the one the learner saw."""
     config, seed, n_steps = "n5_m2_dt120", 7, 30
     env = ContainerAgentsVecEnv(config, 2, episode_length_steps=20)
     n = env.n_agents
-    hp = DAggerArgs()
+    hp = DAggerArgs(labels=labels)
     model = ActorCritic("decentralised", env.observation_space.shape[0], 2, generator=torch.Generator().manual_seed(0))
     env.seed(seed)
     obs = torch.from_numpy(env.reset())
     labeller = Labeller(env.num_sims, hp, seed)
     rollout, *_ = collect(model, env, obs, torch.ones(env.num_envs), labeller, n_steps, 0.99,
                           torch.Generator().manual_seed(1), expert_acts=False, greedy=False,
-                          episodes=Episodes(env.num_sims, TrainingProgress()))
+                          episodes=Episodes(env.num_sims, TrainingProgress()), labels=labels)
     assert labeller.planned > 0, "the planner should have planned (a choice between candidates) somewhere"
     assert (rollout.labels == 1).any() and (rollout.actions != rollout.labels).any()
     for b in range(env.num_sims):
@@ -57,7 +59,12 @@ def test_labels_are_planner_agents_decisions_in_the_learners_states():
             agents = single.possible_agents
             np.testing.assert_array_equal(np.stack([observations[a] for a in agents]),
                                           rollout.obs[t, b * n:(b + 1) * n].numpy())
-            decided = planner.act(observations, single)
+            acted = rollout.actions[t, b * n:(b + 1) * n].numpy().astype(bool)
+            if labels == "planner":
+                decided = planner.act(observations, single)
+            else:
+                sim = single.unwrapped.simulator
+                decided = dict(zip(agents, planner.respond(sim.state, sim.params, acted).astype(int).tolist()))
             assert [decided[a] for a in agents] == rollout.labels[t, b * n:(b + 1) * n].tolist(), (b, t)
             observations, *_ = single.step({a: int(rollout.actions[t, b * n + i]) for i, a in enumerate(agents)})
 
@@ -189,6 +196,7 @@ def test_same_seed_same_run(tmp_path):
     ("dagger_agents", {"imitation_share": 0.5}, "imitation_share"),  # no PPO phase to share with
     ("dagger_agents", {"ppo_learning_rate": 1e-4}, "ppo_learning_rate"),
     ("dagger_ppo_agents", {"imitation_share": 1.0}, "imitation_share"),
+    ("dagger_response_agents", {"labels": "oracle"}, "labels"),
     ("dagger_ppo_agents", {"ppo_clip_range": 0}, "ppo_clip_range"),
     ("dagger_ppo_agents", {"ppo_hidden": "32,32"}, "ppo_hidden"),
     ("dagger_ppo_agents", {"ppo_bogus": 1}, "ppo_bogus"),
