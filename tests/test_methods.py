@@ -44,7 +44,7 @@ def test_each_method_is_what_its_name_says():
     # the shielded planners are the planners with the deadline check at the setting chosen on validation episodes
     for name in ("planner_shielded", "planner_agents_shielded"):
         planner = CONTROLLERS[name]()
-        assert (planner.safety_risk, planner.safety_horizon_steps, planner.futures, planner.horizon) == (1e-4, 24, 16, 8)
+        assert (planner.safety_risk, planner.safety_horizon_steps, planner.futures, planner.horizon) == (1e-6, 24, 16, 8)
         assert CONTROLLERS[name](safety_risk=1e-3).safety_risk == 1e-3
     assert METHODS["planner_agents_shielded"].counterpart == "planner_shielded"
     team = METHODS["shared_ppo_team"]

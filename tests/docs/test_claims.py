@@ -450,21 +450,48 @@ def fine_tuning_cost():
     return len(costs) == 5 and all(c["wall_s"] < 240 for c in costs)
 
 
-def shield_still_overflows():
-    """The shielded container agents' planner, check versions 1-2 (a block without a version is 1), on fresh episodes of n11_m2
-    (studies/planner_validation.py --parts safety): at least one overflowing episode; and none of
-    version 3 there yet (the page says so)."""
-    blocks = [b for b in json.loads(PLANNER_VALIDATION.read_text())["blocks"]
-              if b["part"] == "safety" and b["first_seed"] >= 30_000 and b["plant"] == "n11_m2_dt120"
-              and b["view"] == "planner_agents" and b["settings"].get("safety_risk") is not None]
-    return (sum(sum(b["overflows"]) for b in blocks if b.get("check", 1) < 3) > 0
-            and not any(b.get("check", 1) >= 3 for b in blocks))
+def _risk_blocks() -> dict:
+    """studies/planner_validation.py --parts risk: (plant, view, ε or None) -> (mean return, overflow risk
+    per 1,000 episodes), over the validation episodes of each."""
+    from containergym_marl.policies.planner import SHIELD
+
+    groups: dict = {}
+    for b in json.loads(PLANNER_VALIDATION.read_text())["blocks"]:
+        if b["part"] == "risk" and b["settings"].get("safety_horizon_steps", SHIELD["safety_horizon_steps"]) == 24:
+            key = (b["plant"], b["view"], b["settings"].get("safety_risk"))
+            returns, risks = groups.setdefault(key, ([], []))
+            returns += b["returns"]
+            risks += b["risks"]
+    return {k: (np.mean(r), 1000 * np.mean(q)) for k, (r, q) in groups.items()}
+
+
+def shield_epsilon_is_the_largest_safe_one():
+    """ε of the shielded planners (policies.planner.SHIELD) is the largest compared whose overflow risk is at
+    most 0.1 per 1,000 validation episodes on both contended plants, in both views."""
+    from containergym_marl.policies.planner import SHIELD
+
+    blocks = _risk_blocks()
+    plants_views = {(p, v) for p, v, eps in blocks if eps is None}
+    compared = sorted({eps for _, _, eps in blocks if eps is not None}, reverse=True)
+    safe = [eps for eps in compared
+            if all((p, v, eps) in blocks and blocks[p, v, eps][1] <= 0.1 for p, v in plants_views)]
+    return (len(plants_views) == 4 and compared == [1e-4, 1e-5, 1e-6] and bool(safe)
+            and safe[0] == SHIELD["safety_risk"])
+
+
+def shield_costs_two_to_five_percent():
+    from containergym_marl.policies.planner import SHIELD
+
+    blocks = _risk_blocks()
+    losses = [1 - blocks[p, v, SHIELD["safety_risk"]][0] / blocks[p, v, None][0]
+              for p, v, eps in blocks if eps is None]
+    return len(losses) == 4 and all(0.02 <= loss <= 0.05 for loss in losses)
 
 
 PLANNER_CLAIMS = {
-    "Before version 3 of the check, the container agents' planner still overflowed on the fresh episodes of "
-    "`n11_m2`": shield_still_overflows,
-    "the table below holds no fresh episodes of it yet": shield_still_overflows,
+    "ε = 10⁻⁶ is the largest of 10⁻⁴, 10⁻⁵ and 10⁻⁶ whose overflow risk is at most 0.1 per 1,000 episodes on "
+    "both contended plants in both views.": shield_epsilon_is_the_largest_safe_one,
+    "It costs 2–5 % of the defaults' return there": shield_costs_two_to_five_percent,
     "The planner, in both views and with the default setting, scores above both rule-based controllers on "
     "every row, with no overflowing test episode.": planner_beats_rules,
     "the strong setting scores below the default one on `n11_m2_dt120` and `n16_m2_dt120`, in both views.":

@@ -92,7 +92,7 @@ def test_the_safety_part_runs_its_setting_next_to_the_defaults_from_the_seed_ask
     rows = script.summarise([dict(block, first_seed=20_000), dict(block, first_seed=30_000, overflows=[0, 0])])
     assert sorted((r["first_seed"], r["overflowing_episodes"]) for r in rows) == [(20_000, 1), (30_000, 0)]
     text = script.report(rows)
-    assert "| n16_m2 | 20000+ (validation) | planner | safety_risk = 0.0001, safety_horizon_steps = 24 | 2 | " \
+    assert "| n16_m2 | 20000+ (validation) | planner | safety_risk = 1e-06, safety_horizon_steps = 24 | 2 | " \
            "111.00 ± 1.00 | 1 | – | 2.00 |" in text  # blocks without risks: unknown, not 0
     assert "| n16_m2 | 30000+ (fresh) | planner |" in text
 
