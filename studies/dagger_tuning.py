@@ -75,6 +75,8 @@ VARIANTS: dict[str, Variant] = {
     "greedy_all_data_k32": Variant(("greedy=true", "dataset_size=6000000", "futures=32")),
     "greedy_anneal": Variant(("greedy=true", "anneal_lr=true")),
     "greedy_request_weight_4": Variant(("greedy=true", "request_weight=4")),
+    # each agent labelled by its best response to the others' requests as the learner made them (issue 38)
+    "greedy_response": Variant(("greedy=true",), "dagger_response_agents"),
     # the PPO fine-tuning of dagger_ppo_agents, every setting named so that a variant keeps its meaning when
     # the defaults change: each agent its own container's reward or the plant's (the planner's objective),
     # a fifth of the budget imitated or half (ppo_team_share_0.5 is dagger_ppo_agents' default), PPO's step size
