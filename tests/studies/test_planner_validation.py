@@ -44,7 +44,7 @@ def test_smoke_run_covers_every_part_and_matches_a_plain_evaluation(tmp_path):
     assert "| n5_m2 | max_futures = 32 | 2 |" in text  # the widened look-ahead's part
     assert "| n5_m2 | margin = 2 | 2 |" in text and "## The defaults on fresh episodes (seeds 30000+)" in text
     # the deadline check's part: its setting next to the defaults, on the fresh seeds by default
-    assert "| n5_m2 | 30000+ (fresh) | planner_agents | safety_risk = 0.0001, safety_horizon_steps = 24 | 2 |" in text
+    assert "| n5_m2 | 30000+ (fresh) | planner_agents | safety_risk = 1e-06, safety_horizon_steps = 24 | 2 |" in text
     assert "| n5_m2 | 30000+ (fresh) | planner_agents | defaults | 2 |" in text
     # the risk part: the check at another ε on validation episodes
     assert "| n5_m2 | 20000+ (validation) | planner | safety_risk = 1e-05, safety_horizon_steps = 24 | 2 |" in text
