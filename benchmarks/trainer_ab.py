@@ -9,8 +9,8 @@ Each run is one ``containergym_marl.training.train`` call (one torch thread) in 
 whose ``PYTHONPATH`` is the checkout; it reports the CPU seconds of the call alone
 (``time.process_time``: start-up and imports left out), its wall time (what waiting for the disk
 adds: the run's files are written where a real run writes them, ``--dir``, by default a temporary
-folder on the system's disk), the calls of ``os.fsync`` and the wall time spent in them, and a hash of the final model, so the two
-sides are also shown to train the same numbers (or not). The runs alternate (this, other, this, …)
+folder on the system's disk), the calls of ``os.fsync`` and the wall time spent in them, and a hash
+of the final model, so the two sides are also shown to train the same numbers (or not). The runs alternate (this, other, this, …)
 so a busy machine slows both alike; the ratio is the median over rounds of other / this.
 """
 

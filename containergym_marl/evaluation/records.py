@@ -28,7 +28,8 @@ class EpisodeRecord:
     (-1 = none), ``emptied_volume`` and ``container_reward`` (T, n) and ``plant_reward`` (T,) hold
     what each step did; ``overflow_probability`` (T,) is each step's probability of an overflow given
     the state before it and its emptyings (NaN in files written without it). ``container_reward`` is
-    the emptying reward or penalty before any overflow replacement; ``plant_reward`` is the reward the centralised view returns (r_min on overflow).
+    the emptying reward or penalty before any overflow replacement; ``plant_reward`` is the reward the
+    centralised view returns (r_min on overflow).
     ``overflowed_containers`` names the containers whose overflow ended the episode (empty if none).
     """
 

@@ -277,8 +277,7 @@ class RolloutPlanner:
             return np.zeros(n, dtype=bool)
         limit = free if self.max_requests is None else min(free, self.max_requests)
         volumes = state.volumes[:1]
-        ready = within_margin(volumes, params, self.margin)[0]
-        eligible = ready | (emptying_rewards(volumes, params)[0] >= self.min_reward)
+        eligible = self._eligible(volumes, params)
         check = None
         if self.safety_risk is not None:
             check = DeadlineCheck(volumes[0], state.pu_timers_s[0], params, self.safety_risk,
@@ -300,6 +299,12 @@ class RolloutPlanner:
         if check is None or check.safe(candidates[best]):
             return candidates[best]
         return self._shielded(state, params, check, base, eligible, limit, candidates, values)
+
+    def _eligible(self, volumes: np.ndarray, params: PlantParams) -> np.ndarray:
+        """(n,) bool: the containers worth emptying now in the (1, n) ``volumes``: within the base
+        rule's margin of their optimum, or earning at least ``min_reward``."""
+        return (within_margin(volumes, params, self.margin)[0]
+                | (emptying_rewards(volumes, params)[0] >= self.min_reward))
 
     def _shielded(self, state: PlantState, params: PlantParams, check: DeadlineCheck, base: np.ndarray,
                   eligible: np.ndarray, limit: int, candidates: np.ndarray, values: np.ndarray | None) -> np.ndarray:
@@ -419,9 +424,7 @@ class PlannerAgents(RolloutPlanner):
         requests = np.asarray(requests, dtype=bool).reshape(n)
         if not (state.pu_timers_s[0] == 0.0).any():
             return np.zeros(n, dtype=bool)
-        volumes = state.volumes[:1]
-        eligible = within_margin(volumes, params, self.margin)[0] | (emptying_rewards(volumes, params)[0] >= self.min_reward)
-        if not eligible.any() and not requests.any():
+        if not self._eligible(state.volumes[:1], params).any() and not requests.any():
             return np.zeros(n, dtype=bool)
         self.planned += 1
         flips = np.logical_xor(requests[None, :], np.eye(n, dtype=bool))  # row i: agent i's request flipped

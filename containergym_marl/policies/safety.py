@@ -54,12 +54,12 @@ import numpy as np
 from containergym_marl.config.pu_time import jit, pu_time_s
 from containergym_marl.core.params import PlantParams
 
+#: The version at which each view's shielded decisions last changed: results of that version or later stand.
+DECISIONS_CHANGED = {"planner": 2, "planner_agents": 3}
 #: The check's version, for results kept across changes of its decisions. 1: the centralised view's
 #: schedule could start two emptyings in one step (it empties at most one); 2: one a step there; 3: the
 #: container agents' shield also weighs every set of due containers (it weighed only sets holding the
 #: look-ahead's choice, all of them unsafe where another set was safe).
-#: The version at which each view's shielded decisions last changed: results of that version or later stand.
-DECISIONS_CHANGED = {"planner": 2, "planner_agents": 3}
 CHECK_VERSION = max(DECISIONS_CHANGED.values())
 
 

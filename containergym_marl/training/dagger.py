@@ -231,20 +231,14 @@ class Labeller:
             planner.reset(seed + b)
         self.cpu_s = 0.0
 
-    def label(self, simulator) -> np.ndarray:
-        """(B, n) bool: the containers the planner has request in each simulation's current state."""
+    def label(self, simulator, requests: np.ndarray | None = None) -> np.ndarray:
+        """(B, n) bool, in each simulation's current state: the containers the planner has request, or,
+        given the agents' ``requests`` ((B, n) bool), each agent's best response to the others'
+        (:meth:`~containergym_marl.policies.planner.PlannerAgents.respond`)."""
         t0 = time.process_time()
         state, params = simulator.state, simulator.params
-        out = np.stack([p.decide(state.select(slice(b, b + 1)), params) for b, p in enumerate(self.planners)])
-        self.cpu_s += time.process_time() - t0
-        return out
-
-    def respond(self, simulator, requests: np.ndarray) -> np.ndarray:
-        """(B, n) bool: each agent's best response to the other agents' ``requests`` ((B, n) bool) in
-        each simulation's current state (:meth:`~containergym_marl.policies.planner.PlannerAgents.respond`)."""
-        t0 = time.process_time()
-        state, params = simulator.state, simulator.params
-        out = np.stack([p.respond(state.select(slice(b, b + 1)), params, requests[b])
+        out = np.stack([p.decide(state.select(slice(b, b + 1)), params) if requests is None
+                        else p.respond(state.select(slice(b, b + 1)), params, requests[b])
                         for b, p in enumerate(self.planners)])
         self.cpu_s += time.process_time() - t0
         return out
@@ -453,8 +447,8 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
                     actions = logits.argmax(-1)
                 else:  # Gumbel-max: a sample, from the run's generator
                     actions = (logits - torch.log(-torch.log(torch.rand(logits.shape, generator=generator)))).argmax(-1)
-                made = (labeller.label(env.simulator) if labels == "planner"
-                        else labeller.respond(env.simulator, actions.numpy().reshape(env.num_sims, -1).astype(bool)))
+                requests = None if labels == "planner" else actions.numpy().reshape(env.num_sims, -1).astype(bool)
+                made = labeller.label(env.simulator, requests)
                 step_labels = torch.from_numpy(made.reshape(-1).astype(np.int64))
             obs_buf[t], label_buf[t], act_buf[t] = obs, step_labels, actions
             buf["values"][t], buf["starts"][t] = model.value(obs), episode_start
