@@ -248,6 +248,11 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       "policy made them (the planner's look-ahead, the arbitration counted)",
                       native="containergym_marl.training.dagger:RESPONSE_IMITATION",
                       **{**_NATIVE, "default_n_envs": 64}),
+        AlgorithmSpec("dagger_contended_agents", None, SharedActorCriticPolicy,
+                      "dagger_agents with the contended states oversampled: half of every minibatch from "
+                      "the states where more containers are due than PUs are free",
+                      native="containergym_marl.training.dagger:CONTENDED_IMITATION",
+                      **{**_NATIVE, "default_n_envs": 64}),
         # the fine-tuning's default reward is the plant's, the objective the planner it imitates plans for
         AlgorithmSpec("dagger_ppo_agents", None, SharedActorCriticPolicy,
                       "dagger_agents for half the budget, then fast_shared_ppo from the imitated policy, "

@@ -77,6 +77,9 @@ VARIANTS: dict[str, Variant] = {
     "greedy_request_weight_4": Variant(("greedy=true", "request_weight=4")),
     # each agent labelled by its best response to the others' requests as the learner made them (issue 38)
     "greedy_response": Variant(("greedy=true",), "dagger_response_agents"),
+    # the contended states (more containers due than free PUs) a quarter or half of every minibatch
+    "greedy_contended_0.25": Variant(("greedy=true", "contended_share=0.25"), "dagger_contended_agents"),
+    "greedy_contended_0.5": Variant(("greedy=true", "contended_share=0.5"), "dagger_contended_agents"),
     # the PPO fine-tuning of dagger_ppo_agents, every setting named so that a variant keeps its meaning when
     # the defaults change: each agent its own container's reward or the plant's (the planner's objective),
     # a fifth of the budget imitated or half (ppo_team_share_0.5 is dagger_ppo_agents' default), PPO's step size

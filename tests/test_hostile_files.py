@@ -398,7 +398,7 @@ def test_the_memory_estimate_counts_what_the_buffers_allocate():
     assert memory_estimate(args, plant, 1)["buffer_size=5000"] == held
     data = dagger.Dataset(5000, 12 + plant.num_processing_units + plant.n_containers)
     args = TrainArgs(algo="dagger_agents", hyperparams={"dataset_size": 5000})
-    assert memory_estimate(args, plant, 64)["dataset_size=5000"] == data.obs.nbytes + data.labels.nbytes
+    assert memory_estimate(args, plant, 64)["dataset_size=5000"] == data.obs.nbytes + data.labels.nbytes + data.contended.nbytes
 
 
 def test_the_package_s_own_searches_stay_well_within_the_bounds():

@@ -306,6 +306,17 @@ class RolloutPlanner:
         return (within_margin(volumes, params, self.margin)[0]
                 | (emptying_rewards(volumes, params)[0] >= self.min_reward))
 
+    def contended(self, state: PlantState, params: PlantParams) -> np.ndarray:
+        """(B,) bool: the simulations of ``state`` whose free PUs are contested, where at least one PU
+        is free and more containers are due than PUs are free, a container being due within the base
+        rule's margin below its optimum or past it. There it matters which container asks, and a
+        wrong choice is the one that overflows; they are a few percent of ``planner_agents``' steps
+        on n11_m2 and n16_m2 (the states DAgger's ``contended_share`` oversamples). Containers that
+        merely earn something (the rest of :meth:`decide`'s eligible ones) are left out: counting
+        them makes about half of those steps contended."""
+        free = (state.pu_timers_s == 0.0).sum(axis=1)
+        return (free >= 1) & (within_margin(state.volumes, params, self.margin).sum(axis=1) > free)
+
     def _shielded(self, state: PlantState, params: PlantParams, check: DeadlineCheck, base: np.ndarray,
                   eligible: np.ndarray, limit: int, candidates: np.ndarray, values: np.ndarray | None) -> np.ndarray:
         """The decision when the look-ahead's choice fails the deadline check: the best-valued safe

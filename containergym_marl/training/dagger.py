@@ -1,9 +1,11 @@
 """DAgger: the shared container-agent policy imitates the rollout planner in the states it visits
 itself (Ross, Gordon & Bagnell, 2011), then, for ``dagger_ppo_agents``, the native PPO fine-tunes it.
 
-Two registry entries train with it (``containergym-marl train --algo ...``, ``compare``, the sweep):
+Four registry entries train with it (``containergym-marl train --algo ...``, ``compare``, the sweep):
 
 * ``dagger_agents``: DAgger for the whole budget;
+* ``dagger_response_agents``: ``dagger_agents`` with ``labels=response`` (below);
+* ``dagger_contended_agents``: ``dagger_agents`` with ``contended_share`` 0.5 (below);
 * ``dagger_ppo_agents``: DAgger for ``imitation_share`` of the budget (default 0.5), then
   ``fast_shared_ppo``'s trainer (:mod:`~containergym_marl.training.fast_ppo`) from the imitated
   policy for the rest, in the same run and budget, every agent rewarded with the plant's reward
@@ -43,10 +45,13 @@ every container). The model records it, and its evaluation builds the same obser
    The planner's own decision never has more requests than free PUs, so its labels cannot teach an
    agent what its request does when the others' requests already take every free PU, which is
    where the imitation's overflows on the contended plants begin (a denied request).
-3. *aggregate*: the (observation, label) pairs join the data set; the latest ``dataset_size`` are
-   kept (DAgger keeps all; the cap bounds memory and the checkpoint).
+3. *aggregate*: the (observation, label) pairs join the data set, each flagged where its state was
+   contended (:meth:`~containergym_marl.policies.planner.PlannerAgents.contended`: a PU free and more
+   containers due than free PUs); the latest ``dataset_size`` are kept (DAgger keeps all;
+   the cap bounds memory and the checkpoint).
 4. *train*: ``n_epochs`` × new samples / ``minibatch_size`` Adam steps, each on a minibatch drawn
-   from the whole data set: the cross-entropy of the policy's logits against the labels (requests
+   from the whole data set (with ``contended_share``, ``dagger_contended_agents``, that share of it
+   from the contended samples): the cross-entropy of the policy's logits against the labels (requests
    weighted by ``request_weight``; the step size annealed to 0 with ``anneal_lr``). The value
    network regresses on the λ-returns of this iteration's rollout at the same time (the agents'
    rewards, time-limit cuts bootstrapped as PPO does), so a PPO fine-tuning starts from a critic of
@@ -141,7 +146,7 @@ class DAggerArgs:
     # so the data set holds the states the deployed policy meets (DAgger's rule); over 5 seeds on validation
     # episodes it scored as sampling on n11_m2_dt60 and higher on n11_m2_dt120 (studies/dagger_tuning.py)
     greedy: bool = True
-    dataset_size: int = 1_000_000  # most recent labelled samples kept (each F float32 + 1 byte)
+    dataset_size: int = 1_000_000  # most recent labelled samples kept (each F float32 + 2 bytes)
     hidden: tuple[int, ...] = (64, 64)  # hidden units of the policy and value networks (fast_shared_ppo's)
     futures: int = 16  # K of the labelling planner (planner_agents' default)
     horizon: int = 8  # H of the labelling planner (planner_agents' default)
@@ -152,6 +157,10 @@ class DAggerArgs:
     # each agent's label (LABELS): the planner's decision for all agents, or, where the learner acts, its best
     # response by the planner's look-ahead to the other agents' requests as the learner made them
     labels: str = "planner"
+    # share of every minibatch drawn from the data set's contended samples (PlannerAgents.contended: a PU is free
+    # and more containers are due than PUs are free), the rest uniformly from all; 0: uniform
+    # (DAgger's rule). The contended states are few, and which agent asks there is what the contended plants need
+    contended_share: float = 0.0
     ppo: fast_ppo.PPOArgs | None = None  # the fine-tuning's settings (``ppo_<field>``); None: no fine-tuning
 
     @classmethod
@@ -202,6 +211,8 @@ class DAggerArgs:
             raise ValueError(f"hp: vf_coef must be a finite number >= 0, got {self.vf_coef}")
         if not 0 <= self.gae_lambda <= 1:
             raise ValueError(f"hp: gae_lambda must be in [0, 1], got {self.gae_lambda}")
+        if not 0 <= self.contended_share < 1:
+            raise ValueError(f"hp: contended_share must be in [0, 1), got {self.contended_share}")
         if self.ppo is not None and not 0 < self.imitation_share < 1:
             raise ValueError(f"hp: imitation_share must be in (0, 1), got {self.imitation_share}")
         fast_ppo.check_hidden(self.hidden)
@@ -243,6 +254,10 @@ class Labeller:
         self.cpu_s += time.process_time() - t0
         return out
 
+    def contended(self, simulator) -> np.ndarray:
+        """(B,) bool: the simulations whose free PUs are contested now (:meth:`PlannerAgents.contended`)."""
+        return self.planners[0].contended(simulator.state, simulator.params)
+
     @property
     def planned(self) -> int:
         """Decisions that needed a look-ahead (the others cost nothing)."""
@@ -251,30 +266,36 @@ class Labeller:
 
 # ---- the data set and the training state ----------------------------------------------------------------
 class Dataset:
-    """The aggregated (observation, label) pairs: a ring of ``capacity`` samples, the oldest replaced
-    first. The storage is reserved, not touched, until filled."""
+    """The aggregated (observation, label, contended) triples: a ring of ``capacity`` samples, the
+    oldest replaced first. The storage is reserved, not touched, until filled."""
 
     def __init__(self, capacity: int, obs_size: int):
         self.obs = torch.empty((capacity, obs_size))
         self.labels = torch.empty(capacity, dtype=torch.uint8)
+        self.contended = torch.empty(capacity, dtype=torch.bool)  # the sample's state had contested PUs
         self.size = self.next = 0
 
-    def add(self, obs: torch.Tensor, labels: torch.Tensor) -> None:
+    def add(self, obs: torch.Tensor, labels: torch.Tensor, contended: torch.Tensor | None = None) -> None:
+        """Append [N, F] observations, [N] labels and [N] contended flags (None: none contended)."""
         capacity = self.labels.shape[0]
-        obs, labels = obs[-capacity:], labels[-capacity:]
+        if contended is None:
+            contended = torch.zeros(labels.shape[0], dtype=torch.bool)
+        obs, labels, contended = obs[-capacity:], labels[-capacity:], contended[-capacity:]
         idx = (self.next + torch.arange(labels.shape[0])) % capacity
-        self.obs[idx], self.labels[idx] = obs, labels.to(torch.uint8)
+        self.obs[idx], self.labels[idx], self.contended[idx] = obs, labels.to(torch.uint8), contended
         self.next = int(idx[-1] + 1) % capacity
         self.size = min(self.size + labels.shape[0], capacity)
 
     def to_dict(self) -> dict[str, Any]:
         return {"format": DATASET_FORMAT, "version": CHECKPOINT_VERSION, "obs": self.obs[:self.size].clone(),
-                "labels": self.labels[:self.size].clone(), "next": self.next}
+                "labels": self.labels[:self.size].clone(), "contended": self.contended[:self.size].clone(),
+                "next": self.next}
 
     def load(self, data: Any, source: str) -> None:
         """Fill from :meth:`to_dict`'s output: float32 observations [N, F] of this data set's F, labels
-        [N] of 0 and 1 (the two actions), the ring's next slot in [0, N]; a ValueError naming
-        ``source`` and the field when it does not fit (checked before anything is copied)."""
+        [N] of 0 and 1 (the two actions), contended flags [N] (bool; a data set saved without them has
+        none contended), the ring's next slot in [0, N]; a ValueError naming ``source`` and the field
+        when it does not fit (checked before anything is copied)."""
         try:
             if data.get("format") != DATASET_FORMAT or data.get("version") != CHECKPOINT_VERSION:
                 raise ValueError("not a DAgger data set of this version")
@@ -294,11 +315,16 @@ class Dataset:
                 raise ValueError("its observations are not all finite")
             if type(next_slot) is not int or not 0 <= next_slot <= obs.shape[0]:
                 raise ValueError(f"its next slot must be an integer in [0, {obs.shape[0]}], got {next_slot!r}")
+            contended = data.get("contended", torch.zeros(obs.shape[0], dtype=torch.bool))
+            if not (torch.is_tensor(contended) and contended.dtype == torch.bool
+                    and tuple(contended.shape) == (obs.shape[0],)):
+                got = (contended.dtype, tuple(contended.shape)) if torch.is_tensor(contended) else type(contended).__name__
+                raise ValueError(f"its contended flags are {got}, expected bool ({obs.shape[0]},)")
         except (AttributeError, KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise ValueError(f"{source}: {exc}") from exc
         capacity = self.labels.shape[0]
         kept = min(obs.shape[0], capacity)
-        self.obs[:kept], self.labels[:kept] = obs[:kept], labels[:kept]
+        self.obs[:kept], self.labels[:kept], self.contended[:kept] = obs[:kept], labels[:kept], contended[:kept]
         self.size = kept
         self.next = next_slot % capacity if kept == capacity else kept  # the oldest sample, when full
 
@@ -398,6 +424,7 @@ class Rollout:
     obs: torch.Tensor  # [T, S, F] what each agent saw
     labels: torch.Tensor  # [T, S] its label (1: request): the planner's decision, or the agent's best response
     actions: torch.Tensor  # [T, S] what it did (the learner's action, or the label where the planner acted)
+    contended: torch.Tensor  # [T, S] bool: its simulation's free PUs were contested (Labeller.contended)
     rewards: torch.Tensor  # [T, S] its reward, time-limit cuts bootstrapped
     values: torch.Tensor  # [T, S] the critic's value of its observation
     starts: torch.Tensor  # [T, S] 1 where the observation starts an episode
@@ -437,6 +464,8 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
     obs_buf = torch.zeros((n_steps, slots, obs.shape[-1]))
     label_buf = torch.zeros((n_steps, slots), dtype=torch.long)
     act_buf = torch.zeros((n_steps, slots), dtype=torch.long)
+    contended_buf = torch.zeros((n_steps, slots), dtype=torch.bool)
+    agents = slots // env.num_sims
     with torch.no_grad():
         for t in range(n_steps):
             if expert_acts:
@@ -451,6 +480,7 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
                 made = labeller.label(env.simulator, requests)
                 step_labels = torch.from_numpy(made.reshape(-1).astype(np.int64))
             obs_buf[t], label_buf[t], act_buf[t] = obs, step_labels, actions
+            contended_buf[t] = torch.from_numpy(np.repeat(labeller.contended(env.simulator), agents))
             buf["values"][t], buf["starts"][t] = model.value(obs), episode_start
             next_obs, rewards, dones, infos = env.step(actions.numpy())
             rewards = torch.from_numpy(rewards)
@@ -464,22 +494,44 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
             obs = torch.from_numpy(next_obs)
             episodes.step(*env.last_plant_step(), env.simulator.last_outcome.truncated, expert_acts)
         last_value = model.value(obs)
-    rollout = Rollout(obs_buf, label_buf, act_buf, buf["rewards"], buf["values"], buf["starts"], last_value,
+    rollout = Rollout(obs_buf, label_buf, act_buf, contended_buf, buf["rewards"], buf["values"], buf["starts"], last_value,
                       episode_start)
     return rollout, obs, episode_start
+
+
+class MinibatchDraw:
+    """Minibatches of ``batch`` indices into ``dataset``, with replacement: ``contended_share`` of
+    them (rounded) uniformly from its contended samples, while it has any, the rest uniformly from
+    all of it (so a contended sample's share of a minibatch is the share plus the rest's natural
+    rate). At ``contended_share`` 0 a draw is ``torch.randint(size, (batch,))``: DAgger's own."""
+
+    def __init__(self, dataset: Dataset, batch: int, contended_share: float):
+        self.size, self.batch = dataset.size, batch
+        self.contended = torch.nonzero(dataset.contended[:dataset.size]).squeeze(1) if contended_share else None
+        has = self.contended is not None and self.contended.numel() > 0
+        self.from_contended = round(contended_share * batch) if has else 0
+
+    def __call__(self, generator: torch.Generator) -> torch.Tensor:
+        idx = torch.randint(self.size, (self.batch - self.from_contended,), generator=generator)
+        if not self.from_contended:
+            return idx
+        picked = torch.randint(self.contended.numel(), (self.from_contended,), generator=generator)
+        return torch.cat([self.contended[picked], idx])
 
 
 def update(model: ActorCritic, optimizer, hp: DAggerArgs, generator: torch.Generator, dataset: Dataset,
            obs: torch.Tensor, returns: torch.Tensor) -> float:
     """The supervised step of an iteration: ``n_epochs`` × len(obs) / ``minibatch_size`` Adam steps
-    on the cross-entropy of minibatches drawn from the whole ``dataset`` plus ``vf_coef`` × the
-    value MSE on minibatches of this rollout's (``obs``, ``returns``). Returns the mean cross-entropy."""
+    on the cross-entropy of minibatches drawn from the whole ``dataset`` (``contended_share`` of each
+    from its contended samples, while it has any) plus ``vf_coef`` × the value MSE on minibatches of
+    this rollout's (``obs``, ``returns``). Returns the mean cross-entropy."""
     new = obs.shape[0]
     steps = max(hp.n_epochs * new // hp.minibatch_size, 1)
     weight = None if hp.request_weight == 1.0 else torch.tensor([1.0, hp.request_weight])
+    draw = MinibatchDraw(dataset, min(hp.minibatch_size, dataset.size), hp.contended_share)
     total = 0.0
     for _ in range(steps):
-        idx = torch.randint(dataset.size, (min(hp.minibatch_size, dataset.size),), generator=generator)
+        idx = draw(generator)
         cross_entropy = torch.nn.functional.cross_entropy(model.logits(dataset.obs[idx]), dataset.labels[idx].long(),
                                                           weight=weight)
         j = torch.randint(new, (min(hp.minibatch_size, new),), generator=generator)
@@ -515,6 +567,7 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
         returns = fast_ppo.compute_gae(rollout.rewards, rollout.values, rollout.starts, rollout.last_value,
                                        rollout.last_start, gamma, hp.gae_lambda) + rollout.values
         flat_obs, flat_labels = rollout.obs.view(-1, rollout.obs.shape[-1]), rollout.labels.view(-1)
+        flat_contended = rollout.contended.view(-1)
         state.num_timesteps += flat_labels.shape[0]
         steps = state.num_timesteps
         with torch.no_grad():  # how far the policy that acted is from the planner, on its own states
@@ -526,7 +579,7 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
         if on_samples is not None:
             on_samples(steps, progress)
 
-        state.dataset.add(flat_obs, flat_labels)
+        state.dataset.add(flat_obs, flat_labels, flat_contended)
         learning_rate = hp.learning_rate_at(steps - flat_labels.shape[0], budget)
         for group in optimizer.param_groups:
             group["lr"] = learning_rate
@@ -537,6 +590,7 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
             "dataset_samples": state.dataset.size,
             "agreement": float((greedy == flat_labels).float().mean()),
             "request_share": float(requests.float().mean()),
+            "contended_share": float(flat_contended.float().mean()),  # of this rollout's samples
             "request_recall": float((greedy[requests] == 1).float().mean()) if requests.any() else None,
             "cross_entropy": cross_entropy, "learning_rate": learning_rate,
             "label_cpu_s": round(cpu0 + labeller.cpu_s, 3), "planned_decisions": planned0 + labeller.planned,
@@ -595,20 +649,21 @@ def train(run: Path, state, env, budget: int, gamma: float, hp: DAggerArgs, prog
 
 class DAggerTrainer:
     """DAgger, and with ``fine_tune`` the native PPO after it, as ``train`` runs them
-    (:class:`~containergym_marl.training.native.NativeTrainer`)."""
+    (:class:`~containergym_marl.training.native.NativeTrainer`); ``defaults``: the method's own
+    settings (``--hp`` overrides them)."""
 
-    def __init__(self, fine_tune: bool, labels: str = "planner"):
-        self.fine_tune, self.labels = fine_tune, labels
+    def __init__(self, fine_tune: bool, defaults: dict[str, Any] | None = None):
+        self.fine_tune, self.defaults = fine_tune, dict(defaults or {})
 
     def settings(self, hyperparams: dict[str, Any]) -> DAggerArgs:
-        return DAggerArgs.from_hyperparams({"labels": self.labels, **hyperparams}, fine_tune=self.fine_tune)
+        return DAggerArgs.from_hyperparams({**self.defaults, **hyperparams}, fine_tune=self.fine_tune)
 
     def memory(self, settings: DAggerArgs, shapes: MemoryShapes) -> dict[str, int]:
-        """The data set (F float32 + 1 byte a sample), the labelling planner's futures (K × H
+        """The data set (F float32 + 2 bytes a sample), the labelling planner's futures (K × H
         look-ahead of n + 1 candidates), the networks, a rollout and a minibatch; the fine-tuning's
         rollout and minibatch."""
         hp, n, m = settings, shapes.n_containers, shapes.n_pus
-        estimate = {f"dataset_size={hp.dataset_size}": hp.dataset_size * (shapes.obs * 4 + 1),
+        estimate = {f"dataset_size={hp.dataset_size}": hp.dataset_size * (shapes.obs * 4 + 2),
                     f"futures={hp.futures}, horizon={hp.horizon}": hp.futures * (n + 1) * (n + m + hp.horizon) * 8 * 8,
                     f"hidden={list(hp.hidden)}": shapes.networks(hp.hidden),
                     f"n_steps={hp.n_steps}": shapes.rollout(hp.n_steps, shapes.obs + 8, copies=2),
@@ -638,13 +693,18 @@ class DAggerTrainer:
         return {"imitation": summary(run)}
 
 
-#: The registry's trainers: ``dagger_agents`` (DAgger alone), ``dagger_ppo_agents`` (then PPO) and
-#: ``dagger_response_agents`` (DAgger on each agent's best response to the others' requests).
+#: The share of each minibatch ``dagger_contended_agents`` draws from the contended samples: half, so
+#: that they weigh as much as all the others (a setting to tune on validation episodes, as every other).
+CONTENDED_SHARE = 0.5
+#: The registry's trainers: ``dagger_agents`` (DAgger alone), ``dagger_ppo_agents`` (then PPO),
+#: ``dagger_response_agents`` (DAgger on each agent's best response to the others' requests) and
+#: ``dagger_contended_agents`` (DAgger with the contended states oversampled).
 IMITATION = DAggerTrainer(fine_tune=False)
 IMITATION_THEN_PPO = DAggerTrainer(fine_tune=True)
-RESPONSE_IMITATION = DAggerTrainer(fine_tune=False, labels="response")
+RESPONSE_IMITATION = DAggerTrainer(fine_tune=False, defaults={"labels": "response"})
+CONTENDED_IMITATION = DAggerTrainer(fine_tune=False, defaults={"contended_share": CONTENDED_SHARE})
 
-__all__ = ["DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_PPO", "LABELS",
+__all__ = ["CONTENDED_IMITATION", "CONTENDED_SHARE", "DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_PPO", "LABELS",
            "RESPONSE_IMITATION", "Dataset", "Episodes",
-           "Labeller", "Rollout", "collect", "learn",
+           "Labeller", "MinibatchDraw", "Rollout", "collect", "learn",
            "load_checkpoint", "new_state", "summary", "train", "update"]

@@ -20,7 +20,15 @@ from containergym_marl.policies.planner import PlannerAgents
 from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.checkpoints import TrainingProgress, read_progress
-from containergym_marl.training.dagger import DAggerArgs, Dataset, Episodes, Labeller, collect, update
+from containergym_marl.training.dagger import (
+    DAggerArgs,
+    Dataset,
+    Episodes,
+    Labeller,
+    MinibatchDraw,
+    collect,
+    update,
+)
 from tests.helpers import train_until_killed
 
 # 2 simulations, iterations of 16 steps, training episodes of T = 20 steps (they finish)
@@ -28,18 +36,24 @@ TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch
             overrides={"episode_length_steps": 20})
 
 
-@pytest.mark.parametrize("labels", ["planner", "response"])
-def test_labels_are_planner_agents_decisions_in_the_learners_states(labels):
-    """The learner (an untrained policy, so it often disagrees with the planner) acts in 2 simulations
-    for 30 steps, across an episode end; replaying its actions in single environments with the
-    simulations' seeds, a PlannerAgents evaluated there as in an evaluation decides exactly the labels
-    (``response``: its best response to the learner's requests there, ``PlannerAgents.respond``), and
-    every agent's observation is the one the learner saw."""
-    config, seed, n_steps = "n5_m2_dt120", 7, 30
-    env = ContainerAgentsVecEnv(config, 2, episode_length_steps=20)
+@pytest.mark.parametrize("labels, config, n_steps, episode_steps", [
+    ("planner", "n5_m2_dt120", 30, 20), ("response", "n5_m2_dt120", 30, 20), ("planner", "n11_m2_dt120", 80, 60)])
+def test_labels_are_planner_agents_decisions_in_the_learners_states(labels, config, n_steps, episode_steps):
+    """The learner (an untrained policy, so it often disagrees with the planner) acts in 2 simulations,
+    across an episode end; replaying its actions in single environments with the simulations' seeds,
+    a PlannerAgents evaluated there as in an evaluation decides exactly the labels (``response``: its
+    best response to the learner's requests there, ``PlannerAgents.respond``), every agent's
+    observation is the one the learner saw, and its contended flag its simulation's
+    ``PlannerAgents.contended`` there. On n11_m2 the learner mostly waits (its output bias), so that
+    containers reach their optimum together and some states are contended."""
+    seed = 7
+    env = ContainerAgentsVecEnv(config, 2, episode_length_steps=episode_steps)
     n = env.n_agents
     hp = DAggerArgs(labels=labels)
     model = ActorCritic("decentralised", env.observation_space.shape[0], 2, generator=torch.Generator().manual_seed(0))
+    if config == "n11_m2_dt120":
+        with torch.no_grad():  # logits + (2, 0): a request about one step in eight
+            [m for m in model.net.actor if isinstance(m, torch.nn.Linear)][-1].bias.copy_(torch.tensor([2.0, 0.0]))
     env.seed(seed)
     obs = torch.from_numpy(env.reset())
     labeller = Labeller(env.num_sims, hp, seed)
@@ -47,9 +61,10 @@ def test_labels_are_planner_agents_decisions_in_the_learners_states(labels):
                           torch.Generator().manual_seed(1), expert_acts=False, greedy=False,
                           episodes=Episodes(env.num_sims, TrainingProgress()), labels=labels)
     assert labeller.planned > 0, "the planner should have planned (a choice between candidates) somewhere"
+    assert rollout.contended.any() == (config == "n11_m2_dt120") and not rollout.contended.all()
     assert (rollout.labels == 1).any() and (rollout.actions != rollout.labels).any()
     for b in range(env.num_sims):
-        single = parallel_env(config, episode_length_steps=20)
+        single = parallel_env(config, episode_length_steps=episode_steps)
         planner = PlannerAgents()
         planner.reset(seed + b)
         observations, _ = single.reset(seed=seed + b)
@@ -66,6 +81,8 @@ def test_labels_are_planner_agents_decisions_in_the_learners_states(labels):
                 sim = single.unwrapped.simulator
                 decided = dict(zip(agents, planner.respond(sim.state, sim.params, acted).astype(int).tolist()))
             assert [decided[a] for a in agents] == rollout.labels[t, b * n:(b + 1) * n].tolist(), (b, t)
+            sim = single.unwrapped.simulator  # every agent of the simulation carries its state's contention
+            assert rollout.contended[t, b * n:(b + 1) * n].tolist() == [bool(planner.contended(sim.state, sim.params)[0])] * n
             observations, *_ = single.step({a: int(rollout.actions[t, b * n + i]) for i, a in enumerate(agents)})
 
 
@@ -188,6 +205,46 @@ def test_same_seed_same_run(tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a) and not all(torch.equal(a[k], c[k]) for k in a)
 
 
+def test_contended_share_draws_that_share_of_each_minibatch_from_the_contended_samples():
+    """A data set of 1,000 samples, 50 of them contended (5 %). At contended_share 0.5, minibatches of
+    64 hold 32 contended samples plus the uniform half's ~5 %: over 200 draws the contended share is
+    0.5 + 0.5 × 0.05 = 0.525 within 4 binomial standard errors of the uniform half, and the contended
+    part covers the contended samples uniformly. At 0 a draw is DAgger's own uniform draw, number for
+    number; a data set with no contended sample is drawn uniformly whatever the share."""
+    dataset = Dataset(1000, 2)
+    flags = torch.zeros(1000, dtype=torch.bool)
+    flags[torch.arange(0, 1000, 20)] = True
+    dataset.add(torch.zeros(1000, 2), torch.zeros(1000, dtype=torch.uint8), flags)
+    draw, generator = MinibatchDraw(dataset, 64, 0.5), torch.Generator().manual_seed(3)
+    drawn = torch.stack([draw(generator) for _ in range(200)])
+    share = float(flags[drawn].float().mean())
+    uniform_half = 200 * 32
+    assert abs(share - 0.525) <= 4 * 0.5 * (0.05 * 0.95 / uniform_half) ** 0.5
+    assert flags[drawn[:, :32]].all()  # the contended part
+    counts = torch.bincount(drawn[:, :32].reshape(-1), minlength=1000)[flags]
+    assert counts.min() > 0.5 * 128 and counts.max() < 1.5 * 128  # 6,400 over 50: 128 each on average
+    plain = MinibatchDraw(dataset, 64, 0.0)
+    assert torch.equal(plain(torch.Generator().manual_seed(5)),
+                       torch.randint(1000, (64,), generator=torch.Generator().manual_seed(5)))
+    none = Dataset(1000, 2)
+    none.add(torch.zeros(1000, 2), torch.zeros(1000, dtype=torch.uint8))
+    assert torch.equal(MinibatchDraw(none, 64, 0.5)(torch.Generator().manual_seed(5)),
+                       torch.randint(1000, (64,), generator=torch.Generator().manual_seed(5)))
+
+
+def test_a_saved_data_set_keeps_its_contended_flags_and_an_older_one_loads_with_none():
+    dataset = Dataset(10, 2)
+    dataset.add(torch.ones(6, 2), torch.tensor([0, 1, 0, 1, 0, 1]), torch.tensor([True, False] * 3))
+    copy = Dataset(10, 2)
+    copy.load(dataset.to_dict(), "data set")
+    assert copy.contended[:6].tolist() == [True, False] * 3 and copy.size == 6
+    older = {k: v for k, v in dataset.to_dict().items() if k != "contended"}
+    copy.load(older, "data set")
+    assert copy.size == 6 and not copy.contended[:6].any()
+    with pytest.raises(ValueError, match=r"^data set: its contended flags are \(torch\.uint8, \(6,\)\)"):
+        Dataset(10, 2).load({**dataset.to_dict(), "contended": torch.zeros(6, dtype=torch.uint8)}, "data set")
+
+
 @pytest.mark.parametrize("algo, hp, field", [
     ("dagger_agents", {"bogus": 1}, "bogus"),
     ("dagger_agents", {"n_steps": 0}, "n_steps"),
@@ -197,6 +254,8 @@ def test_same_seed_same_run(tmp_path):
     ("dagger_agents", {"ppo_learning_rate": 1e-4}, "ppo_learning_rate"),
     ("dagger_ppo_agents", {"imitation_share": 1.0}, "imitation_share"),
     ("dagger_response_agents", {"labels": "oracle"}, "labels"),
+    ("dagger_contended_agents", {"contended_share": 1.0}, "contended_share"),  # none drawn uniformly: no DAgger
+    ("dagger_agents", {"contended_share": -0.1}, "contended_share"),
     ("dagger_ppo_agents", {"ppo_clip_range": 0}, "ppo_clip_range"),
     ("dagger_ppo_agents", {"ppo_hidden": "32,32"}, "ppo_hidden"),
     ("dagger_ppo_agents", {"ppo_bogus": 1}, "ppo_bogus"),

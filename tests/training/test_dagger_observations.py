@@ -144,4 +144,4 @@ def test_settings_and_memory_follow_the_observation():
     for observation, size in (("local", 12 + m + n), ("global", 12 + 2 * (m + n)),
                               ("history4", 4 * (12 + m + n)), ("broadcast", 12 + m + 3 * n)):
         estimate = memory_estimate(TrainArgs(algo="dagger_agents", hyperparams={"observation": observation}), plant, 64)
-        assert estimate["dataset_size=1000000"] == 1_000_000 * (size * 4 + 1), observation
+        assert estimate["dataset_size=1000000"] == 1_000_000 * (size * 4 + 2), observation  # F float32, label, flag
