@@ -259,6 +259,11 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       "every agent rewarded with the plant's reward",
                       native="containergym_marl.training.dagger:IMITATION_THEN_PPO",
                       reward_modes=("team", "individual"), **{**_NATIVE, "default_n_envs": 64}),
+        AlgorithmSpec("dagger_dapg_agents", None, SharedActorCriticPolicy,
+                      "dagger_ppo_agents whose fine-tuning keeps a decaying behaviour-cloning term on the "
+                      "imitation's data set beside PPO's loss (DAPG)",
+                      native="containergym_marl.training.dagger:IMITATION_THEN_DAPG",
+                      reward_modes=("team", "individual"), **{**_NATIVE, "default_n_envs": 64}),
         AlgorithmSpec("mappo", None, SharedActorPolicy,
                       "MAPPO (BenchMARL, CTDE): one actor shared by the container agents, a critic on the "
                       "global state; team reward (its settings are BenchMARL's, in the script)",

@@ -106,6 +106,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     _learned("dagger_ppo_agents", "team", counterpart="planner"),
     _learned("dagger_response_agents", counterpart="planner"),
     _learned("dagger_contended_agents", counterpart="planner"),
+    _learned("dagger_dapg_agents", "team", counterpart="planner"),
     _learned("mappo", "team", counterpart="ppo"),  # trained by baselines/train_mappo.py; compare reads its files
 )}
 #: The controllers (rules and planners) by name: what ``containergym-marl evaluate NAME`` builds.

@@ -80,6 +80,9 @@ VARIANTS: dict[str, Variant] = {
     # the contended states (more containers due than free PUs) a quarter or half of every minibatch
     "greedy_contended_0.25": Variant(("greedy=true", "contended_share=0.25"), "dagger_contended_agents"),
     "greedy_contended_0.5": Variant(("greedy=true", "contended_share=0.5"), "dagger_contended_agents"),
+    # the fine-tuning with a decaying behaviour-cloning term (DAPG), at two starting weights
+    "dapg_0.5": Variant(("imitation_share=0.5", "bc_coef=0.5", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
+    "dapg_2": Variant(("imitation_share=0.5", "bc_coef=2", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
     # the PPO fine-tuning of dagger_ppo_agents, every setting named so that a variant keeps its meaning when
     # the defaults change: each agent its own container's reward or the plant's (the planner's objective),
     # a fifth of the budget imitated or half (ppo_team_share_0.5 is dagger_ppo_agents' default), PPO's step size

@@ -36,7 +36,7 @@ def test_each_method_is_what_its_name_says():
         "fast_shared_ppo": ("learned", "decentralised"), "fast_shared_ppo_team": ("learned", "decentralised"),
         "dagger_agents": ("learned", "decentralised"), "dagger_ppo_agents": ("learned", "decentralised"),
         "dagger_response_agents": ("learned", "decentralised"), "mappo": ("learned", "decentralised"),
-        "dagger_contended_agents": ("learned", "decentralised"),
+        "dagger_contended_agents": ("learned", "decentralised"), "dagger_dapg_agents": ("learned", "decentralised"),
     }
     assert {name: (m.kind, m.view) for name, m in METHODS.items()} == expected
     assert CONTROLLERS == {"rule_based": RuleBasedController, "rule_based_agents": RuleBasedAgents,
@@ -55,7 +55,9 @@ def test_each_method_is_what_its_name_says():
     # its fine-tuning is rewarded with the plant's reward, what the planner plans for
     assert METHODS["dagger_ppo_agents"].train_settings() == {"reward_mode": "team"}
     assert {METHODS[m].counterpart for m in ("dagger_agents", "dagger_ppo_agents", "dagger_response_agents",
-                                             "dagger_contended_agents", "planner_agents")} == {"planner"}
+                                             "dagger_contended_agents", "dagger_dapg_agents", "planner_agents")
+            } == {"planner"}
+    assert METHODS["dagger_dapg_agents"].train_settings() == {"reward_mode": "team"}
 
 
 def test_pairs_set_a_decentralised_method_against_a_centralised_one():

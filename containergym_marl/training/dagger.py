@@ -1,11 +1,15 @@
 """DAgger: the shared container-agent policy imitates the rollout planner in the states it visits
 itself (Ross, Gordon & Bagnell, 2011), then, for ``dagger_ppo_agents``, the native PPO fine-tunes it.
 
-Four registry entries train with it (``containergym-marl train --algo ...``, ``compare``, the sweep):
+Five registry entries train with it (``containergym-marl train --algo ...``, ``compare``, the sweep):
 
 * ``dagger_agents``: DAgger for the whole budget;
 * ``dagger_response_agents``: ``dagger_agents`` with ``labels=response`` (below);
 * ``dagger_contended_agents``: ``dagger_agents`` with ``contended_share`` 0.5 (below);
+* ``dagger_dapg_agents``: ``dagger_ppo_agents`` whose fine-tuning keeps a behaviour-cloning term on
+  the imitation's data set beside PPO's loss (DAPG, Rajeswaran et al., 2018), ``bc_coef`` × the
+  cross-entropy, its weight halving every ``bc_half_life`` of the fine-tuning's samples, so that PPO
+  starts from the imitation without leaving it at its first updates and ends on its own objective;
 * ``dagger_ppo_agents``: DAgger for ``imitation_share`` of the budget (default 0.5), then
   ``fast_shared_ppo``'s trainer (:mod:`~containergym_marl.training.fast_ppo`) from the imitated
   policy for the rest, in the same run and budget, every agent rewarded with the plant's reward
@@ -115,6 +119,10 @@ DATASET_FORMAT = "containergym-marl dagger dataset"
 CHECKPOINT_VERSION = 1
 #: The share of the budget that ``dagger_ppo_agents`` imitates before PPO takes over, unless ``imitation_share``.
 FINE_TUNE_IMITATION_SHARE = 0.5
+#: DAgger's settings of the fine-tuning, refused where there is none.
+FINE_TUNE_SETTINGS = ("imitation_share", "bc_coef", "bc_half_life")
+#: The imitation's data set, kept for the fine-tuning's behaviour-cloning term (``bc_coef``), in ``checkpoints/``.
+BC_DATASET = "bc_dataset.pt"
 #: PPO settings a fine-tuning takes from the imitated model, not from ``ppo_<key>``.
 MODEL_SETTINGS = ("hidden", "action_mask")
 #: The record of the imitation phase in the run directory, rewritten after every iteration.
@@ -151,6 +159,10 @@ class DAggerArgs:
     futures: int = 16  # K of the labelling planner (planner_agents' default)
     horizon: int = 8  # H of the labelling planner (planner_agents' default)
     imitation_share: float = 1.0  # share of the budget DAgger trains; dagger_ppo_agents: 0.5, PPO the rest
+    # the fine-tuning's behaviour-cloning term (DAPG): bc_coef × the cross-entropy on the imitation's data set beside
+    # PPO's loss, its weight halving every bc_half_life of the fine-tuning's samples; 0: PPO alone
+    bc_coef: float = 0.0
+    bc_half_life: float = 0.1
     # what every container agent sees (core.observations.OBSERVATIONS): the view's usual observation, or it with
     # the global state (an oracle), the last 4 observations stacked, or last step's requests and grants of all
     observation: str = DEFAULT_OBSERVATION
@@ -169,7 +181,8 @@ class DAggerArgs:
         naming an unknown key or a bad value."""
         own = {f.name: f for f in dataclasses.fields(cls) if f.name != "ppo"}
         if not fine_tune:
-            own.pop("imitation_share")
+            for key in FINE_TUNE_SETTINGS:
+                own.pop(key)
         ppo_fields = {f"ppo_{f.name}" for f in dataclasses.fields(fast_ppo.PPOArgs)} if fine_tune else set()
         taken = sorted(k for k in hyperparams if k in ppo_fields and k[4:] in MODEL_SETTINGS)
         if taken:
@@ -215,6 +228,10 @@ class DAggerArgs:
             raise ValueError(f"hp: contended_share must be in [0, 1), got {self.contended_share}")
         if self.ppo is not None and not 0 < self.imitation_share < 1:
             raise ValueError(f"hp: imitation_share must be in (0, 1), got {self.imitation_share}")
+        if not (math.isfinite(self.bc_coef) and self.bc_coef >= 0):
+            raise ValueError(f"hp: bc_coef must be a finite number >= 0, got {self.bc_coef}")
+        if not (math.isfinite(self.bc_half_life) and self.bc_half_life > 0):
+            raise ValueError(f"hp: bc_half_life must be a finite number > 0, got {self.bc_half_life}")
         fast_ppo.check_hidden(self.hidden)
         check_observation(self.observation, "hp: observation")
         if self.labels not in LABELS:
@@ -637,14 +654,36 @@ def train(run: Path, state, env, budget: int, gamma: float, hp: DAggerArgs, prog
             env.seed(seed + state.num_timesteps)
             learn(run, state, env, imitation, gamma, hp, progress, interval, seed + state.num_timesteps, budget,
                   on_samples)
+        if hp.ppo is not None and hp.bc_coef > 0:  # before the imitation's checkpointed data sets go
+            save_tensors(run / "checkpoints" / BC_DATASET, state.dataset.to_dict())
         for done_with in (run / "checkpoints").glob("ckpt_dataset_*_steps.pt"):
             done_with.unlink()  # imitation is over: a resume from here on needs no data set
         if hp.ppo is None:
             return state
         state = fast_ppo.state_from_model(state.model, hp.ppo, state.generator, state.num_timesteps)
     env.seed(seed + state.num_timesteps)
-    fast_ppo.learn(run, state, env, budget, gamma, hp.ppo, progress, interval, on_samples)
+    fast_ppo.learn(run, state, env, budget, gamma, hp.ppo, progress, interval, on_samples,
+                   behaviour_cloning(run, hp, budget, state.model.observation_size))
     return state
+
+
+def behaviour_cloning(run: Path, hp: DAggerArgs, budget: int, obs_size: int) -> fast_ppo.BehaviourCloning | None:
+    """The fine-tuning's behaviour-cloning term on the imitation's data set (saved in the run's
+    checkpoints when imitation ended), or None without ``bc_coef``; a warning, and None, when that data
+    set is missing or broken (the fine-tuning then continues as PPO alone)."""
+    if hp.ppo is None or hp.bc_coef == 0:
+        return None
+    path = run / "checkpoints" / BC_DATASET
+    dataset = Dataset(hp.dataset_size, obs_size)
+    try:
+        dataset.load(load_tensors(path, "not a data set"), f"data set {str(path)!r}")
+    except (ValueError, FileNotFoundError) as exc:
+        warnings.warn(f"{exc if path.is_file() else f'no data set {str(path)!r}'}; the fine-tuning continues without "
+                      f"its behaviour-cloning term", RunWarning, stacklevel=2)
+        return None
+    imitation = hp.imitation_budget(budget)
+    return fast_ppo.BehaviourCloning(dataset.obs[:dataset.size].clone(), dataset.labels[:dataset.size].long(),
+                                     hp.bc_coef, hp.bc_half_life * (budget - imitation), imitation)
 
 
 class DAggerTrainer:
@@ -698,13 +737,18 @@ class DAggerTrainer:
 CONTENDED_SHARE = 0.5
 #: The registry's trainers: ``dagger_agents`` (DAgger alone), ``dagger_ppo_agents`` (then PPO),
 #: ``dagger_response_agents`` (DAgger on each agent's best response to the others' requests) and
-#: ``dagger_contended_agents`` (DAgger with the contended states oversampled).
+#: ``dagger_contended_agents`` (DAgger with the contended states oversampled) and ``dagger_dapg_agents``
+#: (``dagger_ppo_agents`` with a decaying behaviour-cloning term in the fine-tuning).
 IMITATION = DAggerTrainer(fine_tune=False)
 IMITATION_THEN_PPO = DAggerTrainer(fine_tune=True)
 RESPONSE_IMITATION = DAggerTrainer(fine_tune=False, defaults={"labels": "response"})
 CONTENDED_IMITATION = DAggerTrainer(fine_tune=False, defaults={"contended_share": CONTENDED_SHARE})
+#: ``dagger_dapg_agents``' behaviour-cloning term: half PPO's weight at first, halving every fifth of the
+#: fine-tuning (a 30th of it at the end; settings to tune on validation episodes, as every other).
+DAPG_SETTINGS = {"bc_coef": 0.5, "bc_half_life": 0.2}
+IMITATION_THEN_DAPG = DAggerTrainer(fine_tune=True, defaults=DAPG_SETTINGS)
 
-__all__ = ["CONTENDED_IMITATION", "CONTENDED_SHARE", "DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_PPO", "LABELS",
+__all__ = ["BC_DATASET", "CONTENDED_IMITATION", "CONTENDED_SHARE", "DAPG_SETTINGS", "DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_DAPG", "IMITATION_THEN_PPO", "LABELS",
            "RESPONSE_IMITATION", "Dataset", "Episodes",
            "Labeller", "MinibatchDraw", "Rollout", "collect", "learn",
            "load_checkpoint", "new_state", "summary", "train", "update"]

@@ -249,12 +249,12 @@ def load_checkpoint(path: str | Path, hp: PPOArgs) -> TrainingState:
 
 # ---- the trainer --------------------------------------------------------------------------------
 def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: PPOArgs,
-          progress: TrainingProgress, interval: int, on_samples=None) -> None:
+          progress: TrainingProgress, interval: int, on_samples=None, bc: BehaviourCloning | None = None) -> None:
     """Train ``state`` on ``env`` (a native SB3-style VecEnv of the package) until ``budget``
-    samples, discounting by ``gamma``: rollouts, GAE, clipped-loss updates; after every update a
-    metrics row with its diagnostics (and the best model, the policy that collected the rollout, when
-    the 100-episode training return improved), a checkpoint after the update of every rollout that
-    crosses ``interval`` samples since the last one."""
+    samples, discounting by ``gamma``: rollouts, GAE, clipped-loss updates (with ``bc``'s term at its
+    weight for the update's samples); after every update a metrics row with its diagnostics (and the
+    best model, the policy that collected the rollout, when the 100-episode training return improved),
+    a checkpoint after the update of every rollout that crosses ``interval`` samples since the last one."""
     model, optimizer, generator = state.model, state.optimizer, state.generator
     slots, n_steps = env.num_envs, hp.n_steps
     obs_size, n_actions = model.observation_size, model.n_actions
@@ -330,7 +330,8 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
                 group["lr"] = hp.learning_rate * max(1.0 - (steps - slots * n_steps) / budget, 0.0)
         diagnostics = update(model, optimizer, hp, generator, obs_buf.view(-1, obs_size), act_buf.view(-1),
                              logp_buf.view(-1), adv_buf.view(-1), ret_buf.view(-1),
-                             mask_buf.view(-1, n_actions) if mask_buf is not None else None, nets=nets)
+                             mask_buf.view(-1, n_actions) if mask_buf is not None else None, nets=nets, bc=bc,
+                             bc_weight=0.0 if bc is None else bc.weight_at(steps - slots * n_steps))
         diagnostics["explained_variance"] = explained_variance(val_buf.view(-1), ret_buf.view(-1))
         wall = round(wall0 + time.perf_counter() - t0, 2)
         log_rollout(run, progress, steps, wall, saved_best, diagnostics)
@@ -370,12 +371,42 @@ def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float:
     return float("nan") if var == 0 else 1.0 - float((returns - values).var()) / var
 
 
+@dataclass(frozen=True)
+class BehaviourCloning:
+    """A decaying behaviour-cloning term beside PPO's loss (DAPG's augmented loss, Rajeswaran et al.,
+    2018): ``weight`` × the cross-entropy of the policy's logits against ``labels`` on a minibatch of
+    ``obs`` as large as PPO's, drawn (with replacement, from the run's generator) beside each of its
+    minibatches. The weight is ``coef`` × 0.5^(PPO samples since ``start_timesteps`` / ``half_life``)."""
+
+    obs: torch.Tensor  # [N, F] the demonstrations' observations
+    labels: torch.Tensor  # [N] long: the demonstrated actions
+    coef: float
+    half_life: float  # samples after which the weight has halved
+    start_timesteps: int  # the run's samples when PPO began
+
+    def weight_at(self, timesteps: int) -> float:
+        return self.coef * 0.5 ** (max(timesteps - self.start_timesteps, 0) / self.half_life)
+
+
+def behaviour_cloning_gradients(logits: torch.Tensor, labels: torch.Tensor, weight: float) -> torch.Tensor:
+    """d/dz of ``weight`` × mean cross-entropy(z, labels) over the B rows of ``logits`` z [B, A]:
+    weight / B × (softmax(z) − onehot(labels))."""
+    g = torch.softmax(logits, -1).mul_(weight / logits.shape[0])
+    g.scatter_add_(-1, labels[:, None], torch.full((logits.shape[0], 1), -weight / logits.shape[0]))
+    return g
+
+
 def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, old_logp, advantages, returns,
-           masks=None, nets: MLPGradients | None = None) -> dict[str, float]:
+           masks=None, nets: MLPGradients | None = None, bc: BehaviourCloning | None = None,
+           bc_weight: float = 0.0) -> dict[str, float]:
     """``hp.n_epochs`` passes over one rollout's samples (flattened) in shuffled minibatches of about
     ``hp.minibatch_size`` (the rollout split into equal parts): SB3's clipped surrogate + ``vf_coef`` ×
     value MSE − ``ent_coef`` × entropy, advantages normalised per minibatch, gradient norm clipped, one
     Adam step per minibatch.
+
+    With ``bc`` and a ``bc_weight`` > 0, each minibatch's step also descends ``bc_weight`` × the
+    cross-entropy on as many of ``bc``'s samples (one forward and backward of both together; the value
+    network gets no gradient from them); the gradient clip covers the sum.
 
     Returns the update's diagnostics, as SB3 logs them (means over its minibatches): the policy's
     ``entropy`` (nats), ``approx_kl`` (the estimator E[(r - 1) - log r] of the ratio r) and the
@@ -390,7 +421,13 @@ def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, 
     for _ in range(hp.n_epochs):
         order = torch.randperm(total, generator=generator)
         for idx in torch.tensor_split(order, minibatches):
-            logits, values = nets.forward(obs.index_select(0, idx))
+            batch = obs.index_select(0, idx)
+            if bc_weight > 0:
+                cloned = torch.randint(bc.labels.shape[0], (len(idx),), generator=generator)
+                logits, values = nets.forward(torch.cat([batch, bc.obs.index_select(0, cloned)]))
+                bc_logits, logits, values = logits[len(idx):], logits[:len(idx)], values[:len(idx)]
+            else:
+                logits, values = nets.forward(batch)
             adv = advantages.index_select(0, idx)
             if hp.normalize_advantage and len(idx) > 1:
                 adv = (adv - adv.mean()) / (adv.std() + 1e-8)
@@ -398,6 +435,9 @@ def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, 
                 logits, values, actions.index_select(0, idx), old_logp.index_select(0, idx), adv,
                 returns.index_select(0, idx), hp.clip_range, hp.vf_coef, hp.ent_coef,
                 None if masks is None else masks.index_select(0, idx))
+            if bc_weight > 0:
+                g_bc = behaviour_cloning_gradients(bc_logits, bc.labels.index_select(0, cloned), bc_weight)
+                g_logits, g_values = torch.cat([g_logits, g_bc]), torch.cat([g_values, g_values.new_zeros(len(idx))])
             nets.backward(g_logits, g_values)
             nets.clip_grad_norm_(hp.max_grad_norm)
             optimizer.step()
@@ -492,6 +532,6 @@ class PPOTrainer:
 #: The registry's native PPO (``fast_ppo``, ``fast_shared_ppo``).
 TRAINER = PPOTrainer()
 
-__all__ = ["PPOArgs", "PPOTrainer", "TRAINER", "TrainingState", "batch_memory", "coerce_setting", "compute_gae",
-           "explained_variance", "learn",
+__all__ = ["BehaviourCloning", "PPOArgs", "PPOTrainer", "TRAINER", "TrainingState", "batch_memory",
+           "behaviour_cloning_gradients", "coerce_setting", "compute_gae", "explained_variance", "learn",
            "load_checkpoint", "log_rollout", "new_state", "save_final", "save_if_best", "state_from_model", "update"]

@@ -20,7 +20,7 @@ def test_registry_entries_load_their_classes_and_views():
 
     classes = {"ppo": PPO, "trpo": TRPO, "dqn": DQN, "maskable_ppo": MaskablePPO, "shared_ppo": PPO}
     native = ("fast_ppo", "fast_shared_ppo", "dagger_agents", "dagger_ppo_agents", "dagger_response_agents",
-              "dagger_contended_agents")
+              "dagger_contended_agents", "dagger_dapg_agents")
     assert set(ALGORITHMS) == set(classes) | set(native)
     for name, cls in classes.items():
         assert get_algorithm(name).load_class() is cls
@@ -34,10 +34,12 @@ def test_registry_entries_load_their_classes_and_views():
 
     trainers = [get_algorithm(a).trainer() for a in native]
     assert trainers == [fast_ppo.TRAINER, fast_ppo.TRAINER, dagger.IMITATION, dagger.IMITATION_THEN_PPO,
-                        dagger.RESPONSE_IMITATION, dagger.CONTENDED_IMITATION]
+                        dagger.RESPONSE_IMITATION, dagger.CONTENDED_IMITATION, dagger.IMITATION_THEN_DAPG]
     assert not dagger.IMITATION.fine_tune and dagger.IMITATION_THEN_PPO.fine_tune
-    assert [t.settings({}).labels for t in trainers[2:]] == ["planner", "planner", "response", "planner"]
-    assert [t.settings({}).contended_share for t in trainers[2:]] == [0.0, 0.0, 0.0, dagger.CONTENDED_SHARE]
+    assert [t.settings({}).labels for t in trainers[2:]] == ["planner", "planner", "response", "planner", "planner"]
+    assert [t.settings({}).contended_share for t in trainers[2:]] == [0.0, 0.0, 0.0, dagger.CONTENDED_SHARE, 0.0]
+    assert [t.settings({}).bc_coef for t in trainers[3::3]] == [0.0, dagger.DAPG_SETTINGS["bc_coef"]]
+    assert dagger.IMITATION_THEN_DAPG.fine_tune and dagger.IMITATION_THEN_DAPG.settings({}).ppo is not None
     assert dagger.CONTENDED_IMITATION.settings({"contended_share": 0.25}).contended_share == 0.25  # --hp wins
     with pytest.raises(ValueError, match="not trained by a native trainer"):
         get_algorithm("ppo").trainer()

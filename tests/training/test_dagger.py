@@ -1,4 +1,4 @@
-"""Imitation of the rollout planner (dagger_agents, dagger_ppo_agents): the labels are planner_agents'
+"""Imitation of the rollout planner (dagger_agents, dagger_ppo_agents and their variants): the labels are planner_agents'
 decisions in the learner's states, seen through an independent single environment; imitation beats a
 random policy clearly within a small budget; the CLI trains, resumes after kill -9 and evaluates; the
 fine-tuning phase continues the same run; bad settings are refused before anything is written."""
@@ -183,6 +183,42 @@ def test_fine_tuning_continues_the_imitated_policy_in_the_same_run(tmp_path):
     assert json.loads((own / "evaluation_best.json").read_text())["policy"].startswith("dagger_ppo_agents_individual[s1,")
 
 
+def test_dapg_fine_tuning_clones_the_imitation_s_data_set_and_resumes_with_it(tmp_path):
+    """dagger_dapg_agents: at the switch the imitation's data set is saved for the fine-tuning's
+    behaviour-cloning term (the samples DAgger aggregated, as labelled), which changes the fine-tuned
+    policy (the same seed without it ends elsewhere); a resumed fine-tuning reloads it, and without
+    it continues as PPO alone, saying so."""
+    import shutil
+    import warnings
+
+    from containergym_marl.rundir import RunWarning
+    from containergym_marl.training.dagger import BC_DATASET
+
+    hp = {"n_steps": 16, "minibatch_size": 64, "imitation_share": 0.5, "ppo_n_steps": 16, "ppo_minibatch_size": 64}
+    args = dict(timesteps=4000, checkpoint_every=400, **{**TINY, "hyperparams": hp})
+    run = train(TrainArgs(algo="dagger_dapg_agents", out=str(tmp_path / "r"), **args))
+    saved = torch.load(run / "checkpoints" / BC_DATASET, weights_only=True)
+    assert saved["labels"].shape[0] == 2080 and saved["obs"].shape == (2080, 12 + 2 + 5)
+    assert 0 < int(saved["labels"].sum()) < 2080  # both actions demonstrated
+    plain = train(TrainArgs(algo="dagger_ppo_agents", out=str(tmp_path / "p"), **args))
+    assert not (plain / "checkpoints" / BC_DATASET).exists()
+    dapg, ppo = (ActorCritic.load(r / "final_model.pt").net.state_dict() for r in (run, plain))
+    assert not all(torch.equal(dapg[k], ppo[k]) for k in dapg)
+    for keep in (True, False):
+        resumed = tmp_path / f"resumed_{keep}"
+        shutil.copytree(run, resumed)
+        (resumed / "final_model.pt").unlink()
+        if not keep:
+            (resumed / "checkpoints" / BC_DATASET).unlink()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            train(TrainArgs(algo="dagger_dapg_agents", out=str(resumed), resume=True, **args))
+        said = [str(w.message) for w in caught if issubclass(w.category, RunWarning) and "behaviour-cloning" in str(w.message)]
+        assert (resumed / "final_model.pt").is_file() and len(said) == (0 if keep else 1), said
+        if not keep:
+            assert BC_DATASET in said[0] and "continues without its behaviour-cloning term" in said[0]
+
+
 def test_the_reward_mode_defaults_to_the_algorithms_first():
     """Without --reward-mode, dagger_ppo_agents fine-tunes on the plant's reward and the other
     decentralised algorithms on each container's own; an explicit mode is kept."""
@@ -255,6 +291,9 @@ def test_a_saved_data_set_keeps_its_contended_flags_and_an_older_one_loads_with_
     ("dagger_ppo_agents", {"imitation_share": 1.0}, "imitation_share"),
     ("dagger_response_agents", {"labels": "oracle"}, "labels"),
     ("dagger_contended_agents", {"contended_share": 1.0}, "contended_share"),  # none drawn uniformly: no DAgger
+    ("dagger_agents", {"bc_coef": 0.5}, "bc_coef"),  # no fine-tuning to clone in
+    ("dagger_dapg_agents", {"bc_coef": -1}, "bc_coef"),
+    ("dagger_dapg_agents", {"bc_half_life": 0}, "bc_half_life"),
     ("dagger_agents", {"contended_share": -0.1}, "contended_share"),
     ("dagger_ppo_agents", {"ppo_clip_range": 0}, "ppo_clip_range"),
     ("dagger_ppo_agents", {"ppo_hidden": "32,32"}, "ppo_hidden"),

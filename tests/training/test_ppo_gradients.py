@@ -132,3 +132,62 @@ def test_flat_adam_steps_as_torch_adam_and_reads_its_state():
         torch.testing.assert_close(b, c, rtol=1e-6, atol=1e-7)
     with pytest.raises(ValueError, match="moments"):
         FlatAdam(ActorCritic("decentralised", 6, 2, (4,)).net.parameters(), 1e-3, 1e-5).load_state_dict(ours.state_dict())
+
+
+def test_behaviour_cloning_gradients_equal_autograds():
+    """DAPG's term (dagger_dapg_agents' fine-tuning): weight × mean cross-entropy, through autograd."""
+    from containergym_marl.training.fast_ppo import behaviour_cloning_gradients
+
+    gen = torch.Generator().manual_seed(3)
+    logits, labels = torch.randn(50, 2, generator=gen) * 3, torch.randint(2, (50,), generator=gen)
+    z = logits.clone().requires_grad_()
+    (want,) = torch.autograd.grad(0.7 * torch.nn.functional.cross_entropy(z, labels), z)
+    torch.testing.assert_close(behaviour_cloning_gradients(logits, labels, 0.7), want, rtol=1e-6, atol=1e-8)
+
+
+def test_one_update_with_the_behaviour_cloning_term_follows_the_summed_loss():
+    """One PPO update (one epoch, one minibatch) with DAPG's term at weight 0.8: the gradient it steps
+    on is autograd's of PPO's loss on the rollout plus 0.8 × the cross-entropy on the demonstrations it
+    drew (the run's generator: the minibatch order, then the demonstrations), the value network's
+    gradient PPO's alone. At weight 0 the update is PPO's, bit for bit, and draws nothing more."""
+    from containergym_marl.training import fast_ppo
+
+    gen = torch.Generator().manual_seed(11)
+    model = ActorCritic("decentralised", 6, 2, generator=gen)
+    b = 64
+    obs, actions = torch.randn(b, 6, generator=gen), torch.randint(2, (b,), generator=gen)
+    with torch.no_grad():
+        old_logp = torch.log_softmax(model.logits(obs), -1).gather(-1, actions[:, None]).squeeze(-1)
+    adv, returns = torch.randn(b, generator=gen), torch.randn(b, generator=gen)
+    demo = fast_ppo.BehaviourCloning(torch.randn(40, 6, generator=gen), torch.randint(2, (40,), generator=gen),
+                                     coef=0.8, half_life=1000.0, start_timesteps=0)
+    hp = fast_ppo.PPOArgs(n_epochs=1, minibatch_size=b, max_grad_norm=1e9)
+
+    class Recorder:  # an optimiser that keeps the gradient it is asked to step on
+        param_groups = [{"lr": 0.0}]
+
+        def step(self):
+            self.grads = [p.grad.clone() for p in model.net.parameters()]
+
+    draws = torch.Generator().manual_seed(5)
+    recorder = Recorder()
+    fast_ppo.update(model, recorder, hp, draws, obs, actions, old_logp, adv, returns, bc=demo, bc_weight=0.8)
+    replay = torch.Generator().manual_seed(5)
+    order = torch.randperm(b, generator=replay)
+    cloned = torch.randint(40, (b,), generator=replay)
+    norm_adv = (adv[order] - adv[order].mean()) / (adv[order].std() + 1e-8)
+    ppo, *_ = _autograd_loss(model.logits(obs[order]), model.value(obs[order]), actions[order], old_logp[order],
+                             norm_adv, returns[order], hp.clip_range, hp.vf_coef, hp.ent_coef, None)
+    bc = torch.nn.functional.cross_entropy(model.logits(demo.obs[cloned]), demo.labels[cloned])
+    want = torch.autograd.grad(ppo + 0.8 * bc, list(model.net.parameters()))
+    for got, expected in zip(recorder.grads, want):
+        torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-6)
+    assert any(float(g.abs().max()) > 1e-3 for g in want)
+    # at weight 0: PPO's gradient, and the generator where PPO alone leaves it
+    alone, with_zero = Recorder(), Recorder()
+    g1, g2 = torch.Generator().manual_seed(5), torch.Generator().manual_seed(5)
+    fast_ppo.update(model, alone, hp, g1, obs, actions, old_logp, adv, returns)
+    fast_ppo.update(model, with_zero, hp, g2, obs, actions, old_logp, adv, returns, bc=demo, bc_weight=0.0)
+    assert all(torch.equal(a, z) for a, z in zip(alone.grads, with_zero.grads))
+    assert torch.equal(g1.get_state(), g2.get_state())
+    assert demo.weight_at(0) == 0.8 and demo.weight_at(2000) == pytest.approx(0.2)
