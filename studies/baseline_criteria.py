@@ -1,0 +1,131 @@
+"""The package's own PPO against Stable-Baselines3's, criterion by criterion, from a published folder.
+
+    python studies/baseline_criteria.py                        # results/paper_rows -> results/baseline_criteria
+    python studies/baseline_criteria.py --results DIR --out DIR
+
+Reads what ``containergym-marl publish`` wrote: ``table.json`` (each (row, method)'s IQM of the
+per-seed mean returns, on the paper's test protocol and on the fresh episodes) and
+``fresh/<row>/<method>_s<seed>.json`` (each seed's fresh episodes), and reports, for every method
+with an SB3 twin in the registry (``fast_ppo`` and ``ppo``, ``fast_shared_ppo`` and
+``shared_ppo``, ``fast_shared_ppo_team`` and ``shared_ppo_team``):
+
+1. on every row, both IQMs on both episode sets, and whether the package's is at least its twin's;
+2. on every row, how many of its seeds overflow in a larger share of their fresh episodes than
+   ``rule_based_agents`` does on the same episodes.
+
+A report, not a gate: it exits 0 whatever it finds (its tests check what it counts).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+REFERENCE = "rule_based_agents"
+
+
+def twins() -> dict[str, str]:
+    """Each package PPO method and its SB3 twin, from the method registry."""
+    from containergym_marl.methods import METHODS
+
+    return {name: m.twin for name, m in METHODS.items() if m.twin}
+
+
+def overflow_rate(path: Path) -> float:
+    episodes = json.loads(path.read_text())["episodes"]
+    return sum(bool(e["overflow"]) for e in episodes) / len(episodes)
+
+
+def seed_overflow_rates(fresh: Path, row: str, method: str) -> dict[int, float]:
+    """Each seed's fresh-episode overflow rate, from ``fresh/<row>/<method>_s<seed>.json``."""
+    pattern = re.compile(rf"^{re.escape(method)}_s(\d+)\.json$")
+    found = {int(m.group(1)): p for p in (fresh / row).glob("*.json") if (m := pattern.match(p.name))}
+    return {seed: overflow_rate(found[seed]) for seed in sorted(found)}
+
+
+def criteria(results: Path) -> dict:
+    """Both criteria for every (row, package method) the folder holds with its twin."""
+    table = json.loads((results / "table.json").read_text())
+    rows = {(r["config"], r["method"]): r for r in table["rows"]}
+    pairs, overflows = [], []
+    for row in dict.fromkeys(r["config"] for r in table["rows"]):
+        reference = results / "fresh" / row / f"{REFERENCE}.json"
+        for native, twin in twins().items():
+            ours, theirs = rows.get((row, native)), rows.get((row, twin))
+            if ours is not None and theirs is not None:
+                pairs.append({"row": row, "method": native, "twin": twin,
+                              "seeds": ours["seeds"], "twin_seeds": theirs["seeds"],
+                              **{f"{key}": ours[key] for key in ("iqm", "fresh_iqm")},
+                              **{f"twin_{key}": theirs[key] for key in ("iqm", "fresh_iqm")},
+                              "at_least_test": ours["iqm"] >= theirs["iqm"],
+                              "at_least_fresh": (ours["fresh_iqm"] is not None and theirs["fresh_iqm"] is not None
+                                                 and ours["fresh_iqm"] >= theirs["fresh_iqm"])})
+            if ours is not None and reference.is_file():
+                rates = seed_overflow_rates(results / "fresh", row, native)
+                limit = overflow_rate(reference)
+                overflows.append({"row": row, "method": native, "reference_rate": limit, "seeds": len(rates),
+                                  "above": [seed for seed, rate in rates.items() if rate > limit]})
+    shown = results.resolve()
+    shown = shown.relative_to(REPO) if shown.is_relative_to(REPO) else shown  # a committed report names no machine
+    return {"results": str(shown), "pairs": pairs, "overflows": overflows}
+
+
+def _value(x) -> str:
+    return "–" if x is None else f"{x:.2f}"
+
+
+def report(found: dict) -> str:
+    pairs, overflows = found["pairs"], found["overflows"]
+    both = sum(p["at_least_test"] and p["at_least_fresh"] for p in pairs)
+    lines = ["# The package's PPO against SB3's", "",
+             f"`python studies/baseline_criteria.py --results {found['results']}`. IQM of the per-seed mean returns "
+             "on the paper's test protocol (δ = 120 s, T = 600, 15 episodes) and on the fresh episodes; a pair holds "
+             "where the package's IQM is at least its SB3 twin's on both.", "",
+             f"**{both} of {len(pairs)} pairs hold on both episode sets** "
+             f"({sum(p['at_least_test'] for p in pairs)} on the test episodes, "
+             f"{sum(p['at_least_fresh'] for p in pairs)} on the fresh ones).", "",
+             "| row | method (seeds) | IQM, test | twin (seeds) | twin IQM, test | IQM, fresh | twin IQM, fresh | holds |",
+             "|---|---|---|---|---|---|---|---|"]
+    for p in pairs:
+        holds = "yes" if p["at_least_test"] and p["at_least_fresh"] else (
+            "test only" if p["at_least_test"] else "fresh only" if p["at_least_fresh"] else "no")
+        lines.append(f"| {p['row']} | {p['method']} ({p['seeds']}) | {_value(p['iqm'])} | {p['twin']} "
+                     f"({p['twin_seeds']}) | {_value(p['twin_iqm'])} | {_value(p['fresh_iqm'])} | "
+                     f"{_value(p['twin_fresh_iqm'])} | {holds} |")
+    worst = [o for o in overflows if len(o["above"]) > 2]
+    lines += ["", f"Seeds that overflow in a larger share of their fresh episodes than `{REFERENCE}` on the same "
+              f"episodes: **{len(worst)} of {len(overflows)} (row, method) have more than 2**.", "",
+              f"| row | method | `{REFERENCE}`'s rate | seeds above it |", "|---|---|---|---|"]
+    for o in overflows:
+        above = ", ".join(f"s{s}" for s in o["above"]) or "none"
+        lines.append(f"| {o['row']} | {o['method']} | {o['reference_rate']:.3f} | {len(o['above'])} of "
+                     f"{o['seeds']}: {above} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--results", type=Path, default=REPO / "results" / "paper_rows",
+                        help="a folder written by containergym-marl publish")
+    parser.add_argument("--out", type=Path, default=REPO / "results" / "baseline_criteria",
+                        help="where criteria.md and criteria.json go")
+    args = parser.parse_args(argv)
+    if not (args.results / "table.json").is_file():
+        parser.error(f"--results: {str(args.results)!r} holds no table.json (a folder written by publish)")
+    from containergym_marl.files import atomic_write_text
+
+    found = criteria(args.results)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "criteria.json", json.dumps(found, indent=1))
+    text = report(found)
+    atomic_write_text(out / "criteria.md", text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,64 @@
+"""studies/baseline_criteria.py on a hand-made published folder: each pair is judged on both episode
+sets as the numbers say, the seeds counted above the rule's overflow rate are those whose fresh files
+overflow more often, and another method's files (fast_shared_ppo_team beside fast_shared_ppo) are not
+read as its seeds. On the committed results: every row's three pairs and three seed counts."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+SCRIPT = str(REPO / "studies" / "baseline_criteria.py")
+
+
+def _row(method: str, iqm: float, fresh_iqm: float, seeds: int = 15) -> dict:
+    return {"config": "n5_m2_dt60", "method": method, "seeds": seeds, "iqm": iqm, "fresh_iqm": fresh_iqm}
+
+
+def _fresh(path: Path, overflows: int, episodes: int = 20) -> None:
+    path.write_text(json.dumps({"episodes": [{"seed": 30000 + k, "overflow": k < overflows} for k in range(episodes)]}))
+
+
+def test_pairs_and_overflowing_seeds_are_counted_from_the_files(tmp_path):
+    results = tmp_path / "published"
+    fresh = results / "fresh" / "n5_m2_dt60"
+    fresh.mkdir(parents=True)
+    rows = [_row("fast_ppo", 50.0, 49.0), _row("ppo", 40.0, 49.5, 5),  # test yes, fresh no
+            _row("fast_shared_ppo", 30.0, 30.0), _row("shared_ppo", 30.0, 29.0, 5),  # equal counts as at least
+            _row("fast_shared_ppo_team", 20.0, 20.0), _row("shared_ppo_team", 25.0, 26.0, 5),
+            _row("rule_based_agents", 59.0, 59.0, 0)]
+    (results / "table.json").write_text(json.dumps({"rows": rows}))
+    _fresh(fresh / "rule_based_agents.json", 1)  # 1 of 20: 0.05
+    for seed, overflows in ((1, 0), (2, 1), (3, 2), (4, 5)):  # s3 and s4 above 0.05
+        _fresh(fresh / f"fast_shared_ppo_s{seed}.json", overflows)
+    _fresh(fresh / "fast_shared_ppo_team_s1.json", 20)  # another method's seed
+    _fresh(fresh / "fast_ppo_s1.json", 0)
+    done = subprocess.run([sys.executable, SCRIPT, "--results", str(results), "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    found = json.loads((tmp_path / "out" / "criteria.json").read_text())
+    judged = {p["method"]: (p["at_least_test"], p["at_least_fresh"]) for p in found["pairs"]}
+    assert judged == {"fast_ppo": (True, False), "fast_shared_ppo": (True, True), "fast_shared_ppo_team": (False, False)}
+    counted = {o["method"]: (o["seeds"], o["above"]) for o in found["overflows"]}
+    assert counted == {"fast_ppo": (1, []), "fast_shared_ppo": (4, [3, 4]), "fast_shared_ppo_team": (1, [1])}
+    text = (tmp_path / "out" / "criteria.md").read_text()
+    assert "**1 of 3 pairs hold on both episode sets** (2 on the test episodes, 1 on the fresh ones)" in text
+    assert "| n5_m2_dt60 | fast_shared_ppo | 0.050 | 2 of 4: s3, s4 |" in text
+    assert "**0 of 3 (row, method) have more than 2**" in text
+
+
+def test_the_committed_results_have_every_pair_on_every_row(tmp_path):
+    done = subprocess.run([sys.executable, SCRIPT, "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    found = json.loads((tmp_path / "criteria.json").read_text())
+    assert len(found["pairs"]) == 27 and len(found["overflows"]) == 27
+    assert all(o["seeds"] == 15 for o in found["overflows"])
+
+
+def test_a_folder_without_a_table_is_refused(tmp_path):
+    done = subprocess.run([sys.executable, SCRIPT, "--results", str(tmp_path), "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0 and "holds no table.json" in done.stderr and not (tmp_path / "out").exists()
