@@ -33,7 +33,9 @@ class EvaluateArgs:
     target: str = option(flag="target", help=f"a run directory or one of {', '.join(CONTROLLERS)}")
     config: str | None = option(None, help="plant (default: the run's own, or n5_m2_dt120)")
     episodes: int = option(15, type=positive_int, help="test episodes (default: the paper's 15, seeds 10000 on)")
-    model: str = option("best", choices=("best", "final"), help="a run's model to evaluate")
+    model: str = option("best", choices=("best", "final", "validated"),
+                        help="a run's model to evaluate: by training return, at the end, or by validation return "
+                             "(picked by its sample-efficiency curve)")
     arbitration: str | None = option(None, choices=tuple(ARBITRATION_RULES),
                                      help="how free PUs are shared among a decentralised policy's requests (default: "
                                           "the run's, or fullest)")

@@ -13,6 +13,10 @@ from containergym_marl.rundir import read_run_summary, run_args, RunWarning
 from containergym_marl.models import load_model
 
 
+#: A run's models: by training return, at the end, by validation return (its curve's pick).
+MODELS = ("best", "final", "validated")
+
+
 def evaluated_files(run: str | Path) -> tuple[str, ...]:
     """The files of a finished run that its evaluation reads (``policy_from_run(run, "best")``):
     ``args.json`` and the best model, or, when no training episode finished (so no best model),
@@ -32,7 +36,8 @@ def evaluated_model(files: dict[str, bytes]) -> bytes:
 
 
 def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = True):
-    """The evaluation policy of a run directory (``which`` = "best" or "final"): the model file and
+    """The evaluation policy of a run directory (``which`` = "best", "final", or "validated": the
+    policy its curve picked on validation episodes, :mod:`~containergym_marl.evaluation.curves`): the model file and
     the policy adapter its algorithm's registry entry names (``best_model.zip`` and an SB3 adapter,
     or ``best_model.pt`` and :class:`~containergym_marl.policies.shared_actor.SharedActorPolicy`
     for a MAPPO run of ``baselines/train_mappo.py``).
@@ -40,12 +45,15 @@ def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = 
     A run in which no training episode finished has no best model (its run.json says so): asking
     for "best" then gives the final model, named so, with a :class:`RunWarning`.
     """
-    if which not in ("best", "final"):
-        raise ValueError(f"which: expected 'best' or 'final', got {which!r}")
+    if which not in MODELS:
+        raise ValueError(f"which: expected one of {MODELS}, got {which!r}")
     run = Path(run)
     saved = run_args(run)
     spec = get_algorithm(saved["algo"])
     path, label = run / spec.model_file(which), which
+    if which == "validated" and not path.is_file():
+        raise ValueError(f"{str(run)!r} has no {path.name}: the run's sample-efficiency curve picks it "
+                         f"(compare --curves)")
     if which == "best" and not path.is_file():
         summary = read_run_summary(run)
         if summary is not None and summary.get("best_model") is None:

@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.batched import evaluate_batched
@@ -28,6 +29,63 @@ def test_a_runs_curve_evaluates_each_checkpoint_and_the_final_model(tmp_path):
     assert read_curve(run) == json.loads(json.dumps(curve)) and curve["protocol"]["first_seed"] == 20_000
     final = evaluate_batched(policy_from_run(run, "final"), "n5_m2_dt120", SHORT).summary()
     assert curve["points"][-1]["return_mean"] == pytest.approx(final["return_mean"])
+
+
+@pytest.mark.parametrize("algo, hp", [("fast_shared_ppo", {"n_steps": 16, "minibatch_size": 80}),
+                                      ("shared_ppo", {"n_steps": 16, "batch_size": 80})])
+def test_the_curve_picks_the_validated_model_of_the_highest_validation_return(tmp_path, algo, hp):
+    """The validated model is the policy of the curve's highest return (the earliest of equals), copied
+    from its checkpoint (a native one: the model alone, tensors only; an SB3 one: the file) or the final
+    model; evaluated anew it scores that return, and curve.json names it with its hash. (Seed 2 picks a
+    checkpoint of the native run and the end of the SB3 run; a hand-made curve picks the other.)"""
+    import hashlib
+    import io
+
+    from containergym_marl.evaluation.curves import validated_point, write_validated_model
+
+    run = train(TrainArgs(algo=algo, out=str(tmp_path / "r"), timesteps=4000, n_envs=2, seed=2,
+                          checkpoint_every=800, progress_bar=False, hyperparams=hp,
+                          overrides={"episode_length_steps": 20}))
+    curve = run_curve(run, SHORT)
+    point = validated_point(curve)
+    returns = [p["return_mean"] for p in curve["points"]]
+    assert point["return_mean"] == max(returns) and point is curve["points"][returns.index(max(returns))]
+    suffix = ".pt" if algo.startswith("fast") else ".zip"
+    data = validated_bytes = (run / f"validated_model{suffix}").read_bytes()
+    assert curve["validated"] == {"samples": point["samples"], "return_mean": point["return_mean"],
+                                  "model_sha256": hashlib.sha256(data).hexdigest()} == read_curve(run)["validated"]
+    again = evaluate_batched(policy_from_run(run, "validated"), "n5_m2_dt120", SHORT).summary()
+    assert again["return_mean"] == pytest.approx(point["return_mean"])
+    # the other kind of source than this seed's pick: a checkpoint for SB3 (its file), the end for native
+    steps = [s for s, _ in checkpoints(run)]
+    other = steps[1] if point["samples"] == curve["points"][-1]["samples"] else curve["points"][-1]["samples"]
+    picked = write_validated_model(run, {"points": [{"samples": other, "return_mean": 9.0},
+                                                    *({"samples": s, "return_mean": 0.0} for s in steps if s != other)]})
+    data = (run / f"validated_model{suffix}").read_bytes()
+    assert picked["validated"]["samples"] == other and picked["validated"]["model_sha256"] == hashlib.sha256(data).hexdigest()
+    for samples in (point["samples"], other):
+        path = dict(checkpoints(run)).get(samples)
+        if path is None:  # the run's end
+            continue
+        if suffix == ".zip":
+            assert path.read_bytes() == data
+        else:
+            saved = torch.load(path, weights_only=True)["model"]["state_dict"]
+            kept = torch.load(run / "validated_model.pt", weights_only=True) if samples == other else \
+                torch.load(io.BytesIO(validated_bytes), weights_only=True)
+            assert "optimizer" not in kept and all(torch.equal(kept["state_dict"][k], saved[k]) for k in saved)
+
+
+def test_validated_point_takes_the_earliest_of_equal_returns_and_a_run_without_one_says_so(tmp_path):
+    from containergym_marl.evaluation.curves import validated_point
+
+    curve = {"points": [{"samples": 300, "return_mean": 5.0}, {"samples": 100, "return_mean": 5.0},
+                        {"samples": 200, "return_mean": 4.0}]}
+    assert validated_point(curve)["samples"] == 100
+    run = train(TrainArgs(algo="fast_shared_ppo", out=str(tmp_path / "r"), timesteps=800, n_envs=2,
+                          progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 80}))
+    with pytest.raises(ValueError, match=r"has no validated_model\.pt: the run's sample-efficiency curve picks it"):
+        policy_from_run(run, "validated")
 
 
 def test_a_runs_curve_reads_one_checkpoint_per_tenth_of_the_budget(tmp_path):
