@@ -17,22 +17,35 @@ from containergym_marl.models import load_model
 MODELS = ("best", "final", "validated")
 
 
-def evaluated_files(run: str | Path) -> tuple[str, ...]:
-    """The files of a finished run that its evaluation reads (``policy_from_run(run, "best")``):
-    ``args.json`` and the best model, or, when no training episode finished (so no best model),
-    ``args.json``, ``run.json`` and the final model (file names from the algorithm's registry entry)."""
+def evaluated_which(run: str | Path) -> str:
+    """Which model of a finished run stands for its seed in every comparison, table and shipped file:
+    its validated model (the checkpoint of highest validation return, where its curve picked one),
+    else its best model (of highest training return), else ("best": no training episode finished)
+    its final model."""
     spec = get_algorithm(run_args(run)["algo"])
-    if (Path(run) / spec.model_file("best")).is_file():
-        return "args.json", spec.model_file("best")
+    return "validated" if (Path(run) / spec.model_file("validated")).is_file() else "best"
+
+
+def evaluated_files(run: str | Path) -> tuple[str, ...]:
+    """The files of a finished run that its evaluation reads (``policy_from_run(run,
+    evaluated_which(run))``): ``args.json`` and the validated or the best model, or, when no training
+    episode finished (so no best model), ``args.json``, ``run.json`` and the final model (file names
+    from the algorithm's registry entry)."""
+    spec = get_algorithm(run_args(run)["algo"])
+    for which in ("validated", "best"):
+        if (Path(run) / spec.model_file(which)).is_file():
+            return "args.json", spec.model_file(which)
     return "args.json", "run.json", spec.model_file("final")
 
 
 def evaluated_model(files: dict[str, bytes]) -> bytes:
     """The model among ``files`` (a run's files, e.g. :func:`evaluated_files`) that the evaluation
-    uses: the best model, else the final one."""
+    uses: the validated model, else the best, else the final one."""
     spec = get_algorithm(json.loads(files["args.json"])["algo"])
-    best = spec.model_file("best")
-    return files[best] if best in files else files[spec.model_file("final")]
+    for which in ("validated", "best"):
+        if spec.model_file(which) in files:
+            return files[spec.model_file(which)]
+    return files[spec.model_file("final")]
 
 
 def policy_from_run(run: str | Path, which: str = "best", deterministic: bool = True):

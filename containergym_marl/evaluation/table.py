@@ -434,7 +434,9 @@ def markdown(rows: Sequence[dict], imps: Sequence[dict], groups: Sequence[Method
     headers = ["config", "method", "view", "seeds", "best", "best, fresh", "median", "median, fresh", "IQM [95 % CI]",
                "IQM, fresh [95 % CI]", "overflow, fresh", *(m.label for m in shown), "samples"]
     lines = [
-        f"{reward_title(groups)}. Best / median: the best and the median policy "
+        f"{reward_title(groups)}. A seed's policy: its run's validated model (the checkpoint of highest "
+        "validation return) where its curve picked one, else its best model (of highest training return). "
+        "Best / median: the best and the median policy "
         f"over training seeds{_selection_text(groups)}, mean ± std over {_episode_kind(groups)} episodes."
         + _fresh_text(groups)
         + " IQM: interquartile mean "

@@ -95,7 +95,8 @@ def card(to: Path, method: str, config: str, view: str, which: str, seed: int, s
         "- settings: " + (f"`{json.dumps(settings, sort_keys=True)}` (the method's settings file, "
                           f"`configs/hyperparams/{method}.toml`, as it was then, and `--hp`)" if settings
                           else "the trainer's defaults"),
-        f"- picked: the {which} of {seeds} seeds by mean return on {picked}", "",
+        f"- picked: the {which} of {seeds} seeds by mean return on {picked}",
+        f"- model: {_model_rule(run)}", "",
         "## Use", "", "```python",
         "from containergym_marl.algorithms import get_algorithm",
         "from containergym_marl.evaluation import evaluate",
@@ -117,6 +118,18 @@ def card(to: Path, method: str, config: str, view: str, which: str, seed: int, s
         "another plant needs another model.",
         "- Greedy actions (the mode of the policy), as the test protocol evaluates it.", ""]
     return "\n".join(front + body)
+
+
+def _model_rule(run: Path) -> str:
+    """Which of the seed's models is shipped, and why (the one its evaluations evaluated)."""
+    from containergym_marl.evaluation.curves import read_curve
+    from containergym_marl.evaluation.run_policies import evaluated_which
+
+    if evaluated_which(run) == "validated":
+        curve = read_curve(run)
+        return (f"the run's validated model, its policy at {curve['validated']['samples']:,} samples, of the highest "
+                f"return on {curve['protocol']['episodes']} validation episodes among those its curve evaluated")
+    return "the run's best model, of the highest mean return over 100 training episodes"
 
 
 def write_card(to: Path, path: Path, **kwargs) -> Path:

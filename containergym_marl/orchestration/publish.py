@@ -6,15 +6,17 @@ evaluation, the best and median model of each (row, method), the table), and bri
 
 RUNS is compare's ``--runs`` folder, OUT its ``--out`` folder (MAPPO runs of
 ``baselines/sweep_mappo_rows.sh`` go to the same two). For every finished run (its final model) it
-copies ``args.json``, ``run.json``, ``config.toml``, ``metrics.csv``, the best model (the policy the
-evaluations use) and the final model (``best_model.zip``/``final_model.zip``, or ``.pt`` for MAPPO:
-the file names of the algorithm's registry entry) to ``<to>/runs/<run>/`` (~330 kB an SB3 run);
+copies ``args.json``, ``run.json``, ``config.toml``, ``metrics.csv``, ``curve.json``, the best, the
+final and, where its curve picked one, the validated model (``best_model.zip`` …, or ``.pt``: the file
+names of the algorithm's registry entry; the policy the evaluations use is the validated model, else
+the best, :func:`~containergym_marl.evaluation.run_policies.evaluated_which`) to ``<to>/runs/<run>/``
+(~330 kB an SB3 run);
 with ``--with-checkpoints``, every interrupted SB3 run too, with only its newest intact checkpoint,
 so that a later session on another machine resumes it (``--restore``; an interrupted MAPPO run,
 ~15 minutes of training, is not published). Every evaluation file of OUT goes to
 ``<to>/evaluations/<config>/``; for each (config, method) with at least ``--min-seeds`` evaluated
-seeds, every seed's policy is evaluated on 100 validation episodes (``<to>/validation/``), and the best
-model of its best and of its median seed by mean validation return (the table's rule) goes to
+seeds, every seed's policy is evaluated on 100 validation episodes (``<to>/validation/``), and the
+policy of its best and of its median seed by mean validation return (the table's rule) goes to
 ``<to>/models/<config>/<method>_{best,median}.zip`` (``.pt`` for MAPPO) with
 ``<method>.json`` naming the seeds and their returns (git stores each of these once: they are the
 runs' own files), each with a model card (``<method>_{best,median}.md``, Hugging Face's format) and,
@@ -109,7 +111,7 @@ def _copy_run(run: Path, to: Path) -> bool:
         finished = run_status(run) == "finished"
         if not finished and _trained_samples(run) < _trained_samples(dst):
             return False
-        for name in SMALL_FILES + (model_file(run, "best"), model_file(run, "final")):
+        for name in SMALL_FILES + tuple(model_file(run, which) for which in ("best", "final", "validated")):
             if (run / name).is_file():
                 _copy(run / name, dst / name, to)
         keep = set()
@@ -159,6 +161,8 @@ def republish(to: Path, min_seeds: int = 3, readme: Path | None = None, pages: t
     there, every policy on the fresh episodes, the table, its figures over seeds and rows
     (:func:`~containergym_marl.evaluation.aggregate_plots.draw_aggregate_figures`, in ``figures/``),
     the compute note, the manifest and the pages."""
+    from containergym_marl.evaluation.run_policies import evaluated_files
+
     refuse_links_in(to)
     done = {"models": [], "validation": evaluate_selection(to, min_seeds)}  # where best and median are picked
     to_card = []  # (card file, what it describes) of every shipped model
@@ -173,9 +177,7 @@ def republish(to: Path, min_seeds: int = 3, readme: Path | None = None, pages: t
         folder = to / "models" / group.config
         files, weights, cards = {}, {}, {}
         for which, i in picked.items():
-            model = runs_of[i] / model_file(runs_of[i], "best")
-            if not model.is_file():  # no training episode finished: the evaluation used the final model
-                model = runs_of[i] / model_file(runs_of[i], "final")
+            model = runs_of[i] / evaluated_files(runs_of[i])[-1]  # the model its evaluations evaluated
             files[which] = f"{group.method}_{which}{model.suffix}"
             _copy(model, folder / files[which], to)
             shipped = {"model": files[which]}
@@ -237,7 +239,12 @@ def _evaluate_into(to: Path, folder: str, protocol, min_seeds: int, runs_only: b
     from containergym_marl.core.params import PlantParams
     from containergym_marl.evaluation import evaluate
     from containergym_marl.evaluation.batched import evaluate_batched
-    from containergym_marl.evaluation.run_policies import evaluated_files, evaluated_model, policy_from_run
+    from containergym_marl.evaluation.run_policies import (
+        evaluated_files,
+        evaluated_model,
+        evaluated_which,
+        policy_from_run,
+    )
     from containergym_marl.manifest import sha256_bytes
     from containergym_marl.methods import CONTROLLERS
 
@@ -261,7 +268,7 @@ def _evaluate_into(to: Path, folder: str, protocol, min_seeds: int, runs_only: b
             torch.set_num_threads(1)  # small networks: one thread is fastest, and fair to a busy machine
             try:
                 saved = run_args(run)
-                result = evaluate_batched(policy_from_run(run), group.config, protocol,
+                result = evaluate_batched(policy_from_run(run, evaluated_which(run)), group.config, protocol,
                                           arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
             finally:
                 torch.set_num_threads(threads)

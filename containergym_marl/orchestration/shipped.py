@@ -13,7 +13,7 @@ import numpy as np
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write_text
 from containergym_marl.manifest import check as manifest_check
-from containergym_marl.manifest import read_manifest, sha256_bytes
+from containergym_marl.manifest import read_manifest
 from containergym_marl.methods import METHODS
 from containergym_marl.orchestration.compare_args import CompareArgs
 from containergym_marl.orchestration.plan import (
@@ -24,6 +24,7 @@ from containergym_marl.orchestration.plan import (
     eval_spec,
     evaluation_path,
     evaluation_fingerprint,
+    model_sha256,
     run_files,
 )
 from containergym_marl.rundir import checkpoints, finished_budget, model_file, run_name, seeded_runs
@@ -87,8 +88,8 @@ def shipped_plan(args: CompareArgs, out: Path) -> Plan:
                 files = run_files(run)
                 for file_name, data in files["files"].items():  # never a model changed after publication
                     manifest_check(folder, f"runs/{run.name}/{file_name}", data, manifest)
-                fingerprint = evaluation_fingerprint(args, config, method, run.name, sha256_bytes(files["files"][best_name]),
-                                           timesteps=trained)
+                fingerprint = evaluation_fingerprint(args, config, method, run.name, model_sha256(files),
+                                                     timesteps=trained)
                 published = cached_evaluation(evaluation_path(folder, config, tables.evaluation_key(name, seed)),
                                     fingerprint, protocol)
                 found.append((seed, files, fingerprint, published))

@@ -245,13 +245,13 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
         model_sha = None
         result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
     else:
-        from containergym_marl.evaluation.run_policies import evaluated_model, policy_from_run
+        from containergym_marl.evaluation.run_policies import evaluated_model, evaluated_which, policy_from_run
 
         files = run["files"]  # evaluation.run_policies.evaluated_files of the run
         model_sha = sha256_bytes(evaluated_model(files))
         with tempfile.TemporaryDirectory(prefix="cgm-eval-") as tmp:
-            write_files(tmp, {k: v for k, v in files.items()
-                              if k in ("args.json", "run.json") or k.startswith(("best_model.", "final_model."))})
-            policy = policy_from_run(tmp, "best")
+            write_files(tmp, {k: v for k, v in files.items() if k in ("args.json", "run.json")
+                              or k.startswith(("best_model.", "final_model.", "validated_model."))})
+            policy = policy_from_run(tmp, evaluated_which(tmp))
             result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
     return result, model_sha

@@ -56,6 +56,13 @@ def test_the_curve_picks_the_validated_model_of_the_highest_validation_return(tm
                                   "model_sha256": hashlib.sha256(data).hexdigest()} == read_curve(run)["validated"]
     again = evaluate_batched(policy_from_run(run, "validated"), "n5_m2_dt120", SHORT).summary()
     assert again["return_mean"] == pytest.approx(point["return_mean"])
+    # a comparison's evaluation task gets the run's files and evaluates the validated model
+    from containergym_marl.orchestration.plan import run_files
+    from containergym_marl.orchestration.tasks import EvalSpec, evaluate_policy
+
+    result, sha = evaluate_policy(EvalSpec("k", algo, "n5_m2_dt120", SHORT), run_files(run))
+    assert sha == hashlib.sha256(data).hexdigest() and result.policy.endswith(",validated]")
+    assert result.returns.mean() == pytest.approx(point["return_mean"])
     # the other kind of source than this seed's pick: a checkpoint for SB3 (its file), the end for native
     steps = [s for s, _ in checkpoints(run)]
     other = steps[1] if point["samples"] == curve["points"][-1]["samples"] else curve["points"][-1]["samples"]

@@ -209,3 +209,48 @@ def test_shipped_native_models_get_safetensors_and_a_model_card_of_their_fresh_n
         obs = np.random.default_rng(0).normal(size=(32, a.observation_size)).astype(np.float32)
         original = policy_from_run(to / "runs" / f"fast_shared_ppo_{config}_s{seed}")
         np.testing.assert_array_equal(scope["policy"].act_batch(obs, None), original.act_batch(obs, None))
+
+
+def test_a_run_with_a_validated_model_is_evaluated_shipped_and_carded_with_it(tmp_path):
+    """Where a run's curve picked a validated model, that model stands for its seed: the validation and
+    fresh evaluations are of it (their model hash), the shipped best and median policies are its bytes,
+    the card says which checkpoint it is, and the main job (compare on the shipped folder) evaluates it."""
+    import hashlib
+
+    from containergym_marl.evaluation.curves import run_curve
+    from containergym_marl.orchestration import CompareArgs
+    from containergym_marl.orchestration.shipped import shipped_plan
+
+    runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
+    config, short = "n5_m2_dt120", EvalProtocol(episodes=2, first_seed=20_000, episode_length_steps=30)
+    validated = {}
+    for seed in (1, 2, 3):
+        run = train(TrainArgs(algo="fast_shared_ppo", config=config, seed=seed, timesteps=2000, n_envs=2,
+                              checkpoint_every=500, out=str(runs / f"fast_shared_ppo_{config}_s{seed}"),
+                              progress_bar=False, hyperparams={"n_steps": 16, "minibatch_size": 64},
+                              overrides={"episode_length_steps": 20}))
+        curve = run_curve(run, short)
+        validated[seed] = (run / "validated_model.pt").read_bytes()
+        assert curve["validated"]["model_sha256"] == hashlib.sha256(validated[seed]).hexdigest()
+        result = evaluate_run(run, which="validated", protocol=EvalProtocol(episodes=2, episode_length_steps=30),
+                              write=False)
+        path = out / "evaluations" / config / f"fast_shared_ppo_s{seed}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(result.to_json())
+    publish_results.publish(runs, out, to)
+    for seed, data in validated.items():
+        assert (to / "runs" / f"fast_shared_ppo_{config}_s{seed}" / "validated_model.pt").read_bytes() == data
+        for folder in ("validation", "fresh"):
+            evaluated = json.loads((to / folder / config / f"fast_shared_ppo_s{seed}.json").read_text())
+            assert evaluated["model_sha256"] == hashlib.sha256(data).hexdigest()
+            assert evaluated["policy"] == f"fast_shared_ppo[s{seed},validated]"
+    meta = json.loads((to / "models" / config / "fast_shared_ppo.json").read_text())
+    for which in ("best", "median"):
+        seed = meta[f"{which}_seed"]
+        assert (to / "models" / config / meta["files"][which]).read_bytes() == validated[seed]
+        samples = json.loads((to / "runs" / f"fast_shared_ppo_{config}_s{seed}" / "curve.json").read_text())
+        assert (f"- model: the run's validated model, its policy at {samples['validated']['samples']:,} samples"
+                in (to / "models" / config / meta["cards"][which]).read_text())
+    plan = shipped_plan(CompareArgs(configs=[config], methods=["fast_shared_ppo"], shipped=str(to), episodes=2,
+                                     seeds=[]), tmp_path / "main")
+    assert sorted(source["files"]["validated_model.pt"] for _, source in plan.to_evaluate) == sorted(validated.values())
