@@ -46,6 +46,17 @@ def seed_overflow_rates(fresh: Path, row: str, method: str) -> dict[int, float]:
     return {seed: overflow_rate(found[seed]) for seed in sorted(found)}
 
 
+def model_kinds(fresh: Path, row: str, method: str) -> str:
+    """Which model of its runs stands for each seed in the fresh files (their policy labels,
+    ``method[s1,validated]``): "validated", "best", or both joined by "+" where the seeds differ."""
+    kinds = set()
+    for path in (fresh / row).glob(f"{method}_s*.json"):
+        label = json.loads(path.read_text()).get("policy", "")
+        if re.fullmatch(rf"{re.escape(method)}\[s\d+,(.+)\]", label):
+            kinds.add(label.rsplit(",", 1)[1].rstrip("]").split(":")[0])
+    return "+".join(sorted(kinds)) or "–"
+
+
 def criteria(results: Path) -> dict:
     """Both criteria for every (row, package method) the folder holds with its twin."""
     table = json.loads((results / "table.json").read_text())
@@ -58,6 +69,8 @@ def criteria(results: Path) -> dict:
             if ours is not None and theirs is not None:
                 pairs.append({"row": row, "method": native, "twin": twin,
                               "seeds": ours["seeds"], "twin_seeds": theirs["seeds"],
+                              "model": model_kinds(results / "fresh", row, native),
+                              "twin_model": model_kinds(results / "fresh", row, twin),
                               **{f"{key}": ours[key] for key in ("iqm", "fresh_iqm")},
                               **{f"twin_{key}": theirs[key] for key in ("iqm", "fresh_iqm")},
                               "at_least_test": ours["iqm"] >= theirs["iqm"],
@@ -83,17 +96,20 @@ def report(found: dict) -> str:
     lines = ["# The package's PPO against SB3's", "",
              f"`python studies/baseline_criteria.py --results {found['results']}`. IQM of the per-seed mean returns "
              "on the paper's test protocol (δ = 120 s, T = 600, 15 episodes) and on the fresh episodes; a pair holds "
-             "where the package's IQM is at least its SB3 twin's on both.", "",
+             "where the package's IQM is at least its SB3 twin's on both. Model: which of each seed's models the "
+             "files evaluated (validated: the checkpoint of highest validation return; best: of highest training "
+             "return); a pair of different kinds does not compare the algorithms alone.", "",
              f"**{both} of {len(pairs)} pairs hold on both episode sets** "
              f"({sum(p['at_least_test'] for p in pairs)} on the test episodes, "
              f"{sum(p['at_least_fresh'] for p in pairs)} on the fresh ones).", "",
-             "| row | method (seeds) | IQM, test | twin (seeds) | twin IQM, test | IQM, fresh | twin IQM, fresh | holds |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| row | method (seeds) | model | IQM, test | twin (seeds) | model | twin IQM, test | IQM, fresh "
+             "| twin IQM, fresh | holds |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for p in pairs:
         holds = "yes" if p["at_least_test"] and p["at_least_fresh"] else (
             "test only" if p["at_least_test"] else "fresh only" if p["at_least_fresh"] else "no")
-        lines.append(f"| {p['row']} | {p['method']} ({p['seeds']}) | {_value(p['iqm'])} | {p['twin']} "
-                     f"({p['twin_seeds']}) | {_value(p['twin_iqm'])} | {_value(p['fresh_iqm'])} | "
+        lines.append(f"| {p['row']} | {p['method']} ({p['seeds']}) | {p['model']} | {_value(p['iqm'])} | {p['twin']} "
+                     f"({p['twin_seeds']}) | {p['twin_model']} | {_value(p['twin_iqm'])} | {_value(p['fresh_iqm'])} | "
                      f"{_value(p['twin_fresh_iqm'])} | {holds} |")
     worst = [o for o in overflows if len(o["above"]) > 2]
     lines += ["", f"Seeds that overflow in a larger share of their fresh episodes than `{REFERENCE}` on the same "

@@ -18,8 +18,9 @@ def _row(method: str, iqm: float, fresh_iqm: float, seeds: int = 15) -> dict:
     return {"config": "n5_m2_dt60", "method": method, "seeds": seeds, "iqm": iqm, "fresh_iqm": fresh_iqm}
 
 
-def _fresh(path: Path, overflows: int, episodes: int = 20) -> None:
-    path.write_text(json.dumps({"episodes": [{"seed": 30000 + k, "overflow": k < overflows} for k in range(episodes)]}))
+def _fresh(path: Path, overflows: int, episodes: int = 20, policy: str = "") -> None:
+    path.write_text(json.dumps({"policy": policy,
+                                "episodes": [{"seed": 30000 + k, "overflow": k < overflows} for k in range(episodes)]}))
 
 
 def test_pairs_and_overflowing_seeds_are_counted_from_the_files(tmp_path):
@@ -33,9 +34,10 @@ def test_pairs_and_overflowing_seeds_are_counted_from_the_files(tmp_path):
     (results / "table.json").write_text(json.dumps({"rows": rows}))
     _fresh(fresh / "rule_based_agents.json", 1)  # 1 of 20: 0.05
     for seed, overflows in ((1, 0), (2, 1), (3, 2), (4, 5)):  # s3 and s4 above 0.05
-        _fresh(fresh / f"fast_shared_ppo_s{seed}.json", overflows)
-    _fresh(fresh / "fast_shared_ppo_team_s1.json", 20)  # another method's seed
-    _fresh(fresh / "fast_ppo_s1.json", 0)
+        _fresh(fresh / f"fast_shared_ppo_s{seed}.json", overflows, policy=f"fast_shared_ppo[s{seed},validated]")
+    _fresh(fresh / "fast_shared_ppo_team_s1.json", 20, policy="fast_shared_ppo_team[s1,best]")  # another method's
+    _fresh(fresh / "fast_ppo_s1.json", 0, policy="fast_ppo[s1,best]")
+    _fresh(fresh / "fast_ppo_s2.json", 0, policy="fast_ppo[s2,validated]")
     done = subprocess.run([sys.executable, SCRIPT, "--results", str(results), "--out", str(tmp_path / "out")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
@@ -43,7 +45,10 @@ def test_pairs_and_overflowing_seeds_are_counted_from_the_files(tmp_path):
     judged = {p["method"]: (p["at_least_test"], p["at_least_fresh"]) for p in found["pairs"]}
     assert judged == {"fast_ppo": (True, False), "fast_shared_ppo": (True, True), "fast_shared_ppo_team": (False, False)}
     counted = {o["method"]: (o["seeds"], o["above"]) for o in found["overflows"]}
-    assert counted == {"fast_ppo": (1, []), "fast_shared_ppo": (4, [3, 4]), "fast_shared_ppo_team": (1, [1])}
+    assert counted == {"fast_ppo": (2, []), "fast_shared_ppo": (4, [3, 4]), "fast_shared_ppo_team": (1, [1])}
+    models = {p["method"]: (p["model"], p["twin_model"]) for p in found["pairs"]}
+    assert models == {"fast_ppo": ("best+validated", "–"), "fast_shared_ppo": ("validated", "–"),
+                      "fast_shared_ppo_team": ("best", "–")}
     text = (tmp_path / "out" / "criteria.md").read_text()
     assert "**1 of 3 pairs hold on both episode sets** (2 on the test episodes, 1 on the fresh ones)" in text
     assert "| n5_m2_dt60 | fast_shared_ppo | 0.050 | 2 of 4: s3, s4 |" in text
