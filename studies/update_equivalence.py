@@ -40,9 +40,12 @@ VARIANTS = ("written", "autograd")
 
 
 def autograd_update(model, optimizer, hp, generator, obs, actions, old_logp, advantages, returns, masks=None,
-                    nets=None) -> dict[str, float]:
+                    nets=None, bc=None, bc_weight: float = 0.0) -> dict[str, float]:
     """``fast_ppo.update`` through autograd: the loss built from the networks' modules, ``backward``,
-    ``clip_grad_norm_``; the same minibatches and epochs from the same generator."""
+    ``clip_grad_norm_``; the same minibatches and epochs from the same generator. PPO alone: the
+    behaviour-cloning term of a DAgger fine-tuning (``bc_weight`` > 0) is not part of the comparison."""
+    if bc_weight > 0:
+        raise ValueError("autograd_update: the reference update has no behaviour-cloning term")
     total = obs.shape[0]
     minibatches = max(1, round(total / hp.minibatch_size))
     params = list(model.net.parameters())

@@ -288,13 +288,25 @@ SOAK_ARGS = ("--methods", "rule_based", "ppo", "--seeds", "1", "2", "--timesteps
 KILL_WAYS = ("tree", "group", "mid-write")
 
 
-def _kill_at_a_random_moment(out: Path, env: dict, marker: str, rng: np.random.Generator, horizon_s: float,
+def _checkpoints_written(out: Path) -> int:
+    return sum(1 for _ in out.glob("**/checkpoints/ckpt_*_steps.*"))
+
+
+def _kill_at_a_random_moment(out: Path, env: dict, marker: str, rng: np.random.Generator, step_s: float,
                              log: Path) -> str | None:
-    """Start compare and kill it after a random share of ``horizon_s`` in one of :data:`KILL_WAYS`;
-    returns the way, or None when compare ended first (successfully: asserted)."""
+    """Start compare and kill it in one of :data:`KILL_WAYS` at a random moment of its progress: once
+    it has written 0, 1 or 2 more checkpoints (0: during its start), after a random share of
+    ``step_s`` (the uninterrupted compare's time per checkpoint). Returns the way, or None when
+    compare ended first (successfully: asserted). The moment follows the rerun's own progress, not
+    the clock alone: a rerun resumes with less left to do, and the machine's load changes how long
+    that takes, so a delay drawn from the first compare's duration could outlast every rerun."""
+    before = _checkpoints_written(out)
     proc = kills.start(out, SOAK_ARGS, env, log)
     way = KILL_WAYS[int(rng.integers(len(KILL_WAYS)))]
-    delay = float(rng.uniform(0.05, 0.8)) * horizon_s
+    wanted, delay = int(rng.integers(3)), float(rng.uniform(0.0, 1.0)) * step_s
+    with contextlib.suppress(TimeoutError):
+        kills.wait(lambda: proc.poll() is not None or _checkpoints_written(out) >= before + wanted, 600,
+                   f"{wanted} more checkpoint(s)", every_s=0.05)
     try:
         proc.wait(timeout=delay)
     except subprocess.TimeoutExpired:
@@ -325,8 +337,9 @@ def _same_policy(a: Path, b: Path) -> bool:
 def test_compare_killed_at_random_moments_then_rerun_ends_as_an_uninterrupted_compare(tmp_path):
     """The issue's check of crash safety at the level of ``compare``: a tiny sweep (rule_based and
     PPO, seeds 1 and 2, 8192 samples, a checkpoint every 1024) is SIGKILLed at random moments (a
-    fixed-seed generator draws when, as a share of an uninterrupted compare's duration, and how: the
-    whole process tree, the process group only, or the moment a file is being written), and the
+    fixed-seed generator draws when, after 0-2 more checkpoints and a share of the uninterrupted
+    compare's time per checkpoint, and how: the whole process tree, the process group only, or the
+    moment a file is being written), and the
     same command is run again after each kill, at least 3 and up to 6 times, then once more to its
     end. After every kill every file a rerun reads is whole (tests/compare_kills.check_intact) and
     no process of the killed compare lives on.
@@ -369,8 +382,9 @@ def test_compare_killed_at_random_moments_then_rerun_ends_as_an_uninterrupted_co
 
     rng = np.random.default_rng(14)
     out, ways = tmp_path / "cmp", []
+    step_s = horizon / max(_checkpoints_written(reference), 1)
     for attempt in range(10):
-        way = _kill_at_a_random_moment(out, env, marker, rng, horizon, tmp_path / f"attempt_{attempt}.log")
+        way = _kill_at_a_random_moment(out, env, marker, rng, step_s, tmp_path / f"attempt_{attempt}.log")
         if way is None:
             break
         ways.append(way)
