@@ -1,7 +1,7 @@
 """Which of a run's models should stand for its seed: the best (of the highest 100-episode training
 return), the final, or the validated one (its sample-efficiency curve's pick, on 30 validation episodes)?
 
-    python studies/model_choice.py results/campaign/runs/fast_shared_ppo_*      # -> results/model_choice
+    python studies/model_choice.py results/paper_rows/runs/fast_shared_ppo_n*   # -> results/model_choice
     python studies/model_choice.py RUN ... --episodes 100 --out DIR
 
 Each run's three models are evaluated on the same validation episodes, seeds 20100+ (``--episodes``,

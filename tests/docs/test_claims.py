@@ -212,8 +212,11 @@ def one_pu_each_rows():
 def one_pu_each_dt60():
     c5, c11 = "n5_m5_dt60", "n11_m11_dt60"
     shared = seeds(c11, "shared_ppo")
-    others = [m for m in learned_on(c5) if m != "fast_ppo"]
-    return (all(seeds(c5, m).min() < rule(c5) / 2 for m in others) and seeds(c5, "fast_ppo").min() > rule(c5) / 2
+    above = ("fast_ppo", "fast_shared_ppo")
+    others = [m for m in learned_on(c5) if m not in above]
+    return (set(others) == {"ppo", "shared_ppo", "shared_ppo_team", "fast_shared_ppo_team"}
+            and all(seeds(c5, m).min() < rule(c5) / 2 for m in others)
+            and all(seeds(c5, m).min() > rule(c5) / 2 for m in above)
             and shared.min() < seeds(c11, "ppo").min() and abs(shared.max() - rule(c11)) < 1)
 
 
@@ -243,9 +246,10 @@ READINGS = {
     "within one point of the per-container rule; on `n11_m11_dt120` the per-container rule stays above every "
     "RL method's IQM.": one_pu_each_rows,
     "with SB3 the team reward's interval lies below the individual reward's on both rows.": one_pu_each_rows,
-    "On `n5_m5_dt60` every RL method but the native centralised PPO has a seed below half the "
-    "per-container rule's return; every native centralised-PPO seed stays above it. On `n11_m11_dt60` SB3's "
-    "shared-PPO seeds span from below every PPO seed to within one point of the per-container rule.":
+    "On `n5_m5_dt60` every SB3 method and the native team-reward PPO have a seed below half the "
+    "per-container rule's return; every seed of the native centralised PPO and of the native shared PPO stays "
+    "above it. On `n11_m11_dt60` SB3's shared-PPO seeds span from below every PPO seed to within one point of "
+    "the per-container rule.":
         one_pu_each_dt60,
 }
 
