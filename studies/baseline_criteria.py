@@ -13,6 +13,11 @@ with an SB3 twin in the registry (``fast_ppo`` and ``ppo``, ``fast_shared_ppo`` 
 2. on every row, how many of its seeds overflow in a larger share of their fresh episodes than
    ``rule_based_agents`` does on the same episodes.
 
+With ``--best-models``, a package method whose seeds stand by their validated models (the checkpoint
+of highest validation return) is also set against its twin as SB3's seeds stand, by their best models
+(of highest training return): each seed's best model on the same fresh episodes (batched, cached in
+``<out>/best_models/`` by the model's hash), so that the comparison is of the algorithms alone.
+
 A report, not a gate: it exits 0 whatever it finds (its tests check what it counts).
 """
 
@@ -57,8 +62,48 @@ def model_kinds(fresh: Path, row: str, method: str) -> str:
     return "+".join(sorted(kinds)) or "–"
 
 
-def criteria(results: Path) -> dict:
-    """Both criteria for every (row, package method) the folder holds with its twin."""
+def best_model_iqm(results: Path, row: str, method: str, cache: Path) -> float | None:
+    """The IQM over seeds of each seed's best model's mean return on the fresh episodes, where the
+    published files evaluated validated models (else None: they are of best models already)."""
+    import hashlib
+
+    from containergym_marl.evaluation.stats import iqm
+    from containergym_marl.rundir import run_name
+
+    if "validated" not in model_kinds(results / "fresh", row, method):
+        return None
+    means = []
+    pattern = re.compile(rf"^{re.escape(method)}_s(\d+)\.json$")
+    for path in sorted((results / "fresh" / row).glob("*.json")):
+        if not (m := pattern.match(path.name)):
+            continue
+        run = results / "runs" / run_name(method, row, int(m.group(1)))
+        sha = hashlib.sha256((run / "best_model.pt").read_bytes()).hexdigest()
+        stored = cache / row / path.name
+        if stored.is_file() and json.loads(stored.read_text())["model_sha256"] == sha:
+            means.append(json.loads(stored.read_text())["return_mean"])
+            continue
+        import torch
+
+        from containergym_marl.evaluation.batched import evaluate_batched
+        from containergym_marl.evaluation.protocol import FRESH
+        from containergym_marl.evaluation.run_policies import policy_from_run
+        from containergym_marl.files import atomic_write_text
+
+        torch.set_num_threads(1)
+        result = evaluate_batched(policy_from_run(run, "best"), row, FRESH)
+        entry = {"model_sha256": sha, "return_mean": float(result.returns.mean()),
+                 "overflowing_episodes": int(sum(bool(e.overflow) for e in result.episodes)),
+                 "episodes": FRESH.episodes, "first_seed": FRESH.first_seed}
+        stored.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(stored, json.dumps(entry) + "\n")
+        means.append(entry["return_mean"])
+    return iqm(means) if means else None
+
+
+def criteria(results: Path, best_models: Path | None = None) -> dict:
+    """Both criteria for every (row, package method) the folder holds with its twin; with
+    ``best_models`` (a cache folder), also the package method's best models on the fresh episodes."""
     table = json.loads((results / "table.json").read_text())
     rows = {(r["config"], r["method"]): r for r in table["rows"]}
     pairs, overflows = [], []
@@ -73,6 +118,8 @@ def criteria(results: Path) -> dict:
                               "twin_model": model_kinds(results / "fresh", row, twin),
                               **{f"{key}": ours[key] for key in ("iqm", "fresh_iqm")},
                               **{f"twin_{key}": theirs[key] for key in ("iqm", "fresh_iqm")},
+                              "best_models_fresh_iqm": (best_model_iqm(results, row, native, best_models)
+                                                        if best_models is not None else None),
                               "at_least_test": ours["iqm"] >= theirs["iqm"],
                               "at_least_fresh": (ours["fresh_iqm"] is not None and theirs["fresh_iqm"] is not None
                                                  and ours["fresh_iqm"] >= theirs["fresh_iqm"])})
@@ -112,6 +159,15 @@ def report(found: dict) -> str:
                      f"({p['twin_seeds']}) | {p['twin_model']} | {_value(p['twin_iqm'])} | {_value(p['fresh_iqm'])} | "
                      f"{_value(p['twin_fresh_iqm'])} | {holds} |")
     worst = [o for o in overflows if len(o["above"]) > 2]
+    like = [p for p in pairs if p.get("best_models_fresh_iqm") is not None]
+    if like:
+        lines += ["", "Where the package's seeds stand by validated models, the same pairs with its seeds' best models "
+                  "instead (of the highest training return, as SB3's seeds stand), on the same fresh episodes: "
+                  f"**{sum(p['best_models_fresh_iqm'] >= p['twin_fresh_iqm'] for p in like)} of {len(like)} at least "
+                  "the twin's**.", "",
+                  "| row | method | IQM, fresh, best models | IQM, fresh, validated | twin IQM, fresh |", "|---|---|---|---|---|"]
+        lines += [f"| {p['row']} | {p['method']} | {_value(p['best_models_fresh_iqm'])} | {_value(p['fresh_iqm'])} | "
+                  f"{_value(p['twin_fresh_iqm'])} |" for p in like]
     lines += ["", f"Seeds that overflow in a larger share of their fresh episodes than `{REFERENCE}` on the same "
               f"episodes: **{len(worst)} of {len(overflows)} (row, method) have more than 2**.", "",
               f"| row | method | `{REFERENCE}`'s rate | seeds above it |", "|---|---|---|---|"]
@@ -128,12 +184,14 @@ def main(argv=None) -> int:
                         help="a folder written by containergym-marl publish")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "baseline_criteria",
                         help="where criteria.md and criteria.json go")
+    parser.add_argument("--best-models", action="store_true",
+                        help="also evaluate the best models of seeds that stand by validated ones (fresh episodes)")
     args = parser.parse_args(argv)
     if not (args.results / "table.json").is_file():
         parser.error(f"--results: {str(args.results)!r} holds no table.json (a folder written by publish)")
     from containergym_marl.files import atomic_write_text
 
-    found = criteria(args.results)
+    found = criteria(args.results, args.out / "best_models" if args.best_models else None)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "criteria.json", json.dumps(found, indent=1))

@@ -67,3 +67,34 @@ def test_a_folder_without_a_table_is_refused(tmp_path):
     done = subprocess.run([sys.executable, SCRIPT, "--results", str(tmp_path), "--out", str(tmp_path / "out")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode != 0 and "holds no table.json" in done.stderr and not (tmp_path / "out").exists()
+
+
+def test_best_models_of_validated_seeds_are_evaluated_on_the_fresh_episodes_once(tmp_path):
+    """--best-models: where the published fresh files are of validated models, each seed's best model is
+    evaluated on the same fresh episodes (the IQM of one seed is its mean), cached by the model's hash."""
+    sys.path.insert(0, str(REPO / "studies"))
+    try:
+        import baseline_criteria
+    finally:
+        sys.path.remove(str(REPO / "studies"))
+    from containergym_marl.evaluation.batched import evaluate_batched
+    from containergym_marl.evaluation.protocol import FRESH
+    from containergym_marl.evaluation.run_policies import policy_from_run
+    from containergym_marl.training import TrainArgs, train
+
+    results = tmp_path / "published"
+    train(TrainArgs(algo="fast_shared_ppo", out=str(results / "runs" / "fast_shared_ppo_n5_m2_dt60_s1"),
+                    config="n5_m2_dt60", timesteps=1000, n_envs=2, seed=1, progress_bar=False,
+                    hyperparams={"n_steps": 16, "minibatch_size": 80}, overrides={"episode_length_steps": 20}))
+    (results / "fresh" / "n5_m2_dt60").mkdir(parents=True)
+    _fresh(results / "fresh" / "n5_m2_dt60" / "fast_shared_ppo_s1.json", 0, policy="fast_shared_ppo[s1,validated]")
+    cache = tmp_path / "cache"
+    got = baseline_criteria.best_model_iqm(results, "n5_m2_dt60", "fast_shared_ppo", cache)
+    run = results / "runs" / "fast_shared_ppo_n5_m2_dt60_s1"
+    assert got == float(evaluate_batched(policy_from_run(run, "best"), "n5_m2_dt60", FRESH).returns.mean())
+    stored = cache / "n5_m2_dt60" / "fast_shared_ppo_s1.json"
+    before = stored.stat().st_mtime_ns
+    assert baseline_criteria.best_model_iqm(results, "n5_m2_dt60", "fast_shared_ppo", cache) == got
+    assert stored.stat().st_mtime_ns == before  # reused, not evaluated again
+    _fresh(results / "fresh" / "n5_m2_dt60" / "fast_shared_ppo_s1.json", 0, policy="fast_shared_ppo[s1,best]")
+    assert baseline_criteria.best_model_iqm(results, "n5_m2_dt60", "fast_shared_ppo", cache) is None
