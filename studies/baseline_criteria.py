@@ -104,7 +104,13 @@ def best_model_iqm(results: Path, row: str, method: str, cache: Path) -> float |
 def criteria(results: Path, best_models: Path | None = None) -> dict:
     """Both criteria for every (row, package method) the folder holds with its twin; with
     ``best_models`` (a cache folder), also the package method's best models on the fresh episodes."""
+    from containergym_marl.config.loading import list_configs
+
     table = json.loads((results / "table.json").read_text())
+    known = set(list_configs())
+    for r in table["rows"]:  # a row names files read and written: only a built-in plant's name
+        if r.get("config") not in known:
+            raise ValueError(f"{results / 'table.json'}: row config {r.get('config')!r} is not a built-in plant")
     rows = {(r["config"], r["method"]): r for r in table["rows"]}
     pairs, overflows = [], []
     for row in dict.fromkeys(r["config"] for r in table["rows"]):
@@ -191,7 +197,10 @@ def main(argv=None) -> int:
         parser.error(f"--results: {str(args.results)!r} holds no table.json (a folder written by publish)")
     from containergym_marl.files import atomic_write_text
 
-    found = criteria(args.results, args.out / "best_models" if args.best_models else None)
+    try:
+        found = criteria(args.results, args.out / "best_models" if args.best_models else None)
+    except ValueError as exc:
+        parser.error(str(exc))
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "criteria.json", json.dumps(found, indent=1))

@@ -98,3 +98,15 @@ def test_best_models_of_validated_seeds_are_evaluated_on_the_fresh_episodes_once
     assert stored.stat().st_mtime_ns == before  # reused, not evaluated again
     _fresh(results / "fresh" / "n5_m2_dt60" / "fast_shared_ppo_s1.json", 0, policy="fast_shared_ppo[s1,best]")
     assert baseline_criteria.best_model_iqm(results, "n5_m2_dt60", "fast_shared_ppo", cache) is None
+
+
+def test_a_table_naming_a_row_outside_the_built_in_plants_is_refused_before_anything_is_written(tmp_path):
+    """A crafted table.json whose row names a path (its fresh files are read, and --best-models writes
+    under that name) is refused, naming the value, and nothing is written."""
+    results = tmp_path / "published"
+    results.mkdir()
+    (results / "table.json").write_text(json.dumps({"rows": [{**_row("fast_ppo", 1.0, 1.0), "config": "../../x"}]}))
+    done = subprocess.run([sys.executable, SCRIPT, "--results", str(results), "--out", str(tmp_path / "out"),
+                           "--best-models"], capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0 and "row config '../../x' is not a built-in plant" in done.stderr
+    assert not (tmp_path / "out").exists() and not (tmp_path / "x").exists()
