@@ -424,10 +424,17 @@ def _comparison_task(task: tuple) -> tuple[str, dict[str, Any]]:
 def run_comparison(method: str, settings, runs: Path, path: Path, rows, seeds, timesteps: int | None,
                    workers: int, rule: dict[str, float], known: dict) -> dict:
     """Train and validate each (label, settings, γ) of ``settings`` on ``rows`` with ``seeds``
-    (resumable: finished runs are reused, from the journal (``known``) where the search ran them), on
-    ``workers`` processes; writes ``path`` (JSON) after every run."""
+    (resumable: finished runs are reused, from the journal (``known``) where the search ran them, and
+    from ``path`` as an earlier call wrote it, where their folders are gone), on ``workers``
+    processes; writes ``path`` (JSON) after every run."""
     result = {"rows": list(rows), "seeds": list(seeds), "rule_based_agents_validation_return": rule,
               "settings": {label: {"params": hp, "gamma": gamma, "runs": []} for label, hp, gamma in settings}}
+    known = dict(known)
+    if path.is_file():  # an earlier call's runs (the comparison's own runs are not in the journal)
+        for earlier in json.loads(path.read_text())["settings"].values():
+            for entry in earlier["runs"]:
+                key = (comparison_folder(earlier["params"], earlier["gamma"]), entry["row"], entry["seed"])
+                known.setdefault(key, entry)
 
     def record(label, entry):
         entry = {**entry, "score": entry["validation_return"] / rule[entry["row"]]}

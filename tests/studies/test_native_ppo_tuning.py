@@ -312,3 +312,28 @@ def test_a_search_starts_from_another_searchs_best_distinct_settings():
     lower = trial(4, [0.7] * 7, pruned)
     assert script.best_settings(study, 5, min_runs=5) == [(finished.number, {"x": 1}), (near.number, {"x": 2}),
                                                          (lower.number, {"x": 4})]
+
+
+def test_a_comparison_reuses_the_runs_its_own_file_records_where_their_folders_are_gone(tmp_path, monkeypatch):
+    """--discount or --guards again on a machine without their runs' folders: the runs recorded in
+    their JSON file (not in the search's journal) are taken from it, and nothing is trained again."""
+    sys.path.insert(0, str(REPO / "studies"))
+    try:
+        import native_ppo_tuning as tuning
+    finally:
+        sys.path.remove(str(REPO / "studies"))
+    hp = {"rollout_samples": 2048, "n_steps": 64}
+    entry = {"row": "n5_m2_dt60", "seed": 101, "validation_return": 50.0, "overflowing_episodes": 2,
+             "half_budget_samples": 1000, "half_budget_return": 40.0, "samples": 2000, "cpu_s": 1.0,
+             "wall_time_s": 1.0}
+    path = tmp_path / "discount.json"
+    path.write_text(json.dumps({"settings": {"old label": {"params": hp, "gamma": 0.995, "runs": [entry]}}}))
+    monkeypatch.setattr(tuning.multiprocessing, "get_context", lambda *_: pytest.fail("a recorded run trained again"))
+    result = tuning.run_comparison("fast_shared_ppo", [("trial 1, γ = 0.995", hp, 0.995)], tmp_path / "no_runs", path,
+                                   ["n5_m2_dt60"], [101], None, 1, {"n5_m2_dt60": 100.0}, known={})
+    [got] = result["settings"]["trial 1, γ = 0.995"]["runs"]
+    assert got == {**entry, "score": 0.5} and not (tmp_path / "no_runs").exists()
+    assert json.loads(path.read_text()) == json.loads(json.dumps(result))
+    with pytest.raises(pytest.fail.Exception, match="trained again"):  # another γ is another run, not that one
+        tuning.run_comparison("fast_shared_ppo", [("γ = 0.99", hp, 0.99)], tmp_path / "no_runs", path,
+                              ["n5_m2_dt60"], [101], None, 1, {"n5_m2_dt60": 100.0}, known={})
