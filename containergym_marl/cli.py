@@ -23,6 +23,7 @@ from containergym_marl.core.dynamics import ARBITRATION_RULES, DEFAULT_ARBITRATI
 from containergym_marl.core.params import PlantParams
 from containergym_marl.methods import CONTROLLERS
 from containergym_marl.options import add_options, from_namespace, option, positive_int
+from containergym_marl.rundir import MODELS
 
 
 @dataclass
@@ -33,7 +34,7 @@ class EvaluateArgs:
     target: str = option(flag="target", help=f"a run directory or one of {', '.join(CONTROLLERS)}")
     config: str | None = option(None, help="plant (default: the run's own, or n5_m2_dt120)")
     episodes: int = option(15, type=positive_int, help="test episodes (default: the paper's 15, seeds 10000 on)")
-    model: str = option("best", choices=("best", "final", "validated"),
+    model: str = option("best", choices=MODELS,
                         help="a run's model to evaluate: by training return, at the end, or by validation return "
                              "(picked by its sample-efficiency curve)")
     arbitration: str | None = option(None, choices=tuple(ARBITRATION_RULES),

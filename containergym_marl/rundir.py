@@ -248,8 +248,15 @@ def run_status(run: str | Path) -> str:
     return "finished" if (run / model_file(run, "final")).is_file() else "interrupted"
 
 
+#: A run's models: of the highest training return, at the end, of the highest validation return (the
+#: checkpoint its sample-efficiency curve picked, :mod:`~containergym_marl.evaluation.curves`).
+MODELS = ("best", "final", "validated")
+#: The models that stand for a run's seed, the first the run has (then its final model).
+STANDING_MODELS = ("validated", "best")
+
+
 def model_file(run: str | Path, which: str) -> str:
-    """The name of a run's ``which`` ("best" or "final") model, from the algorithm its args.json
+    """The name of a run's ``which`` (one of :data:`MODELS`) model, from the algorithm its args.json
     names (SB3's ``.zip`` names for a run without a readable args.json: the only kind trained before
     args.json)."""
     try:

@@ -101,26 +101,17 @@ def write_validated_model(run: str | Path, curve: dict) -> dict:
     run = Path(run)
     saved, summary = run_args(run), read_run_summary(run)
     spec = get_algorithm(saved["algo"])
-    point = validated_point(curve)
-    if point["samples"] == int(summary["timesteps"]):
-        data = (run / spec.model_file("final")).read_bytes()
-    else:
-        path = dict(checkpoints(run)).get(point["samples"])
-        if path is None:
-            raise ValueError(f"{str(run)!r}: no checkpoint at {point['samples']} samples for its validated model")
-        if spec.native:  # a checkpoint holds the model with its optimiser: keep the model, tensors only
-            import io
-
-            import torch
-
-            buffer = io.BytesIO()
-            torch.save(_checkpoint_policy(run, path, saved["algo"]).model.to_dict(), buffer)
-            data = buffer.getvalue()
-        else:  # an SB3 checkpoint is a model file
-            data = path.read_bytes()
-    atomic_write(run / spec.model_file("validated"), lambda tmp: tmp.write_bytes(data))
+    point, target = validated_point(curve), run / spec.model_file("validated")
+    at_end = point["samples"] == int(summary["timesteps"])
+    source = run / spec.model_file("final") if at_end else dict(checkpoints(run)).get(point["samples"])
+    if source is None:
+        raise ValueError(f"{str(run)!r}: no checkpoint at {point['samples']} samples for its validated model")
+    if spec.native and not at_end:  # a checkpoint holds the optimiser too: its model alone, tensors only
+        _checkpoint_policy(run, source, saved["algo"]).model.save(target)
+    else:  # a model file already (the final model, or an SB3 checkpoint)
+        atomic_write(target, lambda tmp: tmp.write_bytes(source.read_bytes()))
     return {**curve, "validated": {"samples": int(point["samples"]), "return_mean": point["return_mean"],
-                                   "model_sha256": hashlib.sha256(data).hexdigest()}}
+                                   "model_sha256": hashlib.sha256(target.read_bytes()).hexdigest()}}
 
 
 def read_curve(run: str | Path) -> dict | None:

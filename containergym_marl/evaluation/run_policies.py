@@ -9,40 +9,36 @@ from pathlib import Path
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.algorithms import get_algorithm
 from containergym_marl.files import atomic_write_text
-from containergym_marl.rundir import read_run_summary, run_args, RunWarning
+from containergym_marl.rundir import MODELS, STANDING_MODELS, read_run_summary, run_args, RunWarning
 from containergym_marl.models import load_model
-
-
-#: A run's models: by training return, at the end, by validation return (its curve's pick).
-MODELS = ("best", "final", "validated")
 
 
 def evaluated_which(run: str | Path) -> str:
     """Which model of a finished run stands for its seed in every comparison, table and shipped file:
-    its validated model (the checkpoint of highest validation return, where its curve picked one),
-    else its best model (of highest training return), else ("best": no training episode finished)
-    its final model."""
+    the first of :data:`~containergym_marl.rundir.STANDING_MODELS` it has (its validated model, where
+    its curve picked one, else its best model), or "best" (whose policy is the final model where no
+    training episode finished)."""
     spec = get_algorithm(run_args(run)["algo"])
-    return "validated" if (Path(run) / spec.model_file("validated")).is_file() else "best"
+    return next((w for w in STANDING_MODELS if (Path(run) / spec.model_file(w)).is_file()), "best")
 
 
 def evaluated_files(run: str | Path) -> tuple[str, ...]:
     """The files of a finished run that its evaluation reads (``policy_from_run(run,
-    evaluated_which(run))``): ``args.json`` and the validated or the best model, or, when no training
-    episode finished (so no best model), ``args.json``, ``run.json`` and the final model (file names
-    from the algorithm's registry entry)."""
+    evaluated_which(run))``): ``args.json`` and that model, or, when no training episode finished (so
+    no best model), ``args.json``, ``run.json`` and the final model (file names from the algorithm's
+    registry entry)."""
     spec = get_algorithm(run_args(run)["algo"])
-    for which in ("validated", "best"):
-        if (Path(run) / spec.model_file(which)).is_file():
-            return "args.json", spec.model_file(which)
+    standing = spec.model_file(evaluated_which(run))
+    if (Path(run) / standing).is_file():
+        return "args.json", standing
     return "args.json", "run.json", spec.model_file("final")
 
 
 def evaluated_model(files: dict[str, bytes]) -> bytes:
     """The model among ``files`` (a run's files, e.g. :func:`evaluated_files`) that the evaluation
-    uses: the validated model, else the best, else the final one."""
+    uses: the first of :data:`~containergym_marl.rundir.STANDING_MODELS` there, else the final one."""
     spec = get_algorithm(json.loads(files["args.json"])["algo"])
-    for which in ("validated", "best"):
+    for which in STANDING_MODELS:
         if spec.model_file(which) in files:
             return files[spec.model_file(which)]
     return files[spec.model_file("final")]

@@ -69,6 +69,7 @@ from containergym_marl.rundir import (
     checkpoint_files,
     checkpoints,
     clear_run,
+    MODELS,
     latest_intact_checkpoint,
     model_file,
     model_suffix,
@@ -111,7 +112,7 @@ def _copy_run(run: Path, to: Path) -> bool:
         finished = run_status(run) == "finished"
         if not finished and _trained_samples(run) < _trained_samples(dst):
             return False
-        for name in SMALL_FILES + tuple(model_file(run, which) for which in ("best", "final", "validated")):
+        for name in SMALL_FILES + tuple(model_file(run, which) for which in MODELS):
             if (run / name).is_file():
                 _copy(run / name, dst / name, to)
         keep = set()

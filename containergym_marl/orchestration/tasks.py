@@ -33,6 +33,7 @@ from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.files import open_file
 from containergym_marl.manifest import sha256_bytes
 from containergym_marl.rundir import (
+    MODELS,
     RunLock,
     check_model_file,
     clear_run,
@@ -251,7 +252,7 @@ def evaluate_policy(spec: EvalSpec, run: dict[str, Any] | None = None, keep_reco
         model_sha = sha256_bytes(evaluated_model(files))
         with tempfile.TemporaryDirectory(prefix="cgm-eval-") as tmp:
             write_files(tmp, {k: v for k, v in files.items() if k in ("args.json", "run.json")
-                              or k.startswith(("best_model.", "final_model.", "validated_model."))})
+                              or k.startswith(tuple(f"{which}_model." for which in MODELS))})
             policy = policy_from_run(tmp, evaluated_which(tmp))
             result = evaluate(policy, spec.config, protocol, arbitration=spec.arbitration, keep_records=keep_records)
     return result, model_sha

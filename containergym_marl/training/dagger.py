@@ -423,14 +423,22 @@ def load_checkpoint(path: str | Path, hp: DAggerArgs):
         steps, iteration, history = int(data["num_timesteps"]), int(data["iteration"]), list(data["history"])
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise ValueError(f"{source}: its optimiser or generator state is unreadable ({exc})") from exc
-    dataset = Dataset(hp.dataset_size, model.observation_size)
-    saved = dataset_file(path.parent.parent, steps)
+    dataset = read_dataset(dataset_file(path.parent.parent, steps), hp.dataset_size, model.observation_size,
+                           f"no data set saved with {path.name}", "DAgger continues with an empty one")
+    return DAggerState(model, optimizer, generator, dataset or Dataset(hp.dataset_size, model.observation_size),
+                       steps, iteration, history, _jsonable(hp))
+
+
+def read_dataset(path: Path, capacity: int, obs_size: int, missing: str, instead: str) -> Dataset | None:
+    """The data set saved at ``path`` (:meth:`Dataset.to_dict`), or None with a warning that says why
+    (``missing`` where there is no file) and what training does ``instead``."""
+    dataset = Dataset(capacity, obs_size)
     try:
-        dataset.load(load_tensors(saved, "not a data set"), f"data set {str(saved)!r}")
+        dataset.load(load_tensors(path, "not a data set"), f"data set {str(path)!r}")
     except (ValueError, FileNotFoundError) as exc:
-        warnings.warn(f"{exc if saved.is_file() else f'no data set saved with {path.name}'}; "
-                      f"DAgger continues with an empty one", RunWarning, stacklevel=2)
-    return DAggerState(model, optimizer, generator, dataset, steps, iteration, history, _jsonable(hp))
+        warnings.warn(f"{exc if path.is_file() else missing}; {instead}", RunWarning, stacklevel=3)
+        return None
+    return dataset
 
 
 # ---- one iteration ----------------------------------------------------------------------------------------
@@ -674,12 +682,9 @@ def behaviour_cloning(run: Path, hp: DAggerArgs, budget: int, obs_size: int) -> 
     if hp.ppo is None or hp.bc_coef == 0:
         return None
     path = run / "checkpoints" / BC_DATASET
-    dataset = Dataset(hp.dataset_size, obs_size)
-    try:
-        dataset.load(load_tensors(path, "not a data set"), f"data set {str(path)!r}")
-    except (ValueError, FileNotFoundError) as exc:
-        warnings.warn(f"{exc if path.is_file() else f'no data set {str(path)!r}'}; the fine-tuning continues without "
-                      f"its behaviour-cloning term", RunWarning, stacklevel=2)
+    dataset = read_dataset(path, hp.dataset_size, obs_size, f"no data set {str(path)!r}",
+                           "the fine-tuning continues without its behaviour-cloning term")
+    if dataset is None:
         return None
     imitation = hp.imitation_budget(budget)
     return fast_ppo.BehaviourCloning(dataset.obs[:dataset.size].clone(), dataset.labels[:dataset.size].long(),
