@@ -91,14 +91,16 @@ def profile(algo: str, config: str, samples: int, repeats: int) -> dict:
     actions = rng.integers(0, model.n_actions, size=slots)
     per["env step"] = _cpu(lambda: [env.step(actions) for _ in range(steps)], repeats) / rollout
 
-    nets = MLPGradients(model)
+    nets = MLPGradients(model, optimizer)
+    gumbel = torch.zeros((steps, slots, model.n_actions))
 
     def policy_forward():  # the rollout's: logits and values in one call, the Gumbel-max sample
-        for _ in range(steps):
-            logits, _ = nets.forward(obs, keep=False)
-            uniform = torch.rand(logits.shape, generator=generator)
-            a = (logits - torch.log(-torch.log(uniform))).argmax(-1)
-            torch.log_softmax(logits, -1).gather(-1, a[:, None])
+        with torch.inference_mode(), nets.fixed_parameters():
+            gumbel.uniform_(generator=generator).log_().neg_().log_()
+            for t in range(steps):
+                logits, _ = nets.forward(obs, keep=False)
+                a = torch.sub(logits, gumbel[t]).argmax(-1)
+                torch.log_softmax(logits, -1).gather(-1, a[:, None])
 
     per["policy and value forward + sample"] = _cpu(policy_forward, repeats) / rollout
 

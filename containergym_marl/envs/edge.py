@@ -198,6 +198,9 @@ class CentralisedInfo:
         self.names = tuple(names)
         # container names by index, with "" at index -1 (nothing emptied)
         self._name_table = np.array([*self.names, ""], dtype=object)
+        self._one_overflowed = np.empty(len(self.names), dtype=object)  # ("C1-10",), ... one tuple a container
+        for j, name in enumerate(self.names):
+            self._one_overflowed[j] = (name,)
 
     # ---- one simulation (row 0 of the outcome) --------------------------------------------------------
     @staticmethod
@@ -249,8 +252,13 @@ class CentralisedInfo:
         emptied_index = np.where(pu_index >= 0, col, -1)
         overflowed = np.empty(len(actions), dtype=object)
         overflowed.fill(())
-        for b in np.flatnonzero(out.terminated).tolist():
-            overflowed[b] = tuple(self._name_table[np.flatnonzero(out.overflowed[b])].tolist())
+        ended = np.flatnonzero(out.terminated)
+        if ended.size:  # mostly one container overflows: its names' tuple picked for all such rows at once
+            ended_rows = out.overflowed[ended]
+            one = np.count_nonzero(ended_rows, axis=1) == 1
+            overflowed[ended[one]] = self._one_overflowed[ended_rows[one].argmax(axis=1)]
+            for b in ended[~one].tolist():
+                overflowed[b] = tuple(self._name_table[np.flatnonzero(out.overflowed[b])].tolist())
         return {
             "step": np.asarray(step_count).astype(np.int64),
             "emptied_container": self._name_table[emptied_index],

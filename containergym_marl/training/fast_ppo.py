@@ -267,6 +267,8 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
     start_buf = torch.zeros((n_steps, slots))  # 1 where the observation starts an episode
     mask_buf = torch.ones((n_steps, slots, n_actions), dtype=torch.bool) if hp.action_mask else None
     adv_buf = torch.zeros((n_steps, slots))  # GAE, written in place each rollout
+    # log(-log(u)) of the rollout's uniforms, drawn in one call: the numbers a draw per step would give
+    gumbel_buf = torch.zeros((n_steps, slots, n_actions))
 
     nets = MLPGradients(model, optimizer)  # the networks without module calls, and their gradients
     obs = torch.from_numpy(env.reset())
@@ -280,17 +282,17 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
     while state.num_timesteps < budget:
         # ---- rollout: n_steps steps of every slot with the current policy (inference mode: no
         # autograd bookkeeping on the rollout's small tensors; the buffers are ordinary tensors)
-        with torch.inference_mode():
+        with torch.inference_mode(), nets.fixed_parameters():
+            gumbel_buf.uniform_(generator=generator).log_().neg_().log_()
             for t in range(n_steps):
                 masks = torch.from_numpy(env.action_masks()) if mask_buf is not None else None
                 logits, values = nets.forward(obs, keep=False)
                 if masks is not None:
                     logits = logits.masked_fill(~masks, MASKED_LOGIT)
-                uniform = torch.rand(logits.shape, generator=generator)
-                actions = (logits - torch.log(-torch.log(uniform))).argmax(-1)  # Gumbel-max: a sample
+                actions = torch.sub(logits, gumbel_buf[t]).argmax(-1)  # Gumbel-max: a sample
                 obs_buf[t] = obs
                 act_buf[t] = actions
-                logp_buf[t] = torch.log_softmax(logits, -1).gather(-1, actions[:, None]).squeeze(-1)
+                torch.gather(torch.log_softmax(logits, -1), -1, actions[:, None], out=logp_buf[t, :, None])
                 val_buf[t] = values
                 start_buf[t] = episode_start
                 if masks is not None:
@@ -352,15 +354,14 @@ def compute_gae(rewards, values, starts, last_value, last_start, gamma: float, l
     last step. Rewards already include the bootstrap of time-limit cuts."""
     n_steps = rewards.shape[0]
     out = torch.empty_like(rewards) if out is None else out
+    # every step's TD error and decay at once, then the backward recursion: two products a step
+    not_done = 1.0 - torch.cat([starts[1:], last_start[None]])
+    next_value = torch.cat([values[1:], last_value[None]])
+    delta = rewards + gamma * next_value * not_done - values
+    decay = gamma * lam * not_done
     gae = torch.zeros_like(last_value)
     for t in reversed(range(n_steps)):
-        if t == n_steps - 1:
-            not_done, next_value = 1.0 - last_start, last_value
-        else:
-            not_done, next_value = 1.0 - starts[t + 1], values[t + 1]
-        delta = rewards[t] + gamma * next_value * not_done - values[t]
-        gae = delta + gamma * lam * not_done * gae
-        out[t] = gae
+        gae = torch.add(delta[t], torch.mul(decay[t], gae), out=out[t])
     return out
 
 

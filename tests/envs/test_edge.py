@@ -208,6 +208,23 @@ def test_centralised_info_arrays_hold_the_single_infos():
     assert reset["overflowed_containers"][1] == () and reset["free_pus"].tolist() == [2, 0]
 
 
+def test_centralised_info_arrays_name_every_overflowed_container():
+    """Overflows of one, two and three containers in one step, and an episode's end without one,
+    beside steps without an end: each simulation's names as its single info holds them."""
+    over = [[0, 0, 1], [1, 1, 0], [0, 0, 0], [1, 1, 1], [0, 1, 0], [0, 0, 0]]
+    step = outcome(
+        requested=np.zeros((6, 3)), granted=np.zeros((6, 3)), denied=np.zeros((6, 3)), pu_index=np.full((6, 3), -1),
+        emptied_volume=np.zeros((6, 3)), container_reward=np.zeros((6, 3)), overflowed=over,
+        individual_reward=np.zeros((6, 3)), plant_reward=np.zeros(6), free_pus_before=np.full(6, 2),
+        terminated=[1, 1, 1, 1, 1, 0], truncated=np.zeros(6))
+    info = edge.CentralisedInfo(("A", "B", "C"))
+    arrays = info.step_arrays(np.zeros(6, dtype=np.int64), step, np.arange(6))
+    assert arrays["overflowed_containers"].tolist() == [("C",), ("A", "B"), (), ("A", "B", "C"), ("B",), ()]
+    for b in range(6):
+        single = StepOutcome(*(np.asarray(field)[b:b + 1] for field in step))
+        assert arrays["overflowed_containers"][b] == info.step(0, single, b)["overflowed_containers"]
+
+
 def test_the_centralised_envs_report_the_edge_schema():
     _, single = ContainerGymEnv(CFG).reset(seed=0)
     _, batched = ContainerGymVectorEnv(CFG, 3).reset(seed=0)

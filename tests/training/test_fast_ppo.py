@@ -114,6 +114,24 @@ def test_gae_by_hand():
     assert adv == pytest.approx([a0, a1, a2])
 
 
+def test_gae_bit_for_bit_the_per_step_recursion():
+    """The batched TD errors give, in float32, exactly what the recursion written one step at a time
+    gives (SB3's loop: the same products in the same order), so runs train the same numbers."""
+    g = torch.Generator().manual_seed(3)
+    n_steps, slots, gamma, lam = 64, 33, 0.99, 0.95
+    rewards, values = torch.randn(n_steps, slots, generator=g), torch.randn(n_steps, slots, generator=g)
+    starts = (torch.rand(n_steps, slots, generator=g) < 0.1).float()
+    last_value, last_start = torch.randn(slots, generator=g), (torch.rand(slots, generator=g) < 0.1).float()
+    expected, gae = torch.empty(n_steps, slots), torch.zeros(slots)
+    for t in reversed(range(n_steps)):
+        not_done = 1.0 - (last_start if t == n_steps - 1 else starts[t + 1])
+        next_value = last_value if t == n_steps - 1 else values[t + 1]
+        delta = rewards[t] + gamma * next_value * not_done - values[t]
+        gae = delta + gamma * lam * not_done * gae
+        expected[t] = gae
+    assert torch.equal(compute_gae(rewards, values, starts, last_value, last_start, gamma, lam), expected)
+
+
 def test_update_diagnostics_by_hand():
     """Two epochs over one minibatch of a two-action policy: the first pass starts at the policy that
     collected the samples (ratio 1: approx-KL 0, nothing clipped), so the means over both passes are

@@ -44,6 +44,41 @@ def test_outputs_and_gradients_equal_autograds(view, obs_size, n_actions, hidden
     assert torch.equal(nets.flat_grad, before)
 
 
+@pytest.mark.parametrize("flat", [False, True])
+def test_forward_follows_parameters_changed_in_place(flat):
+    """The forward computes its hidden layers with doubled copies of their parameters: after the
+    optimiser (or a load) changes the parameters in place, the next forward is the module's again, bit
+    for bit; inside fixed_parameters() the copies made on entering serve every forward."""
+    gen = torch.Generator().manual_seed(5)
+    model = ActorCritic("decentralised", 9, 2, generator=gen)
+    optimizer = FlatAdam(model.net.parameters(), lr=0.05, eps=1e-5) if flat else None
+    nets = MLPGradients(model, optimizer)
+    obs = torch.randn(40, 9, generator=gen)
+
+    def same_as_module():
+        logits, values = nets.forward(obs, keep=False)
+        with torch.no_grad():
+            return torch.equal(logits, model.logits(obs)) and torch.equal(values, model.value(obs))
+
+    assert same_as_module()
+    with nets.fixed_parameters():
+        before = nets.forward(obs, keep=False)[0]
+        assert torch.equal(nets.forward(obs, keep=False)[0], before)
+    nets.forward(obs)
+    nets.backward(torch.randn(40, 2, generator=gen), torch.randn(40, generator=gen))
+    if flat:
+        optimizer.step()  # writes the flat buffer, not the parameters themselves
+    else:
+        with torch.no_grad():
+            for p in model.net.parameters():
+                p.sub_(0.05 * p.grad)
+    assert not torch.equal(nets.forward(obs, keep=False)[0], before)
+    assert same_as_module()
+    model.net.load_state_dict(ActorCritic("decentralised", 9, 2, generator=gen).net.state_dict())
+    with nets.fixed_parameters():
+        assert same_as_module()
+
+
 def _autograd_loss(logits, values, actions, old_logp, adv, returns, clip, vf_coef, ent_coef, masks):
     """SB3's PPO loss through autograd (the trainer's loss before it was written out)."""
     if masks is not None:
