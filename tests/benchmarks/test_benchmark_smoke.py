@@ -62,8 +62,10 @@ def test_smoke_run_prints_every_table(tmp_path):
     header, rows = _table(lines, "## Vectorised envs")
     assert header == ["path", "n", "B", "ours env steps/s", "µs per call", "ours env steps per CPU-second",
                       "ours agent steps/s", "before env steps/s", "ours ÷ before"]
-    assert [(r[0], r[1]) for r in rows] == [("ContainerGymVecEnv (SB3)", "5"), ("ContainerGymVecEnv (SB3)", "11"),
-                                            ("ContainerAgentsVecEnv (SB3)", "5"), ("ContainerAgentsVecEnv (SB3)", "11")]
+    assert [(r[0], r[1]) for r in rows] == [
+        ("ContainerGymVecEnv (SB3)", "5"), ("ContainerGymVecEnv (SB3)", "11"),
+        ("ContainerGymVectorEnv (Gymnasium make_vec)", "5"), ("ContainerGymVectorEnv (Gymnasium make_vec)", "11"),
+        ("ContainerAgentsVecEnv (SB3)", "5"), ("ContainerAgentsVecEnv (SB3)", "11")]
     for r in rows:
         assert _number(r[3]) > 0 and _number(r[5]) > 0 and _number(r[7]) > 0 and r[8].endswith("×")
         if r[0].startswith("ContainerAgentsVecEnv"):  # agent steps = n × env steps
@@ -88,14 +90,14 @@ def test_smoke_run_prints_every_table(tmp_path):
     assert [r[0] for r in rows] == ["ppo", "shared_ppo"] and all(r[3].endswith("%") for r in rows)
 
     header, rows = _table(lines, "## Targets")
-    assert header == ["target", "this run", "status"] and len(rows) == 7
+    assert header == ["target", "this run", "status"] and len(rows) == 8
     assert all(r[2] == "not judged (smoke sizes)" for r in rows)
     assert rows[0][1] == "reference not run"
 
     data = json.loads(out_json.read_text())
     assert set(data) >= {"meta", "implementations", "skipped", "summary", "raw", "profile", "ppo", "targets"}
     assert list(data["implementations"]) == ["ours", "before"] and data["meta"]["smoke"] is True
-    assert len(data["summary"]["rows"]) == 10
+    assert len(data["summary"]["rows"]) == 12
 
 
 def test_kernel_benchmark_compares_two_checkouts():
