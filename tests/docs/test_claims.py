@@ -274,6 +274,28 @@ def planner_behaviour():
             and p["early_share"] > 0 and p["ready_waiting_for_a_pu_per_episode"] < r["ready_waiting_for_a_pu_per_episode"])
 
 
+def decisions(row: str) -> dict:
+    """studies/decision_differences.py's totals for the published best dagger_agents model on ``row``."""
+    data = json.loads((PLANNER / f"decisions_{row}_dagger_agents.json").read_text())
+    assert data["episodes"] == 30 and data["first_seed"] == 20_000 and data["reference"] == "planner_agents_shielded"
+    return data["totals"]
+
+
+def imitation_differs_from_the_planner():
+    shares = [decisions(row)["differing_steps"] / decisions(row)["steps"] for row in ("n11_m2_dt120", "n16_m2_dt120")]
+    return [round(100 * s) for s in shares] == [8, 14]
+
+
+def denied_requests_not_the_planners():
+    return all((decisions(row)["denied_extra"], decisions(row)["denied_requests"]) == counts
+               and counts[0] > counts[1] / 2
+               for row, counts in (("n11_m2_dt120", (65, 98)), ("n16_m2_dt120", (248, 397))))
+
+
+def imitation_overflows_in_two():
+    return all(decisions(row)["overflowing_episodes"] == 2 for row in ("n11_m2_dt120", "n16_m2_dt120"))
+
+
 @cache
 def validation() -> dict[tuple[str, str, str, str], dict]:
     """studies/planner_validation.py's rows by (part, plant without δ, view, changed setting)."""
@@ -511,6 +533,11 @@ def shield_never_overflows_on_fresh_episodes():
 
 
 PLANNER_CLAIMS = {
+    "The two decide differently in 8 % of the steps on `n11_m2_dt120` and 14 % on `n16_m2_dt120`.":
+        imitation_differs_from_the_planner,
+    "Most of the imitation's denied requests are ones the planner would not have made in that state: 65 of 98 on "
+    "`n11_m2_dt120`, 248 of 397 on `n16_m2_dt120`.": denied_requests_not_the_planners,
+    "The imitation overflows in 2 of the 30 episodes on each row.": imitation_overflows_in_two,
     "ε = 10⁻⁶ is the largest of 10⁻⁴, 10⁻⁵ and 10⁻⁶ whose overflow risk is at most 0.1 per 1,000 episodes on "
     "both contended plants in both views.": shield_epsilon_is_the_largest_safe_one,
     "It costs 2–5 % of the defaults' return there": shield_costs_two_to_five_percent,
