@@ -80,9 +80,14 @@ def simulate_futures(
     if normals.shape != (horizon, copies, n) or n != params.n_containers or horizon < 1:
         raise ValueError(f"normals: expected shape (H >= 1, K, {params.n_containers}), got {normals.shape}")
     batch = n_candidates * copies
+    rule = dynamics.get_rule(arbitration)
     current = state.select(np.full(batch, int(sim)))
     uniforms = np.full((batch, n), 0.5)
     requests = np.repeat(first_requests, copies, axis=0)
+    noise = np.tile(normals, (1, n_candidates, 1))  # [t] candidate-major: row c·K + k uses stream k
+    # two sets of step outputs, taken in turn (a step must not write over the state it reads), so the
+    # look-ahead's steps allocate nothing; its other inputs are right by construction (no checks)
+    outputs = [dynamics.StepOutputs(batch, n, current.pu_timers_s.shape[1]) for _ in range(2)]
     rewards = np.zeros((batch, horizon))
     risk = np.zeros((batch, horizon))
     end_step = np.full(batch, horizon, dtype=np.int64)
@@ -90,10 +95,9 @@ def simulate_futures(
     alive = np.ones(batch, dtype=bool)
     for t in range(horizon):
         if t > 0:
-            requests = policy(current, params)
-        noise = np.tile(normals[t], (n_candidates, 1))  # candidate-major: row c·K + k uses stream k
+            requests = dynamics.check_requests(policy(current, params), (batch, n))
         before = current.volumes
-        current, out = dynamics.step(current, requests, params, noise, uniforms, arbitration)
+        current, out = dynamics.step_checked(current, requests, params, noise[t], uniforms, rule, outputs[t % 2])
         rewards[:, t] = np.where(alive, out.plant_reward, 0.0)
         risk[:, t] = np.where(alive, dynamics.overflow_probabilities(before, out.granted, params), 0.0)
         ended_now = alive & (out.terminated | out.truncated)

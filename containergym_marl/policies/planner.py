@@ -115,6 +115,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from containergym_marl.config.pu_time import jit
 from containergym_marl.core.dynamics import PlantState, emptying_rewards
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.whatif import Futures, simulate_futures
@@ -129,34 +130,44 @@ _STREAM_TAG = 0x706C616E  # "plan"
 
 
 # ---- base policies: (state, params, max_requests, margin) -> (B, n) bool requests ---------------
-def _grant_by_priority(ready: np.ndarray, priority: np.ndarray, state: PlantState, max_requests: int) -> np.ndarray:
-    """Ready containers in decreasing ``priority``, as many as there are free PUs (at most
-    ``max_requests``): requests that the plant will all grant."""
-    limit = np.minimum((state.pu_timers_s == 0.0).sum(axis=1), max_requests)
-    key = np.where(ready, priority, -np.inf)
-    if max_requests == 1:  # one request: the best ready container
-        out = np.zeros_like(ready)
-        rows = np.flatnonzero(ready.any(axis=1) & (limit > 0))
-        out[rows, key[rows].argmax(axis=1)] = True
-        return out
-    order = np.argsort(-key, axis=1, kind="stable")  # ties to the lower index
-    rank = np.empty_like(order)
-    np.put_along_axis(rank, order, np.arange(ready.shape[1])[None, :], axis=1)
-    return ready & (rank < limit[:, None])
+@jit
+def _grant_by_priority(volumes, pu_timers_s, target, max_volume, margin, by_fullness, max_requests):
+    """(B, n) bool: the containers within ``margin`` of their optimum (v* − v <= margin, as
+    :func:`~containergym_marl.policies.rule_based.within_margin`) in decreasing priority (v / v_max with
+    ``by_fullness``, else the lower index), ties to the lower index, as many as there are free PUs (at
+    most ``max_requests``): requests that the plant will all grant. One compiled pass: the look-ahead
+    calls its base policy at every simulated step."""
+    b_count, n = volumes.shape
+    out = np.zeros((b_count, n), dtype=np.bool_)
+    for b in range(b_count):
+        limit = min(int((pu_timers_s[b] == 0.0).sum()), max_requests)
+        if limit <= 0:
+            continue
+        for i in range(n):
+            if target[i] - volumes[b, i] > margin:
+                continue
+            key_i = volumes[b, i] / max_volume[i] if by_fullness else -float(i)
+            rank = 0  # ready containers ahead of i: a higher priority, or the same one at a lower index
+            for j in range(n):
+                if j != i and target[j] - volumes[b, j] <= margin:
+                    key_j = volumes[b, j] / max_volume[j] if by_fullness else -float(j)
+                    if key_j > key_i or (key_j == key_i and j < i):
+                        rank += 1
+            out[b, i] = rank < limit
+    return out
 
 
 def fullest_base(state: PlantState, params: PlantParams, max_requests: int, margin: float = 1.0) -> np.ndarray:
     """Rule-based agents with the ``fullest`` arbitration: ready containers, fullest v / v_max
     first, as many as free PUs allow."""
-    ready = within_margin(state.volumes, params, margin)
-    return _grant_by_priority(ready, state.volumes / params.max_volume, state, max_requests)
+    return _grant_by_priority(state.volumes, state.pu_timers_s, params.target_volume, params.max_volume,
+                              float(margin), True, int(max_requests))
 
 
 def index_base(state: PlantState, params: PlantParams, max_requests: int, margin: float = 1.0) -> np.ndarray:
     """The centralised rule's order: ready containers, lowest index first, as many as free PUs allow."""
-    ready = within_margin(state.volumes, params, margin)
-    return _grant_by_priority(ready, -np.arange(params.n_containers, dtype=np.float64)[None, :], state,
-                              max_requests)
+    return _grant_by_priority(state.volumes, state.pu_timers_s, params.target_volume, params.max_volume,
+                              float(margin), False, int(max_requests))
 
 
 #: name -> base policy of the look-ahead.

@@ -200,6 +200,21 @@ def test_trainer_ab_compares_a_checkout_with_itself(tmp_path):
     assert "final models identical" in proc.stdout and "| this (" in proc.stdout and "| other (" in proc.stdout
 
 
+@pytest.mark.slow  # ~15 s
+def test_planner_ab_compares_a_checkout_with_itself(tmp_path):
+    """Two checkouts of the same code decide the same episodes (the hash check can pass), with the
+    same count of planned decisions, and the table has both sides."""
+    out = tmp_path / "ab.json"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "planner_ab.py"), "--other", str(REPO),
+                           "--config", "n5_m2_dt120", "--episodes", "1", "--rounds", "1", "--json", str(out)],
+                          capture_output=True, text=True, timeout=600, check=True)
+    report = json.loads(out.read_text())
+    assert report["identical_episodes"] is True
+    this, other = report["runs"]["this"][0], report["runs"]["other"][0]
+    assert this["planned"] == other["planned"] > 0 and this["decisions"] == other["decisions"] == 600
+    assert "episodes (requests and rewards) identical" in proc.stdout and "| other (" in proc.stdout
+
+
 def test_scaling_smoke_measures_every_path_of_each_plant(tmp_path):
     """benchmarks/scaling.py end to end on two plants (structure, not speed): each plant's row holds
     every rate, container decisions are n × plant steps, and the planner was timed."""

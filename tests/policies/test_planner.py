@@ -129,6 +129,31 @@ def test_base_policies_request_only_what_the_free_pus_grant():
     assert np.flatnonzero(index_base(state, params, 2)[1]).tolist() == [0]
 
 
+@pytest.mark.parametrize("config", ["n5_m2_dt120", "n16_m2_dt120"])
+def test_base_policies_follow_a_stable_sort_of_the_ready_containers(config):
+    """On random states with ties (equal fullness, several containers at the same volume, none or all
+    PUs free), each row's requests are the first of its ready containers (v* − v <= margin) sorted by
+    (priority descending, index), as many as free PUs and ``max_requests`` allow: written here with
+    Python's sort, one row at a time."""
+    params = PlantParams.from_config(load_config(config))
+    n, m = params.n_containers, params.n_pus
+    rng = np.random.default_rng(7)
+    volumes = rng.random((300, n)) * np.asarray(params.max_volume) * 1.1
+    volumes[::3] = np.round(volumes[::3] / params.max_volume * 4) / 4 * params.max_volume  # equal fullness
+    volumes[1::3, 1] = volumes[1::3, 0]  # equal volumes
+    timers = np.where(rng.random((300, m)) < 0.5, 0.0, 60.0)
+    state = make_state(volumes, timers)
+    for margin in (0.0, 1.0, 8.0):
+        for max_requests in (1, 2, n):
+            for base, priority in ((fullest_base, lambda v, i: v / params.max_volume[i]), (index_base, lambda v, i: -i)):
+                got = base(state, params, max_requests, margin)
+                for b in range(len(volumes)):
+                    ready = [i for i in range(n) if params.target_volume[i] - volumes[b, i] <= margin]
+                    ready.sort(key=lambda i: (-priority(volumes[b, i], i), i))
+                    limit = min(int((timers[b] == 0.0).sum()), max_requests)
+                    assert np.flatnonzero(got[b]).tolist() == sorted(ready[:limit]), (base.__name__, margin, b)
+
+
 def _decide(planner, cfg, volumes, timers, step=5):
     sim = PlantSimulator(cfg)
     sim.reset(generators=[np.random.default_rng(0)])
