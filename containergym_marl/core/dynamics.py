@@ -511,7 +511,9 @@ def _overflow_probabilities_into(volumes, emptied, out, per_container, reward_ta
                 std = params.fill_std_per_step[i]
                 gap = params.max_volume[i] - volumes[b, i] - params.fill_mean_per_step[i]
                 if std > 0.0:
-                    survive *= 1.0 - 0.5 * math.erfc(gap / (std * math.sqrt(2.0)))
+                    z = gap / (std * math.sqrt(2.0))
+                    if z < 6.5:  # beyond, 0.5·erfc(z) < 2e-20 and the factor rounds to 1.0: nothing to multiply
+                        survive *= 1.0 - 0.5 * math.erfc(z)
                 elif gap <= 0.0:
                     survive = 0.0
         out[b] = 1.0 - survive

@@ -19,6 +19,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from containergym_marl.config.pu_time import jit
 from containergym_marl.core import dynamics
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION, PlantState
 from containergym_marl.core.params import PlantParams
@@ -46,6 +47,25 @@ class Futures(NamedTuple):
     overflowed: np.ndarray  # (C, K) bool
     final_state: PlantState  # C·K rows
     ended: np.ndarray  # (C, K) bool: the episode ended (overflow or time limit) within H steps
+
+
+@jit
+def _record_step(t, alive, plant_reward, step_risk, terminated, truncated, rewards, risk, end_step, overflowed):
+    """Step ``t``'s reward and overflow risk of the futures still alive (the others keep their 0), and
+    the ends of those whose episode ended in it; whether any future is still alive."""
+    any_alive = False
+    for b in range(alive.shape[0]):
+        if not alive[b]:
+            continue
+        rewards[b, t] = plant_reward[b]
+        risk[b, t] = step_risk[b]
+        if terminated[b] or truncated[b]:
+            end_step[b] = t + 1
+            overflowed[b] = terminated[b]
+            alive[b] = False
+        else:
+            any_alive = True
+    return any_alive
 
 
 def simulate_futures(
@@ -98,13 +118,9 @@ def simulate_futures(
             requests = dynamics.check_requests(policy(current, params), (batch, n))
         before = current.volumes
         current, out = dynamics.step_checked(current, requests, params, noise[t], uniforms, rule, outputs[t % 2])
-        rewards[:, t] = np.where(alive, out.plant_reward, 0.0)
-        risk[:, t] = np.where(alive, dynamics.overflow_probabilities(before, out.granted, params), 0.0)
-        ended_now = alive & (out.terminated | out.truncated)
-        end_step[ended_now] = t + 1
-        overflowed |= ended_now & out.terminated
-        alive &= ~ended_now
-        if not alive.any():
+        step_risk = dynamics.overflow_probabilities(before, out.granted, params)
+        if not _record_step(t, alive, out.plant_reward, step_risk, out.terminated, out.truncated, rewards, risk,
+                            end_step, overflowed):
             break
     shape = (n_candidates, copies)
     return Futures(rewards.reshape(*shape, horizon), risk.reshape(*shape, horizon), end_step.reshape(shape), overflowed.reshape(shape),

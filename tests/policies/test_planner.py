@@ -115,6 +115,26 @@ def test_overflow_probability_matches_the_normal_tail_and_sampling():
     assert abs(fut.overflowed.mean() - expected) < 5 * math.sqrt(expected * (1 - expected) / k)
 
 
+def test_overflow_probability_is_the_product_over_every_container_bit_for_bit():
+    """1 − Πᵢ (1 − ½ erfc(zᵢ)) over the containers not emptied, each factor multiplied in as written
+    here in Python (containers far below their limit included): the same float64 number."""
+    params = PlantParams.from_config(load_config("n16_m2_dt120"))
+    rng = np.random.default_rng(3)
+    v_max = np.asarray(params.max_volume)
+    volumes = v_max * rng.choice([0.2, 0.9, 0.97, 1.0], size=(200, 16)) * rng.uniform(0.9, 1.0, (200, 16))
+    volumes[::4] = 0.2 * v_max  # every container far below its limit
+    emptied = rng.random((200, 16)) < 0.2
+    got = overflow_probabilities(volumes, emptied, params)
+    for b in range(200):
+        survive = 1.0
+        for i in range(16):
+            if not emptied[b, i]:
+                gap = v_max[i] - volumes[b, i] - params.fill_mean_per_step[i]
+                survive *= 1.0 - 0.5 * math.erfc(gap / (params.fill_std_per_step[i] * math.sqrt(2.0)))
+        assert got[b] == 1.0 - survive, b
+    assert 0 < (got > 0).sum() < 200  # rows with and without a container near its limit
+
+
 # ---- the planner ----------------------------------------------------------------------------------
 def test_base_policies_request_only_what_the_free_pus_grant():
     """Every container at its optimum (all ready): ``fullest`` picks by v / v_max, ``index`` by
