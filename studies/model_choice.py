@@ -6,7 +6,7 @@ return), the final, or the validated one (its sample-efficiency curve's pick, on
 
 Each run's three models are evaluated on the same validation episodes, seeds 20100+ (``--episodes``,
 100 by default): none of the 30 (20000-20029) its curve picked the validated model on, none a test
-or fresh episode. Per row: the mean over runs of each model's mean return, and the overflowing
+or fresh episode. Per method and row: the mean over runs of each model's mean return, and the overflowing
 episodes summed over runs. Resumable (``<out>/model_choice.json`` keeps every run's numbers, keyed
 by the three models' hashes); writes ``model_choice.md``. One torch thread, batched evaluations.
 """
@@ -35,7 +35,11 @@ def evaluate_run(run: Path, episodes: int) -> dict:
     torch.set_num_threads(1)
     saved = run_args(run)
     protocol = EvalProtocol(episodes=episodes, first_seed=FIRST_SEED)
-    entry = {"row": saved["config"], "seed": saved["seed"], "episodes": episodes, "first_seed": FIRST_SEED}
+    from containergym_marl.algorithms import get_algorithm
+
+    method = get_algorithm(saved["algo"]).method_name(saved.get("reward_mode"))
+    entry = {"method": method, "row": saved["config"], "seed": saved["seed"], "episodes": episodes,
+             "first_seed": FIRST_SEED}
     for which in MODELS:
         result = evaluate_batched(policy_from_run(run, which), saved["config"], protocol,
                                   arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
@@ -55,21 +59,22 @@ def model_hashes(run: Path) -> dict[str, str]:
 def report(entries: dict) -> str:
     from containergym_marl.config.loading import config_sort_key
 
-    rows: dict[str, list[dict]] = {}
+    rows: dict[tuple[str, str], list[dict]] = {}
     for entry in entries.values():
-        rows.setdefault(entry["row"], []).append(entry)
+        # entries written before the method was recorded are all fast_shared_ppo's
+        rows.setdefault((entry.get("method", "fast_shared_ppo"), entry["row"]), []).append(entry)
     episodes = {e["episodes"] for e in entries.values()}
     lines = ["# Which model stands for a run's seed", "",
              f"`python studies/model_choice.py`: each run's validated, best and final model on the same "
              f"{'/'.join(map(str, sorted(episodes)))} validation episodes (seeds {FIRST_SEED}+: not the 30 its curve "
              "picked the validated model on). Mean over runs of each model's mean return; overflowing episodes "
              "summed over runs.", "",
-             "| row | runs | validated | best (training return) | final |", "|---|---|---|---|---|"]
-    for row in sorted(rows, key=config_sort_key):
-        runs = rows[row]
+             "| method | row | runs | validated | best (training return) | final |", "|---|---|---|---|---|---|"]
+    for method, row in sorted(rows, key=lambda key: (key[0], config_sort_key(key[1]))):
+        runs = rows[method, row]
         cells = [f"{sum(r[w]['return_mean'] for r in runs) / len(runs):.2f} "
                  f"({sum(r[w]['overflowing_episodes'] for r in runs)} overflowing)" for w in MODELS]
-        lines.append(f"| {row} | {len(runs)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {method} | {row} | {len(runs)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -41,7 +41,8 @@ def test_three_models_on_the_same_episodes_and_a_rerun_reuses_them(tmp_path):
         result = evaluate_batched(policy_from_run(run, which), "n5_m2_dt120", EvalProtocol(episodes=3, first_seed=20_100))
         assert entry[which]["return_mean"] == pytest.approx(float(result.returns.mean()))
         assert entry[which]["overflowing_episodes"] == sum(e.overflow for e in result.episodes)
-    assert "| n5_m2_dt120 | 1 |" in (out / "model_choice.md").read_text()
+    assert entry["method"] == "fast_shared_ppo"
+    assert "| fast_shared_ppo | n5_m2_dt120 | 1 |" in (out / "model_choice.md").read_text()
     again = subprocess.run([sys.executable, SCRIPT, str(run), "--episodes", "3", "--out", str(out)],
                            capture_output=True, text=True, timeout=300)
     assert again.returncode == 0 and run.name not in again.stdout.split("# Which")[0]  # nothing evaluated again
