@@ -61,8 +61,7 @@ def report(entries: dict) -> str:
 
     rows: dict[tuple[str, str], list[dict]] = {}
     for entry in entries.values():
-        # entries written before the method was recorded are all fast_shared_ppo's
-        rows.setdefault((entry.get("method", "fast_shared_ppo"), entry["row"]), []).append(entry)
+        rows.setdefault((entry["method"], entry["row"]), []).append(entry)
     episodes = {e["episodes"] for e in entries.values()}
     lines = ["# Which model stands for a run's seed", "",
              f"`python studies/model_choice.py`: each run's validated, best and final model on the same "

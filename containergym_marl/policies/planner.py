@@ -139,21 +139,21 @@ def _grant_by_priority(volumes, pu_timers_s, target, max_volume, margin, by_full
     calls its base policy at every simulated step."""
     b_count, n = volumes.shape
     out = np.zeros((b_count, n), dtype=np.bool_)
+    ready, key = np.empty(n, dtype=np.bool_), np.empty(n)
     for b in range(b_count):
         limit = min(int((pu_timers_s[b] == 0.0).sum()), max_requests)
         if limit <= 0:
             continue
         for i in range(n):
-            if target[i] - volumes[b, i] > margin:
-                continue
-            key_i = volumes[b, i] / max_volume[i] if by_fullness else -float(i)
-            rank = 0  # ready containers ahead of i: a higher priority, or the same one at a lower index
-            for j in range(n):
-                if j != i and target[j] - volumes[b, j] <= margin:
-                    key_j = volumes[b, j] / max_volume[j] if by_fullness else -float(j)
-                    if key_j > key_i or (key_j == key_i and j < i):
+            ready[i] = target[i] - volumes[b, i] <= margin
+            key[i] = volumes[b, i] / max_volume[i] if by_fullness else -float(i)
+        for i in range(n):
+            if ready[i]:
+                rank = 0  # ready containers ahead of i: a higher priority, or the same one at a lower index
+                for j in range(n):
+                    if ready[j] and (key[j] > key[i] or (key[j] == key[i] and j < i)):
                         rank += 1
-            out[b, i] = rank < limit
+                out[b, i] = rank < limit
     return out
 
 

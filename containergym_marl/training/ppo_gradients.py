@@ -112,23 +112,17 @@ class MLPGradients:
         # as much as the rollout's small matrix product (the Parameters persist when their data moves)
         self.params = [[(m.weight, m.bias) for m in net if isinstance(m, torch.nn.Linear)]
                        for net in (model.net.actor, model.net.critic)]
-        # The forward's (bias, transposed weight) of each layer. A hidden layer's are copies times 2:
-        # its product is then 2x exactly (scaling by 2 rounds nothing), the tanh's first doubling done;
-        # each forward copies them afresh, but once for all the forwards inside fixed_parameters(). The
-        # output layers' are views of the parameters, valid while their data stays where it is.
-        hidden = [p for layers in self.params for layer in layers[:-1] for p in layer]
-        # with a FlatAdam, one product doubles every parameter at once (the output layers' copies unused)
-        self._flat = optimizer.flat_param if isinstance(optimizer, FlatAdam) else None
-        if self._flat is not None:
-            self._flat_doubled = torch.empty_like(self._flat)
-            every = dict((id(p), d) for p, d in zip(optimizer.params, _views(self._flat_doubled, optimizer.params)))
-            self._doubled = [(p, every[id(p)]) for p in hidden]
-        else:
-            self._doubled = [(p, torch.empty_like(p)) for p in hidden]
-        self._fixed = False
-        copy = dict((id(p), doubled) for p, doubled in self._doubled)
-        self._forward_layers = [[(copy[id(bias)], copy[id(weight)].t()) for weight, bias in layers[:-1]]
+        # The forward's (bias, transposed weight) of each layer. A hidden layer's are copies times 2,
+        # views of one buffer: its product is then 2x exactly (scaling by 2 rounds nothing), the tanh's
+        # first doubling done; each forward copies them afresh, but once for all the forwards inside
+        # fixed_parameters(). The output layers' are views of the parameters, valid while their data
+        # stays where it is.
+        self._hidden = [p for layers in self.params for layer in layers[:-1] for p in layer]
+        self._doubled = torch.empty(sum(p.numel() for p in self._hidden))
+        doubled = dict((id(p), d) for p, d in zip(self._hidden, _views(self._doubled, self._hidden)))
+        self._forward_layers = [[(doubled[id(bias)], doubled[id(weight)].t()) for weight, bias in layers[:-1]]
                                 + [(layers[-1][1], layers[-1][0].t())] for layers in self.params]
+        self._fixed = False
         params = list(model.net.parameters())
         self.flat_grad = optimizer.flat_grad if isinstance(optimizer, FlatAdam) else torch.zeros(
             sum(p.numel() for p in params))
@@ -157,11 +151,7 @@ class MLPGradients:
 
     def _double(self) -> None:
         with torch.no_grad():
-            if self._flat is not None:
-                torch.mul(self._flat, 2.0, out=self._flat_doubled)
-                return
-            for p, doubled in self._doubled:
-                torch.mul(p, 2.0, out=doubled)
+            torch.cat([p.reshape(-1) for p in self._hidden], out=self._doubled).mul_(2.0)
 
     def _forward(self, obs: torch.Tensor, keep: bool) -> tuple[torch.Tensor, torch.Tensor]:
         if not self._fixed:
