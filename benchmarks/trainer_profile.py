@@ -19,6 +19,8 @@ minibatches and epochs) and timed apart, each repeated ``--repeats`` times:
 
 "Rest" is the whole run less the sum of the phases: the rollout's bookkeeping (copies into the
 buffers, episode returns, the time-limit bootstrap), metrics rows, checkpoints and start-up.
+Below the table, the update's arithmetic floor: its matrix products alone, the same calls on the
+same shapes, timed apart (what the update would cost if everything else in it were free).
 CPU time is ``time.process_time`` (all threads of this process), which leaves out time spent
 waiting for a core; a busy machine still inflates it through shared caches, so compare phases
 within one run of this script.
@@ -138,11 +140,33 @@ def profile(algo: str, config: str, samples: int, repeats: int) -> dict:
     for _ in range(repeats):
         one_update()
     per.update({name: total / repeats / rollout for name, total in parts.items()})
+
+    # The update's arithmetic floor: its matrix products alone, the same calls on the same shapes as
+    # MLPGradients' forward and backward (dW of every layer, dx of all but the first), nothing else.
+    layers = [[(m.weight.detach(), m.bias.detach()) for m in net if isinstance(m, torch.nn.Linear)]
+              for net in (model.net.actor, model.net.critic)]
+    batch = flat_obs[: -(-rollout // minibatches)]
+
+    def products_only():
+        for _ in range(hp.n_epochs * minibatches):
+            for net in layers:
+                xs = [batch]
+                for weight, bias in net:
+                    xs.append(torch.addmm(bias, xs[-1], weight.t()))
+                g = torch.ones_like(xs[-1])
+                for i in reversed(range(len(net))):
+                    weight, x = net[i][0], xs[i]
+                    x.t().mm(g) if x.shape[1] < g.shape[1] else g.t().mm(x)
+                    if i > 0:
+                        g = g.mm(weight)
+
+    floor = _cpu(products_only, repeats) / rollout
     whole_per = whole / trained
     per["rest (bookkeeping, files, start-up)"] = whole_per - sum(per.values())
     return {"algo": algo, "config": config, "simulations": sims, "samples_per_update": rollout,
             "minibatches": minibatches, "epochs": hp.n_epochs, "run_samples": trained, "run_cpu_s": whole,
-            "us_per_sample": {k: v * 1e6 for k, v in per.items()}, "whole_us_per_sample": whole_per * 1e6}
+            "us_per_sample": {k: v * 1e6 for k, v in per.items()}, "whole_us_per_sample": whole_per * 1e6,
+            "update_products_us_per_sample": floor * 1e6}
 
 
 def main(argv=None) -> dict:
@@ -168,6 +192,11 @@ def main(argv=None) -> dict:
     for name, us in result["us_per_sample"].items():
         lines.append(f"| {name} | {us:.2f} | {us / whole:.0%} |")
     lines.append(f"| **whole run** | **{whole:.2f}** | 100% |")
+    update = sum(us for name, us in result["us_per_sample"].items() if name.startswith("update"))
+    floor = result["update_products_us_per_sample"]
+    lines += ["", f"The update's matrix products alone (the same products on the same shapes, nothing else): "
+              f"{floor:.2f} µs per sample, {floor / update:.0%} of the update's {update:.2f}; the rest of the "
+              f"update is elementwise passes (the tanh and its derivative, the loss) and per-call overhead."]
     print("\n".join(lines))
     if ns.md:
         Path(ns.md).parent.mkdir(parents=True, exist_ok=True)
