@@ -95,8 +95,14 @@ _FILE = re.compile(r"^(?P<method>.+?)(?:_s(?P<seed>\d+))?$")
 
 def evaluation_key(method: str, seed: int | None) -> str:
     """The stem of an evaluation file: ``<method>_s<seed>`` for a training seed's policy, ``<method>``
-    for a policy without seeds (what :func:`load_evaluations` parses back)."""
+    for a policy without seeds (what :func:`parse_evaluation_key` parses back)."""
     return method if seed is None else f"{method}_s{seed}"
+
+
+def parse_evaluation_key(stem: str) -> tuple[str, int | None]:
+    """The (method, training seed or None) of an evaluation file's stem (:func:`evaluation_key`'s inverse)."""
+    m = _FILE.match(stem)
+    return m["method"], int(m["seed"]) if m["seed"] is not None else None
 
 
 @dataclass
@@ -234,9 +240,8 @@ def load_evaluations(path: str | Path) -> list[MethodEvaluations]:
     for directory, files in folders:
         by_method: dict[str, list[tuple[int | None, dict]]] = {}
         for file, data in files:
-            m = _FILE.match(file.stem)
-            seed = int(m["seed"]) if m["seed"] is not None else None
-            by_method.setdefault(m["method"], []).append((seed, data))
+            method, seed = parse_evaluation_key(file.stem)
+            by_method.setdefault(method, []).append((seed, data))
         for method, found in by_method.items():
             seeded = sorted(((s, d) for s, d in found if s is not None), key=lambda sd: sd[0])
             if seeded and len(seeded) != len(found):
@@ -257,9 +262,9 @@ def _other_evaluations(root: Path | None, folder: str, config: str, method: str)
     a policy without seeds); none when the table is read from an evaluations folder alone."""
     found = {}
     for file, data in _evaluation_files(root / folder / config) if root is not None else []:
-        m = _FILE.match(file.stem)
-        if m["method"] == method:
-            found[int(m["seed"]) if m["seed"] is not None else None] = data
+        found_method, seed = parse_evaluation_key(file.stem)
+        if found_method == method:
+            found[seed] = data
     return found
 
 

@@ -5,7 +5,10 @@ evaluation, the best and median model of each (row, method), the table), and bri
     containergym-marl publish --runs RUNS --compare OUT --to results/paper_rows --restore
 
 RUNS is compare's ``--runs`` folder, OUT its ``--out`` folder (MAPPO runs of
-``baselines/sweep_mappo_rows.sh`` go to the same two). For every finished run (its final model) it
+``baselines/sweep_mappo_rows.sh`` go to the same two); ``--methods A B`` publishes only those methods'
+runs and evaluations (a runs folder shared with methods still training). An evaluation that compare
+made of a run is published only if it is of the model that run now ships (its hash; otherwise an
+error naming the file, before anything is written). For every finished run (its final model) it
 copies ``args.json``, ``run.json``, ``config.toml``, ``metrics.csv``, ``curve.json``, the best, the
 final and, where its curve picked one, the validated model (``best_model.zip`` …, or ``.pt``: the file
 names of the algorithm's registry entry; the policy the evaluations use is the validated model, else
@@ -50,6 +53,7 @@ the lock is held until the run's last file is copied).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -57,12 +61,13 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+from containergym_marl.algorithms import get_algorithm
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.evaluation import metrics
 from containergym_marl.evaluation import table as tables
 from containergym_marl.files import atomic_write, atomic_write_text, open_file, refuse_links, refuse_links_in
 from containergym_marl.manifest import check_file, is_covered, read_manifest, write_manifest
-from containergym_marl.methods import PAIRS, TWINS
+from containergym_marl.methods import METHODS, PAIRS, TWINS
 from containergym_marl.options import option
 from containergym_marl.orchestration import model_cards
 from containergym_marl.rundir import (
@@ -129,17 +134,58 @@ def _copy_run(run: Path, to: Path) -> bool:
     return True
 
 
+def _run_method(run: Path) -> str | None:
+    """The method a run trained, as compare names it (its algorithm and reward mode); None when its
+    arguments do not name a registered algorithm (a MAPPO run of its own script)."""
+    try:
+        saved = run_args(run)
+        return get_algorithm(saved["algo"]).method_name(saved.get("reward_mode"))
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def _check_evaluated_models(evaluations: list[Path], runs: Path) -> None:
+    """A ValueError naming the file, when an evaluation made by compare of a run in ``runs`` is not of the
+    model that run now has its seed stand for (evaluated_files: the validated model where its curve picked
+    one, else the best): the table would show numbers of another model than the one shipped."""
+    from containergym_marl.evaluation.run_policies import evaluated_files
+
+    for path in evaluations:
+        try:
+            made = json.loads(path.read_text()).get("compare") or {}
+        except (ValueError, AttributeError):
+            raise ValueError(f"{str(path)!r} is not an evaluation file (a JSON object); nothing was written") from None
+        run = runs / str(made.get("run"))
+        if not made.get("model_sha256") or not made.get("run") or run_status(run) != "finished":
+            continue
+        model = run / evaluated_files(run)[-1]
+        if (sha := hashlib.sha256(model.read_bytes()).hexdigest()) != made["model_sha256"]:
+            raise ValueError(f"{str(path)!r} evaluates a model of {run.name} with sha256 {made['model_sha256'][:12]}…, "
+                             f"but the run's {model.name} has {sha[:12]}…: evaluate it again (compare) before "
+                             f"publishing; nothing was written")
+
+
 def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_checkpoints: bool = False,
-            readme: Path | None = None, pages: tuple[Path, ...] = ()) -> dict:
+            readme: Path | None = None, pages: tuple[Path, ...] = (), methods: tuple[str, ...] = ()) -> dict:
     """Publish a comparison into ``to``: every finished run of ``runs`` (its small files and models;
     an interrupted one's newest checkpoint with ``with_checkpoints``), the evaluations of
     ``compare_out``, the best and median model of each (row, method) with at least ``min_seeds``
     seeds, picked on validation episodes, the table, and the generated blocks of ``readme`` and
-    ``pages``. Returns what was published, by kind."""
+    ``pages``; with ``methods``, only the runs and evaluations of these methods. An evaluation of a
+    run that is not of the model the run ships is an error before anything is written. Returns what
+    was published, by kind."""
     for folder in (runs, compare_out, to):  # before anything is written: no link followed in any
         refuse_links_in(folder)
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"methods: unknown method(s) {unknown}; choose from {tuple(METHODS)}")
+    chosen = [run for run in sorted(p for p in runs.iterdir() if p.is_dir() and not p.name.startswith("."))
+              if not methods or _run_method(run) in methods]
+    evaluations = [path for path in sorted((compare_out / "evaluations").glob("*/*.json"))
+                   if not methods or tables.parse_evaluation_key(path.stem)[0] in methods]
+    _check_evaluated_models(evaluations, runs)
     done = {"runs": [], "interrupted": [], "evaluations": 0, "models": []}
-    for run in sorted(p for p in runs.iterdir() if p.is_dir() and not p.name.startswith(".")):
+    for run in chosen:
         status = run_status(run)
         if status == "finished":
             _copy_run(run, to)
@@ -147,7 +193,7 @@ def publish(runs: Path, compare_out: Path, to: Path, min_seeds: int = 3, with_ch
         elif status == "interrupted" and with_checkpoints and latest_intact_checkpoint(run) is not None:
             if _copy_run(run, to):
                 done["interrupted"].append(run.name)
-    for path in sorted((compare_out / "evaluations").glob("*/*.json")):
+    for path in evaluations:
         _copy(path, to / "evaluations" / path.parent.name / path.name, to)
         done["evaluations"] += 1
     if not any((to / "evaluations").glob("*/*.json")):
@@ -549,6 +595,9 @@ class PublishArgs:
                                   "best and median models, rebuild its table (and the pages); no --runs or --compare")
     restore: bool = option(False, action="store_true",
                            help="copy published runs and evaluations back into --runs and --compare instead")
+    methods: list[str] = option(default_factory=list, nargs="*", metavar="METHOD",
+                                help="publish only the runs and evaluations of these methods (a folder that holds "
+                                     "others too, e.g. a campaign still training them)")
 
 
 def run(a: PublishArgs) -> int:
@@ -568,7 +617,7 @@ def run(a: PublishArgs) -> int:
         done = restore(a.to, a.runs, a.compare)
         print(f"restored {len(done['runs'])} run(s) and {done['evaluations']} evaluation(s) from {a.to}/")
         return 0
-    done = publish(a.runs, a.compare, a.to, a.min_seeds, a.with_checkpoints, a.readme, tuple(a.docs))
+    done = publish(a.runs, a.compare, a.to, a.min_seeds, a.with_checkpoints, a.readme, tuple(a.docs), tuple(a.methods))
     size = sum(p.stat().st_size for p in (a.to / "models").rglob("*") if p.suffix in (".zip", ".pt"))
     print(f"published {len(done['runs'])} finished run(s), {len(done['interrupted'])} interrupted one(s) with "
           f"their newest checkpoint, {done['evaluations']} evaluation(s), models of "

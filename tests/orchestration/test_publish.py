@@ -254,3 +254,71 @@ def test_a_run_with_a_validated_model_is_evaluated_shipped_and_carded_with_it(tm
     plan = shipped_plan(CompareArgs(configs=[config], methods=["fast_shared_ppo"], shipped=str(to), episodes=2,
                                      seeds=[]), tmp_path / "main")
     assert sorted(source["files"]["validated_model.pt"] for _, source in plan.to_evaluate) == sorted(validated.values())
+
+
+def _tiny_run(runs, algo: str, config: str, seed: int, reward_mode: str | None = None):
+    """A finished native run of 2000 samples on 20-step episodes, named as compare names it."""
+    from containergym_marl.algorithms import get_algorithm
+    from containergym_marl.rundir import run_name
+
+    extra = {} if reward_mode is None else {"reward_mode": reward_mode}
+    method = get_algorithm(algo).method_name(reward_mode)
+    return train(TrainArgs(algo=algo, config=config, seed=seed, timesteps=2000, n_envs=2,
+                           out=str(runs / run_name(method, config, seed)), progress_bar=False,
+                           hyperparams={"n_steps": 16, "minibatch_size": 64},
+                           overrides={"episode_length_steps": 20}, **extra))
+
+
+def _compare_evaluation(out, run, method: str, config: str, seed: int, model_sha256: str):
+    """An evaluation file as compare writes it: the run's evaluation and compare's record of its model."""
+    result = json.loads(evaluate_run(run, protocol=EvalProtocol(episodes=2, episode_length_steps=30),
+                                     write=False).to_json())
+    result["compare"] = {"run": run.name, "timesteps": 2000, "model_sha256": model_sha256}
+    path = out / "evaluations" / config / f"{method}_s{seed}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result))
+    return path
+
+
+def _sha(path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_publish_methods_takes_only_those_methods_runs_and_evaluations(tmp_path):
+    """--methods: from a runs folder and a compare folder that hold two methods (a campaign publishing
+    one while it trains the other), only the named method's runs and evaluation files are copied."""
+    runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
+    config = "n5_m2_dt120"
+    shared = _tiny_run(runs, "fast_shared_ppo", config, 1)
+    team = _tiny_run(runs, "fast_shared_ppo", config, 1, reward_mode="team")
+    assert (shared.name, team.name) == (f"fast_shared_ppo_{config}_s1", f"fast_shared_ppo_team_{config}_s1")
+    for run, method in ((shared, "fast_shared_ppo"), (team, "fast_shared_ppo_team")):
+        _compare_evaluation(out, run, method, config, 1, _sha(run / "best_model.pt"))
+    done = publish_results.publish(runs, out, to, methods=("fast_shared_ppo_team",))
+    assert done["runs"] == [team.name] and done["evaluations"] == 1
+    assert sorted(p.name for p in (to / "runs").iterdir()) == [team.name]
+    assert sorted(p.name for p in (to / "evaluations" / config).iterdir()) == ["fast_shared_ppo_team_s1.json"]
+    with pytest.raises(ValueError, match="methods: unknown method.*'fast_shared_ppo_teams'"):
+        publish_results.publish(runs, out, tmp_path / "other", methods=("fast_shared_ppo_teams",))
+    assert not (tmp_path / "other").exists()
+
+
+def test_publish_refuses_an_evaluation_of_another_model_than_the_run_ships(tmp_path):
+    """An evaluation that compare made of a run before the run's shipped model changed (e.g. before its
+    curve picked a validated model) would put another model's numbers in the table: an error naming
+    the file, before anything is written; with the model's own hash it publishes."""
+    runs, out, to = tmp_path / "runs", tmp_path / "cmp", tmp_path / "results"
+    config = "n5_m2_dt120"
+    run = _tiny_run(runs, "fast_shared_ppo", config, 1)
+    path = _compare_evaluation(out, run, "fast_shared_ppo", config, 1, _sha(run / "final_model.pt"))
+    assert _sha(run / "final_model.pt") != _sha(run / "best_model.pt")
+    with pytest.raises(ValueError, match=r"fast_shared_ppo_s1\.json.*evaluates a model of fast_shared_ppo_n5_m2_dt120_s1"
+                       r".*best_model\.pt.*nothing was written"):
+        publish_results.publish(runs, out, to)
+    assert not to.exists()
+    data = json.loads(path.read_text())
+    data["compare"]["model_sha256"] = _sha(run / "best_model.pt")
+    path.write_text(json.dumps(data))
+    assert publish_results.publish(runs, out, to)["evaluations"] == 1
