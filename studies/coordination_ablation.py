@@ -201,19 +201,10 @@ def execute(args: Args, plans: dict) -> list[str]:
 def decision_time(policy, row: str) -> dict:
     """Wall time of ``policy.act`` per plant step (all agents at once, one torch thread) over one
     validation episode of ``row`` (continued into the next where it ends early): median, mean, p99."""
-    import torch
+    from containergym_marl.evaluation.decision_time import decision_time as timed
+    from containergym_marl.evaluation.protocol import VALIDATION
 
-    from containergym_marl.envs.container_agents_v0 import parallel_env
-    from containergym_marl.evaluation.decision_time import decision_times_ms
-    from containergym_marl.evaluation.protocol import VALIDATION, policy_observation
-
-    torch.set_num_threads(1)
-    env = parallel_env(VALIDATION.plant(row), action_masking=True, observation=policy_observation(policy))
-    if hasattr(policy, "reset"):
-        policy.reset(seed=VALIDATION.first_seed)
-    ms = decision_times_ms(policy, env, TIMED_STEPS, VALIDATION.first_seed)
-    return {"steps": len(ms), "ms_median": float(np.median(ms)), "ms_mean": float(ms.mean()),
-            "ms_p99": float(np.quantile(ms, 0.99))}
+    return timed(policy, VALIDATION.plant(row), TIMED_STEPS, VALIDATION.first_seed)
 
 
 def _timed(job: tuple) -> tuple:

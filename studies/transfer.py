@@ -1,6 +1,7 @@
 """Does a policy shared by the container agents carry over to larger plants? (issue 40, item 3)
 
     python studies/transfer.py                    # 2 methods x 2 source plants x 5 seeds, then every target
+    python studies/transfer.py --no-in-domain --centralised   # zero-shot and the controllers only
     python studies/transfer.py --report           # the table from the files there, nothing run
     python studies/transfer.py --smoke            # one method, one seed, tiny budget, two small targets
 
@@ -9,17 +10,23 @@ every plant; one policy shared by the container agents acts on a fixed-size obse
 principle run on a plant of any size. With the ``portable`` observation (14 entries on every plant,
 :mod:`containergym_marl.core.observations`) the same network runs on all of them: trained on the paper's
 contended plants (:data:`SOURCES`), how does it do on the larger plants built from the 16-container
-plant (``configs/scaled.py``), zero-shot, next to the rule-based controllers and the planner there?
+plant (``configs/scaled.py``), zero-shot, next to the same method trained on that plant, a centralised
+PPO trained on that plant, the rule-based controllers and the planner there?
 
 **Protocol.** Each method (:data:`METHODS`, ``--hp observation=portable``) x source plant x seed
-(:data:`SEEDS`, 101-105: no published run uses them) is one run at the paper's budget. Each run's best
-model (the paper's choice: the best training return; nothing is chosen on the episodes reported) is
-evaluated on ``--episodes`` *fresh* episodes (δ = 120 s, T = 600, seeds 30000+, used for nothing else)
-of its source plant and of every target plant. The controllers (:data:`CONTROLLERS`) are evaluated on
-the same episodes of every plant, ``planner_agents`` on the first ``--planner-episodes`` of them (its
-decision takes 45 ms at n = 128: ``benchmarks/scaling.py``). The table (``--out``/table.md,
-table.json): per plant and policy, the mean return per container (mean over seeds [min, max]) and the
-share of overflowing episodes.
+(:data:`SEEDS`, 101-105: no published run uses them) is one run at the paper's budget; with
+``--in-domain`` (the default) each method is also trained on every target plant, and each
+``--centralised`` method (:data:`CENTRALISED`, the controller's view, retrained for every plant) on
+every plant. Each run's best model (the paper's choice: the best training return; nothing is chosen
+on the episodes reported) is evaluated on ``--episodes`` *fresh* episodes (δ = 120 s, T = 600, seeds
+30000+, used for nothing else) of the plant it was trained on and, for the shared methods trained on a
+source plant, of every target plant. The controllers (:data:`CONTROLLERS`) are evaluated on the same
+episodes of every plant, ``planner_agents`` on the first ``--planner-episodes`` of them (its decision
+takes about 10 ms at n = 128: ``benchmarks/scaling.py``). Each policy's decision time per plant step
+(all agents at once for the container agents, one torch thread, ``--timing-steps`` steps from the first
+fresh episode on; the first seed's model) is measured once per model (``--out``/decision_time.json). The
+table (``--out``/table.md, table.json): per plant and policy, the mean return per container (mean over
+seeds [min, max]), the share of overflowing episodes and the median decision time.
 
 **Plan, execute, report.** The trainings and the source-plant evaluations are compare plans
 (:func:`~containergym_marl.orchestration.plan.training_plan`: run names, budgets, finished runs and
@@ -30,10 +37,11 @@ again when the model changes. They run on ``--workers`` processes without Ray; r
 continue after an interruption. Writes only ``--out`` (results/transfer) and the run directories
 (``--runs``, git-ignored).
 
-**Cost.** 20 runs of the paper's 5M samples (``fast_shared_ppo`` about 5 minutes of one core each,
-``dagger_agents`` about 5), then per model 6 targets x 200 episodes of a learned policy (seconds to a
-minute each), and the planner: 30 episodes of 600 steps on each plant, about 30 minutes at n = 128.
-About 4 core-hours in all.
+**Cost.** Zero-shot alone (``--no-in-domain --centralised``, nothing after it): 20 runs of the
+paper's 5M samples (``fast_shared_ppo`` about 5 minutes of one core each, ``dagger_agents`` about 5),
+then per model 6 targets x 200 episodes of a learned policy (seconds to a minute each), and the
+planner: 30 episodes of 600 steps on each plant; about 4 core-hours. Training the two methods on the 6
+targets adds 60 runs, ``fast_ppo`` on the 8 plants 40 (5M samples each): about 8 core-hours more.
 """
 
 from __future__ import annotations
@@ -58,6 +66,8 @@ SOURCES = ("n11_m2_dt120", "n16_m2_dt120")
 #: The larger plants (configs/scaled.py): PUs in proportion, then scarce.
 TARGETS = ("n32_m4_dt120", "n64_m8_dt120", "n128_m16_dt120", "n32_m3_dt120", "n64_m6_dt120", "n128_m12_dt120")
 CONTROLLERS = ("rule_based", "rule_based_agents")
+#: The controller's view, retrained for every plant: what the shared policies are compared with.
+CENTRALISED = ("fast_ppo",)
 PLANNER = "planner_agents"
 SEEDS = (101, 102, 103, 104, 105)
 OBSERVATION = "portable"
@@ -77,13 +87,16 @@ class Args:
     runs: str = "runs/transfer"
     n_envs: int | None = None
     hyperparams: dict = field(default_factory=dict)  # further settings of every method (smoke: tiny)
+    in_domain: bool = True  # the methods trained on every target plant too
+    centralised: list[str] = field(default_factory=lambda: list(CENTRALISED))  # trained on every plant
+    timing_steps: int = 300  # plant steps of each policy's decision-time measurement
     report: bool = False
     smoke: bool = False
 
     def for_smoke(self) -> "Args":
         return replace(self, methods=["fast_shared_ppo"], sources=["n5_m2_dt120"], targets=["n11_m2_dt120",
                        "n32_m4_dt120"], seeds=[SEEDS[0]], timesteps=2_000, episodes=2, planner_episodes=1, workers=1,
-                       n_envs=2, hyperparams={"n_steps": 16, "minibatch_size": 64},
+                       n_envs=2, hyperparams={"n_steps": 16, "minibatch_size": 64}, timing_steps=5,
                        out=self.out if self.out != Args.out else "runs/transfer_smoke/results",
                        runs=self.runs if self.runs != Args.runs else "runs/transfer_smoke/runs")
 
@@ -93,6 +106,14 @@ class Args:
             items = getattr(self, name)
             if not items or len(set(items)) != len(items):
                 raise ValueError(f"{name}: expected distinct entries, got {items}")
+        from containergym_marl.methods import METHODS as REGISTERED
+
+        choices = [m for m, d in REGISTERED.items() if d.trained_here and d.view == "centralised"]
+        if not set(self.centralised) <= set(choices) or len(set(self.centralised)) != len(self.centralised):
+            raise ValueError(f"centralised: expected distinct centralised methods that compare trains, got "
+                             f"{self.centralised}; choose from {choices}")
+        if self.timing_steps < 1:
+            raise ValueError(f"timing_steps: expected at least 1, got {self.timing_steps}")
         if not set(self.methods) <= set(METHODS):
             raise ValueError(f"methods: {sorted(set(self.methods) - set(METHODS))} are not shared container-agent "
                              f"policies with the portable observation; choose from {METHODS}")
@@ -107,19 +128,29 @@ class Args:
             args.validate()  # unknown methods or plants, budgets
         from containergym_marl.algorithms import get_algorithm
 
+        plans = self.plans()
         for method in self.methods:
-            get_algorithm(method).trainer().settings(self.plans()[method].hyperparams)
+            get_algorithm(method).trainer().settings(plans[method].hyperparams)
+        for method in self.centralised:
+            get_algorithm(method).trainer().settings(plans["centralised"].hyperparams)
 
     def plans(self) -> dict[str, CompareArgs]:
         """The compare plans by folder: each method's trainings (and source-plant evaluations), the
         controllers' evaluations on every plant, the planner's."""
         plants = [*self.sources, *self.targets]
         common = dict(protocol="fresh", figures="none")
-        plans = {method: CompareArgs(methods=[method], configs=list(self.sources), seeds=list(self.seeds),
+        plans = {method: CompareArgs(methods=[method], configs=plants if self.in_domain else list(self.sources),
+                                     seeds=list(self.seeds),
                                      timesteps=self.timesteps, episodes=self.episodes, n_envs=self.n_envs,
                                      hyperparams={**self.hyperparams, "observation": OBSERVATION},
                                      out=str(Path(self.out) / method), runs=str(Path(self.runs) / method), **common)
                  for method in self.methods}
+        if self.centralised:
+            plans["centralised"] = CompareArgs(methods=list(self.centralised), configs=plants, seeds=list(self.seeds),
+                                               timesteps=self.timesteps, episodes=self.episodes, n_envs=self.n_envs,
+                                               hyperparams=dict(self.hyperparams),
+                                               out=str(Path(self.out) / "centralised"),
+                                               runs=str(Path(self.runs) / "centralised"), **common)
         plans["controllers"] = CompareArgs(methods=list(CONTROLLERS), configs=plants, episodes=self.episodes,
                                            out=str(Path(self.out) / "controllers"),
                                            runs=str(Path(self.runs) / "controllers"), **common)
@@ -220,6 +251,60 @@ def execute(args: Args) -> list[str]:
     return failed
 
 
+# ---- decision times --------------------------------------------------------------------------------
+def _timed(job: tuple) -> tuple:
+    """(label/plant, model sha, timing) of a controller (run None) or of a run's best model on a plant."""
+    from containergym_marl.core.params import PlantParams
+    from containergym_marl.evaluation.decision_time import decision_time
+    from containergym_marl.evaluation.run_policies import policy_from_run
+    from containergym_marl.methods import get_method
+
+    key, plant, run, sha, protocol, steps = job
+    config = protocol.plant(plant)
+    policy = (get_method(key.split("/")[0]).controller(PlantParams.from_config(config)) if run is None
+              else policy_from_run(run, "best"))
+    return key, sha, decision_time(policy, config, steps, protocol.first_seed)
+
+
+def timing_jobs(args: Args, plans: dict) -> list[tuple]:
+    """One decision-time job per (policy, plant) of the table: each controller and the planner, each
+    method's first seed's model where it was trained and zero-shot from each source, each centralised
+    method's first seed's; keyed ``<label>/<plant>`` as the table's cells are."""
+    from containergym_marl.orchestration.plan import model_sha256, run_files
+    from containergym_marl.rundir import run_name
+
+    protocol, seed = plans["controllers"].eval_protocol(), args.seeds[0]
+    jobs = []
+    for plant in [*args.sources, *args.targets]:
+        for name in [*CONTROLLERS, PLANNER]:
+            jobs.append((f"{name}/{plant}", plant, None, None, protocol, args.timing_steps))
+        runs = [(f"{m} (trained here)", plans[m].runs, m, plant) for m in args.methods if plant in plans[m].configs]
+        runs += [(f"{m} from {source}", plans[m].runs, m, source) for m in args.methods for source in args.sources
+                 if plant in args.targets]
+        runs += [(f"{m} (trained here)", plans["centralised"].runs, m, plant) for m in args.centralised]
+        for label, folder, method, trained_on in runs:
+            run = Path(folder).resolve() / run_name(method, trained_on, seed)
+            if (run / "run.json").is_file():
+                jobs.append((f"{label}/{plant}", plant, str(run), model_sha256(run_files(run)), protocol,
+                             args.timing_steps))
+    return jobs
+
+
+def decision_times(args: Args, plans: dict) -> dict:
+    """Every policy's decision time on every plant, cached in ``--out``/decision_time.json by model and
+    number of steps (measured again when either changes)."""
+    path = Path(args.out) / "decision_time.json"
+    known = json.loads(path.read_text()) if path.is_file() else {}
+    jobs = [j for j in timing_jobs(args, plans)
+            if j[0] not in known or (known[j[0]]["model_sha256"], known[j[0]]["steps"]) != (j[3], j[5])]
+    print(f"transfer: {len(jobs)} decision time(s) to measure", flush=True)
+    with ProcessPoolExecutor(args.workers) as pool:
+        for key, sha, timing in pool.map(_timed, jobs):
+            known[key] = {"model_sha256": sha, **timing}
+            atomic_write_text(path, json.dumps(known, indent=1, sort_keys=True) + "\n")
+    return known
+
+
 # ---- the report ------------------------------------------------------------------------------------
 def _evaluation(path: Path) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
@@ -233,11 +318,12 @@ def _cell(evaluations: list[dict], n: int) -> dict:
             "overflow_share": sum(bool(e["overflow"]) for e in episodes) / len(episodes)}
 
 
-def summarise(args: Args) -> dict:
-    """Per plant: each policy's mean return per container (over seeds) and overflowing share."""
+def summarise(args: Args, timing: dict | None = None) -> dict:
+    """Per plant: each policy's mean return per container (over seeds), overflowing share and median
+    decision time per plant step (``timing``: :func:`decision_times`; None where not measured)."""
     from containergym_marl.config import load_config
 
-    plans = args.plans()
+    plans, timing = args.plans(), timing or {}
     entries = []
     for plant in [*args.sources, *args.targets]:
         n = load_config(plant).n_containers
@@ -246,41 +332,51 @@ def summarise(args: Args) -> dict:
             ev = _evaluation(Path(plans[folder].out) / "evaluations" / plant / f"{evaluation_key(name, None)}.json")
             if ev is not None:
                 cells[name] = _cell([ev], n)
-        for method in args.methods:
-            for source in args.sources:
-                if plant == source:
-                    paths = [Path(plans[method].out) / "evaluations" / plant / f"{evaluation_key(method, s)}.json"
-                             for s in args.seeds]
-                    label = f"{method} (trained here)"
-                elif plant in args.targets:
-                    paths = [zero_shot_path(args, method, source, plant, s) for s in args.seeds]
-                    label = f"{method} from {source}"
-                else:
-                    continue
-                found = [ev for p in paths if (ev := _evaluation(p)) is not None]
-                if found:
-                    cells[label] = _cell(found, n)
+        trained = [(f"{m} (trained here)", plans[m].out, m) for m in args.methods if plant in plans[m].configs]
+        trained += [(f"{m} (trained here)", plans["centralised"].out, m) for m in args.centralised]
+        groups = [(label, [Path(out) / "evaluations" / plant / f"{evaluation_key(method, s)}.json"
+                           for s in args.seeds]) for label, out, method in trained]
+        groups += [(f"{m} from {source}", [zero_shot_path(args, m, source, plant, s) for s in args.seeds])
+                   for m in args.methods for source in args.sources if plant in args.targets]
+        for label, paths in groups:
+            found = [ev for p in paths if (ev := _evaluation(p)) is not None]
+            if found:
+                cells[label] = _cell(found, n)
+        for label, cell in cells.items():
+            measured = timing.get(f"{label}/{plant}")
+            cell["decision_ms_median"] = None if measured is None else measured["ms_median"]
         entries.append({"plant": plant, "n": n, "cells": cells})
     return {"question": "zero-shot transfer of shared container-agent policies to larger plants (issue 40)",
             "observation": OBSERVATION, "protocol": "fresh", "args": asdict(args), "entries": entries}
 
 
+def _ms(value: float | None) -> str:
+    return "–" if value is None else f"{value:.3g}"
+
+
 def markdown(report: dict) -> str:
     args = report["args"]
     lines = ["# Shared container-agent policies on plants they were not trained on", "",
-             f"Methods trained with `--hp observation={OBSERVATION}` on {', '.join(args['sources'])}, seeds "
-             f"{', '.join(map(str, args['seeds']))}, "
+             f"Shared container-agent methods trained with `--hp observation={OBSERVATION}` on "
+             f"{', '.join(args['sources'])}" + (" and on each larger plant (trained here)" if args["in_domain"] else "")
+             + (f"; {', '.join(f'`{m}`' for m in args['centralised'])} (the controller's view, its own observation) "
+                "on every plant" if args["centralised"] else "")
+             + f"; seeds {', '.join(map(str, args['seeds']))}, "
              + (f"{args['timesteps']:,} samples per run" if args["timesteps"] else "the paper's budget")
-             + f"; each run's best model on {args['episodes']} fresh episodes (δ = 120 s, T = 600, seeds 30000+) "
-             f"of every plant, the rules on the same episodes, `{PLANNER}` on the first {args['planner_episodes']}. "
+             + f". Each run's best model on {args['episodes']} fresh episodes (δ = 120 s, T = 600, seeds 30000+) "
+             f"of its plant and, trained on a source plant, of every larger one (zero-shot: from …); the rules "
+             f"on the same episodes, `{PLANNER}` on the first {args['planner_episodes']}. "
              "Return per container: the mean return / n, mean over seeds [min, max]; overflow: the share of all "
-             "episodes that overflowed.", "",
-             "| plant | n | policy | seeds | return per container [min, max] | overflow |", "|---|---|---|---|---|---|"]
+             "episodes that overflowed; decision: the median wall time of one plant step's decision (all agents "
+             f"at once, one torch thread, {args['timing_steps']} steps, the first seed's model), in ms.", "",
+             "| plant | n | policy | seeds | return per container [min, max] | overflow | decision (ms) |",
+             "|---|---|---|---|---|---|---|"]
     for e in report["entries"]:
         for label, c in e["cells"].items():
             spread = f" [{c['min']:.3f}, {c['max']:.3f}]" if c["seeds"] > 1 else ""
             lines.append(f"| {e['plant']} | {e['n']} | {label} | {c['seeds'] if c['seeds'] > 1 else '–'} | "
-                         f"{c['return_per_container']:.3f}{spread} | {c['overflow_share']:.2f} |")
+                         f"{c['return_per_container']:.3f}{spread} | {c['overflow_share']:.2f} | "
+                         f"{_ms(c.get('decision_ms_median'))} |")
     return "\n".join(lines) + "\n"
 
 
@@ -291,7 +387,10 @@ def main(args: Args) -> dict:
     failed = [] if args.report else execute(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    report = summarise(args)
+    timing_path = out / "decision_time.json"
+    timing = (json.loads(timing_path.read_text()) if timing_path.is_file() else {}) if args.report \
+        else decision_times(args, args.plans())
+    report = summarise(args, timing)
     atomic_write_text(out / "table.json", json.dumps(report, indent=1) + "\n")
     atomic_write_text(out / "table.md", markdown(report))
     print(markdown(report))
@@ -311,6 +410,11 @@ def parse(argv=None) -> Args:
     p.add_argument("--timesteps", type=int, default=None, help="samples per run (default: the paper's budget)")
     p.add_argument("--episodes", type=int, default=Args.episodes, help="fresh episodes (seeds 30000 on)")
     p.add_argument("--planner-episodes", type=int, default=Args.planner_episodes)
+    p.add_argument("--no-in-domain", dest="in_domain", action="store_false",
+                   help="do not train the methods on the target plants (zero-shot only)")
+    p.add_argument("--centralised", nargs="*", default=list(CENTRALISED),
+                   help="centralised methods trained on every plant (none: --centralised alone)")
+    p.add_argument("--timing-steps", type=int, default=Args.timing_steps, help="plant steps of each decision time")
     p.add_argument("--workers", type=int, default=Args.workers, help="processes, one run or evaluation each")
     p.add_argument("--out", default=Args.out)
     p.add_argument("--runs", default=Args.runs)

@@ -18,6 +18,9 @@ from tests.helpers import load_script
     ({"planner_episodes": 300}, "planner_episodes"),
     ({"targets": ["n99_m1_dt120"]}, "n99_m1_dt120"),
     ({"methods": ["ppo"]}, "methods: \\['ppo'\\] are not shared"),  # a centralised method: no agents to transfer
+    ({"centralised": ["fast_shared_ppo"]}, "centralised: expected distinct centralised methods"),
+    ({"centralised": ["fast_ppo", "fast_ppo"]}, "centralised: expected distinct"),
+    ({"timing_steps": 0}, "timing_steps: expected at least 1"),
 ])
 def test_bad_settings_are_refused_before_anything_is_written(tmp_path, change, match):
     study = load_script("studies/transfer.py")
@@ -30,22 +33,36 @@ def test_bad_settings_are_refused_before_anything_is_written(tmp_path, change, m
 def test_every_plan_reports_on_fresh_episodes_and_the_methods_train_on_the_portable_observation(tmp_path):
     study = load_script("studies/transfer.py")
     plans = study.Args(out=str(tmp_path / "o"), runs=str(tmp_path / "r")).plans()
-    assert set(plans) == {"fast_shared_ppo", "dagger_agents", "controllers", "planner"}
+    assert set(plans) == {"fast_shared_ppo", "dagger_agents", "centralised", "controllers", "planner"}
     assert all(p.eval_protocol().first_seed == 30_000 for p in plans.values())
     assert plans["fast_shared_ppo"].hyperparams == {"observation": "portable"}
+    # trained on the target plants too (in domain); the centralised PPO on every plant, on its own observation
+    assert plans["fast_shared_ppo"].configs == plans["centralised"].configs == [*study.SOURCES, *study.TARGETS]
+    assert plans["centralised"].methods == ["fast_ppo"] and plans["centralised"].hyperparams == {}
+    zero_shot_only = study.Args(out=str(tmp_path / "o"), runs=str(tmp_path / "r"), in_domain=False, centralised=[])
+    assert "centralised" not in zero_shot_only.plans()
+    assert zero_shot_only.plans()["dagger_agents"].configs == list(study.SOURCES)
     assert plans["planner"].eval_protocol().episodes == 30 and plans["controllers"].eval_protocol().episodes == 200
     assert set(plans["controllers"].configs) == {*study.SOURCES, *study.TARGETS}
 
 
-@pytest.mark.slow  # trains one tiny run and runs 14 short evaluations: about a minute
+@pytest.mark.slow  # trains six tiny runs, runs 20 short evaluations and 16 timings: about a minute
 def test_smoke_run_evaluates_zero_shot_and_a_rerun_reuses_everything(tmp_path, capsys):
     study = load_script("studies/transfer.py")
     args = study.Args(out=str(tmp_path / "out"), runs=str(tmp_path / "runs"), smoke=True)
     report = study.main(args)
     entries = {e["plant"]: e["cells"] for e in report["entries"]}
     assert set(entries["n32_m4_dt120"]) == {"rule_based", "rule_based_agents", "planner_agents",
-                                            "fast_shared_ppo from n5_m2_dt120"}
-    assert "fast_shared_ppo (trained here)" in entries["n5_m2_dt120"]
+                                            "fast_shared_ppo from n5_m2_dt120", "fast_shared_ppo (trained here)",
+                                            "fast_ppo (trained here)"}
+    assert {"fast_shared_ppo (trained here)", "fast_ppo (trained here)"} <= set(entries["n5_m2_dt120"])
+    # every cell's decision time measured, on its own plant: the centralised PPO's network grows with n
+    timing = json.loads((tmp_path / "out" / "decision_time.json").read_text())
+    assert all(c["decision_ms_median"] > 0 for cells in entries.values() for c in cells.values())
+    assert timing["fast_ppo (trained here)/n32_m4_dt120"]["steps"] == 5
+    assert (timing["fast_shared_ppo from n5_m2_dt120/n32_m4_dt120"]["model_sha256"]
+            == timing["fast_shared_ppo (trained here)/n5_m2_dt120"]["model_sha256"]
+            != timing["fast_shared_ppo (trained here)/n32_m4_dt120"]["model_sha256"])
     zero_shot = json.loads(study.zero_shot_path(args.for_smoke(), "fast_shared_ppo", "n5_m2_dt120", "n32_m4_dt120",
                                                 101).read_text())
     assert zero_shot["config"] == "n32_m4_dt120" and zero_shot["source"]["config"] == "n5_m2_dt120"
@@ -53,4 +70,4 @@ def test_smoke_run_evaluates_zero_shot_and_a_rerun_reuses_everything(tmp_path, c
     capsys.readouterr()
     study.main(args)
     out = capsys.readouterr().out
-    assert "0 run(s) to train" in out and "0 evaluation(s) to run" in out
+    assert "0 run(s) to train" in out and "0 evaluation(s) to run" in out and "0 decision time(s) to measure" in out
