@@ -69,6 +69,8 @@ CONTROLLERS = ("rule_based", "rule_based_agents")
 #: The controller's view, retrained for every plant: what the shared policies are compared with.
 CENTRALISED = ("fast_ppo",)
 PLANNER = "planner_agents"
+#: Training cost is counted to this share of the rule's validation return (issue 40, item 4).
+RULE, RULE_SHARE = "rule_based_agents", 0.9
 SEEDS = (101, 102, 103, 104, 105)
 OBSERVATION = "portable"
 
@@ -135,20 +137,21 @@ class Args:
             get_algorithm(method).trainer().settings(plans["centralised"].hyperparams)
 
     def plans(self) -> dict[str, CompareArgs]:
-        """The compare plans by folder: each method's trainings (and source-plant evaluations), the
-        controllers' evaluations on every plant, the planner's."""
+        """The compare plans by folder: each method's trainings (their curves, and their evaluations where
+        trained), the centralised methods', the controllers' evaluations on every plant, the planner's,
+        and the rule's on the validation episodes of the curves."""
         plants = [*self.sources, *self.targets]
         common = dict(protocol="fresh", figures="none")
         plans = {method: CompareArgs(methods=[method], configs=plants if self.in_domain else list(self.sources),
                                      seeds=list(self.seeds),
                                      timesteps=self.timesteps, episodes=self.episodes, n_envs=self.n_envs,
-                                     hyperparams={**self.hyperparams, "observation": OBSERVATION},
+                                     hyperparams={**self.hyperparams, "observation": OBSERVATION}, curves=True,
                                      out=str(Path(self.out) / method), runs=str(Path(self.runs) / method), **common)
                  for method in self.methods}
         if self.centralised:
             plans["centralised"] = CompareArgs(methods=list(self.centralised), configs=plants, seeds=list(self.seeds),
                                                timesteps=self.timesteps, episodes=self.episodes, n_envs=self.n_envs,
-                                               hyperparams=dict(self.hyperparams),
+                                               hyperparams=dict(self.hyperparams), curves=True,
                                                out=str(Path(self.out) / "centralised"),
                                                runs=str(Path(self.runs) / "centralised"), **common)
         plans["controllers"] = CompareArgs(methods=list(CONTROLLERS), configs=plants, episodes=self.episodes,
@@ -157,6 +160,10 @@ class Args:
         plans["planner"] = CompareArgs(methods=[PLANNER], configs=plants, episodes=self.planner_episodes,
                                        out=str(Path(self.out) / "planner"), runs=str(Path(self.runs) / "planner"),
                                        **common)
+        # the rule on the validation episodes the runs' curves are measured on: the training cost's yardstick
+        plans["rules_validation"] = CompareArgs(methods=[RULE], configs=plants, protocol="validation", figures="none",
+                                                out=str(Path(self.out) / "rules_validation"),
+                                                runs=str(Path(self.runs) / "rules_validation"))
         return plans
 
 
@@ -305,6 +312,93 @@ def decision_times(args: Args, plans: dict) -> dict:
     return known
 
 
+# ---- training cost ---------------------------------------------------------------------------------
+def trained_here(args: Args, plans: dict, plant: str) -> list[tuple[str, str, str]]:
+    """(label, compare out folder, method) of every method trained on ``plant``."""
+    found = [(f"{m} (trained here)", plans[m], m) for m in args.methods if plant in plans[m].configs]
+    found += [(f"{m} (trained here)", plans["centralised"], m) for m in args.centralised]
+    return [(label, plan.out, method) for label, plan, method in found]
+
+
+def keep_curves(args: Args, plans: dict) -> int:
+    """Copy each finished run's curve, samples and training time to ``--out``/curves/<run>.json, where the
+    report reads them (the run folders are not kept); returns how many were copied."""
+    from containergym_marl.rundir import read_run_summary, run_name
+
+    copied = 0
+    for plant in [*args.sources, *args.targets]:
+        for _, _, method in trained_here(args, plans, plant):
+            folder = plans["centralised" if method in args.centralised else method].runs
+            for seed in args.seeds:
+                run = Path(folder).resolve() / run_name(method, plant, seed)
+                summary = read_run_summary(run) if run.is_dir() else None
+                if summary is None or not (run / "curve.json").is_file():
+                    continue
+                kept = {"run": run.name, "timesteps": summary["timesteps"], "wall_time_s": summary["wall_time_s"],
+                        "curve": json.loads((run / "curve.json").read_text())}
+                atomic_write_text(Path(args.out) / "curves" / f"{run.name}.json", json.dumps(kept, indent=1) + "\n")
+                copied += 1
+    return copied
+
+
+def cost_to_rule(args: Args, plans: dict, plant: str, method: str) -> dict | None:
+    """What training ``method`` on ``plant`` cost until its validation curve first reached
+    :data:`RULE_SHARE` of the rule's validation return: per seed, the samples and the CPU seconds (the
+    run's training time in that proportion: one core a run), None for a seed that never did."""
+    from containergym_marl.rundir import run_name
+
+    rule = _evaluation(Path(plans["rules_validation"].out) / "evaluations" / plant / f"{RULE}.json")
+    if rule is None:
+        return None
+    target = RULE_SHARE * rule["summary"]["return_mean"]
+    seeds = {}
+    for seed in args.seeds:
+        kept = _evaluation(Path(args.out) / "curves" / f"{run_name(method, plant, seed)}.json")
+        if kept is None:
+            continue
+        reached = [p["samples"] for p in sorted(kept["curve"]["points"], key=lambda p: p["samples"])
+                   if p["return_mean"] >= target]
+        samples = reached[0] if reached else None
+        seeds[str(seed)] = None if samples is None else {
+            "samples": samples, "cpu_s": kept["wall_time_s"] * samples / kept["timesteps"]}
+    if not seeds:
+        return None
+    hit = [v for v in seeds.values() if v is not None]
+    return {"share": RULE_SHARE, "rule_validation_return": rule["summary"]["return_mean"], "seeds": seeds,
+            "reached": len(hit), "runs": len(seeds),
+            "samples_median": float(np.median([v["samples"] for v in hit])) if hit else None,
+            "cpu_s_median": float(np.median([v["cpu_s"] for v in hit])) if hit else None}
+
+
+def draw_costs(report: dict, path: Path) -> Path | None:
+    """Training samples to the rule's share against the plant's size, one line per method (log scales)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lines: dict[str, list[tuple[int, float]]] = {}
+    for e in report["entries"]:
+        for label, cell in e["cells"].items():
+            cost = cell.get("cost_to_rule")
+            if cost and cost["samples_median"] is not None:
+                lines.setdefault(label.replace(" (trained here)", ""), []).append((e["n"], cost["samples_median"]))
+    if not lines:
+        return None
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for method, points in lines.items():
+        points.sort()
+        ax.plot([n for n, _ in points], [s for _, s in points], marker="o", label=method)
+    ax.set(xscale="log", yscale="log", xlabel="containers n", ylabel="training samples (median over seeds)",
+           title=f"Training to {RULE_SHARE:.0%} of {RULE}'s validation return")
+    ax.legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 # ---- the report ------------------------------------------------------------------------------------
 def _evaluation(path: Path) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
@@ -332,8 +426,7 @@ def summarise(args: Args, timing: dict | None = None) -> dict:
             ev = _evaluation(Path(plans[folder].out) / "evaluations" / plant / f"{evaluation_key(name, None)}.json")
             if ev is not None:
                 cells[name] = _cell([ev], n)
-        trained = [(f"{m} (trained here)", plans[m].out, m) for m in args.methods if plant in plans[m].configs]
-        trained += [(f"{m} (trained here)", plans["centralised"].out, m) for m in args.centralised]
+        trained = trained_here(args, plans, plant)
         groups = [(label, [Path(out) / "evaluations" / plant / f"{evaluation_key(method, s)}.json"
                            for s in args.seeds]) for label, out, method in trained]
         groups += [(f"{m} from {source}", [zero_shot_path(args, m, source, plant, s) for s in args.seeds])
@@ -345,6 +438,9 @@ def summarise(args: Args, timing: dict | None = None) -> dict:
         for label, cell in cells.items():
             measured = timing.get(f"{label}/{plant}")
             cell["decision_ms_median"] = None if measured is None else measured["ms_median"]
+        for label, _, method in trained:
+            if label in cells:
+                cells[label]["cost_to_rule"] = cost_to_rule(args, plans, plant, method)
         entries.append({"plant": plant, "n": n, "cells": cells})
     return {"question": "zero-shot transfer of shared container-agent policies to larger plants (issue 40)",
             "observation": OBSERVATION, "protocol": "fresh", "args": asdict(args), "entries": entries}
@@ -377,6 +473,22 @@ def markdown(report: dict) -> str:
             lines.append(f"| {e['plant']} | {e['n']} | {label} | {c['seeds'] if c['seeds'] > 1 else '–'} | "
                          f"{c['return_per_container']:.3f}{spread} | {c['overflow_share']:.2f} | "
                          f"{_ms(c.get('decision_ms_median'))} |")
+    lines += ["", f"## Training cost to {RULE_SHARE:.0%} of `{RULE}`'s validation return", "",
+              f"Each run trained on the plant: its sample-efficiency curve (each tenth of the budget and the final "
+              f"model on 30 validation episodes, seeds 20000+) against `{RULE}` on the same episodes; the samples "
+              f"and CPU seconds (its training time in proportion, one core) until the curve first reaches "
+              f"{RULE_SHARE:.0%} of the rule's return, median over the seeds that reach it.", "",
+              "| plant | n | method | rule's validation return | seeds reaching it | samples (median) | CPU-s (median) |",
+              "|---|---|---|---|---|---|---|"]
+    for e in report["entries"]:
+        for label, c in e["cells"].items():
+            cost = c.get("cost_to_rule")
+            if cost:
+                samples = "–" if cost["samples_median"] is None else f"{cost['samples_median']:,.0f}"
+                cpu = "–" if cost["cpu_s_median"] is None else f"{cost['cpu_s_median']:,.0f}"
+                lines.append(f"| {e['plant']} | {e['n']} | {label.replace(' (trained here)', '')} | "
+                             f"{cost['rule_validation_return']:.2f} | {cost['reached']} of {cost['runs']} | "
+                             f"{samples} | {cpu} |")
     return "\n".join(lines) + "\n"
 
 
@@ -390,9 +502,12 @@ def main(args: Args) -> dict:
     timing_path = out / "decision_time.json"
     timing = (json.loads(timing_path.read_text()) if timing_path.is_file() else {}) if args.report \
         else decision_times(args, args.plans())
+    if not args.report:
+        keep_curves(args, args.plans())
     report = summarise(args, timing)
     atomic_write_text(out / "table.json", json.dumps(report, indent=1) + "\n")
     atomic_write_text(out / "table.md", markdown(report))
+    draw_costs(report, out / "cost_to_rule.png")
     print(markdown(report))
     if failed:
         raise SystemExit(f"{len(failed)} task(s) failed; rerun the same command to retry them")

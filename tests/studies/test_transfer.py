@@ -33,8 +33,14 @@ def test_bad_settings_are_refused_before_anything_is_written(tmp_path, change, m
 def test_every_plan_reports_on_fresh_episodes_and_the_methods_train_on_the_portable_observation(tmp_path):
     study = load_script("studies/transfer.py")
     plans = study.Args(out=str(tmp_path / "o"), runs=str(tmp_path / "r")).plans()
-    assert set(plans) == {"fast_shared_ppo", "dagger_agents", "centralised", "controllers", "planner"}
-    assert all(p.eval_protocol().first_seed == 30_000 for p in plans.values())
+    assert set(plans) == {"fast_shared_ppo", "dagger_agents", "centralised", "controllers", "planner",
+                          "rules_validation"}
+    assert all(p.eval_protocol().first_seed == 30_000 for name, p in plans.items() if name != "rules_validation")
+    # the rule on the episodes of the runs' curves: the yardstick of the training cost
+    assert plans["rules_validation"].eval_protocol() == plans["fast_shared_ppo"].eval_protocol().__class__(
+        episodes=30, first_seed=20_000)
+    assert plans["rules_validation"].methods == ["rule_based_agents"]
+    assert plans["fast_shared_ppo"].curves and plans["centralised"].curves
     assert plans["fast_shared_ppo"].hyperparams == {"observation": "portable"}
     # trained on the target plants too (in domain); the centralised PPO on every plant, on its own observation
     assert plans["fast_shared_ppo"].configs == plans["centralised"].configs == [*study.SOURCES, *study.TARGETS]
@@ -46,7 +52,7 @@ def test_every_plan_reports_on_fresh_episodes_and_the_methods_train_on_the_porta
     assert set(plans["controllers"].configs) == {*study.SOURCES, *study.TARGETS}
 
 
-@pytest.mark.slow  # trains six tiny runs, runs 20 short evaluations and 16 timings: about a minute
+@pytest.mark.slow  # trains six tiny runs (with their curves), runs 23 short evaluations and 17 timings: seconds to a minute
 def test_smoke_run_evaluates_zero_shot_and_a_rerun_reuses_everything(tmp_path, capsys):
     study = load_script("studies/transfer.py")
     args = study.Args(out=str(tmp_path / "out"), runs=str(tmp_path / "runs"), smoke=True)
@@ -60,6 +66,14 @@ def test_smoke_run_evaluates_zero_shot_and_a_rerun_reuses_everything(tmp_path, c
     timing = json.loads((tmp_path / "out" / "decision_time.json").read_text())
     assert all(c["decision_ms_median"] > 0 for cells in entries.values() for c in cells.values())
     assert timing["fast_ppo (trained here)/n32_m4_dt120"]["steps"] == 5
+    # every run trained on a plant has its curve kept in the results and a training cost against the rule
+    for label in ("fast_ppo (trained here)", "fast_shared_ppo (trained here)"):
+        cost = entries["n32_m4_dt120"][label]["cost_to_rule"]
+        assert cost["runs"] == 1 and cost["rule_validation_return"] > 0
+    assert "fast_shared_ppo from n5_m2_dt120" in entries["n32_m4_dt120"]
+    assert "cost_to_rule" not in entries["n32_m4_dt120"]["fast_shared_ppo from n5_m2_dt120"]
+    kept = json.loads((tmp_path / "out" / "curves" / "fast_ppo_n32_m4_dt120_s101.json").read_text())
+    assert kept["timesteps"] == kept["curve"]["points"][-1]["samples"] >= 2_000  # whole rollouts: a few more
     assert (timing["fast_shared_ppo from n5_m2_dt120/n32_m4_dt120"]["model_sha256"]
             == timing["fast_shared_ppo (trained here)/n5_m2_dt120"]["model_sha256"]
             != timing["fast_shared_ppo (trained here)/n32_m4_dt120"]["model_sha256"])
@@ -71,3 +85,29 @@ def test_smoke_run_evaluates_zero_shot_and_a_rerun_reuses_everything(tmp_path, c
     study.main(args)
     out = capsys.readouterr().out
     assert "0 run(s) to train" in out and "0 evaluation(s) to run" in out and "0 decision time(s) to measure" in out
+
+
+def test_training_cost_is_counted_to_the_first_curve_point_at_the_rules_share(tmp_path):
+    """The cost of a run: the samples of its curve's first point at or above 90 % of the rule's validation
+    return (later dips do not matter), and its training time in that proportion; a seed that never
+    reaches it counts apart and stays out of the medians."""
+    study = load_script("studies/transfer.py")
+    args = study.Args(out=str(tmp_path / "out"), runs=str(tmp_path / "runs"), seeds=[101, 102, 103])
+    plans = args.plans()
+    rule = tmp_path / "out" / "rules_validation" / "evaluations" / "n32_m4_dt120" / "rule_based_agents.json"
+    rule.parent.mkdir(parents=True)
+    rule.write_text(json.dumps({"summary": {"return_mean": 200.0}}))
+    curves = {101: [(500_000, 150.0), (1_000_000, 181.0), (1_500_000, 170.0), (5_000_000, 190.0)],
+              102: [(500_000, 179.9), (2_500_000, 180.0), (5_000_000, 185.0)],
+              103: [(500_000, 10.0), (5_000_000, 179.0)]}
+    for seed, points in curves.items():
+        path = tmp_path / "out" / "curves" / f"fast_ppo_n32_m4_dt120_s{seed}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"timesteps": 5_000_000, "wall_time_s": 1000.0, "curve": {"points": [
+            {"samples": s, "return_mean": r} for s, r in reversed(points)]}}))
+    cost = study.cost_to_rule(args, plans, "n32_m4_dt120", "fast_ppo")
+    assert cost["seeds"] == {"101": {"samples": 1_000_000, "cpu_s": 200.0},
+                             "102": {"samples": 2_500_000, "cpu_s": 500.0}, "103": None}
+    assert (cost["reached"], cost["runs"], cost["rule_validation_return"]) == (2, 3, 200.0)
+    assert cost["samples_median"] == 1_750_000 and cost["cpu_s_median"] == 350.0
+    assert study.cost_to_rule(args, plans, "n64_m8_dt120", "fast_ppo") is None  # no rule evaluation there
