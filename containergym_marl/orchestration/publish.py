@@ -155,8 +155,14 @@ def _check_evaluated_models(evaluations: list[Path], runs: Path) -> None:
             made = json.loads(path.read_text()).get("compare") or {}
         except (ValueError, AttributeError):
             raise ValueError(f"{str(path)!r} is not an evaluation file (a JSON object); nothing was written") from None
-        run = runs / str(made.get("run"))
-        if not made.get("model_sha256") or not made.get("run") or run_status(run) != "finished":
+        if not made.get("model_sha256") or not made.get("run"):
+            continue  # a controller's evaluation, or one made before compare recorded its model
+        name = made["run"]
+        if not isinstance(name, str) or Path(name).name != name or name in (".", ".."):
+            raise ValueError(f"{str(path)!r} names the run {name!r}, not a folder's name in {str(runs)!r}; "
+                             f"nothing was written")
+        run = runs / name
+        if run_status(run) != "finished":
             continue
         model = run / evaluated_files(run)[-1]
         if (sha := hashlib.sha256(model.read_bytes()).hexdigest()) != made["model_sha256"]:

@@ -319,6 +319,13 @@ def test_publish_refuses_an_evaluation_of_another_model_than_the_run_ships(tmp_p
         publish_results.publish(runs, out, to)
     assert not to.exists()
     data = json.loads(path.read_text())
+    for crafted in ("../runs/fast_shared_ppo_n5_m2_dt120_s1", ".."):  # a run named outside --runs: not read
+        data["compare"]["run"] = crafted
+        path.write_text(json.dumps(data))
+        with pytest.raises(ValueError, match=r"names the run .*not a folder's name"):
+            publish_results.publish(runs, out, to)
+        assert not to.exists()
+    data["compare"]["run"] = run.name
     data["compare"]["model_sha256"] = _sha(run / "best_model.pt")
     path.write_text(json.dumps(data))
     assert publish_results.publish(runs, out, to)["evaluations"] == 1
