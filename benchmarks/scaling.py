@@ -3,7 +3,9 @@ ones built from the 16-container plant (``configs/scaled.py``), PUs in proportio
 
     python benchmarks/scaling.py                      # n = 5 … 128, ~3 minutes on one core
     python benchmarks/scaling.py --smoke              # seconds: checks the table, not speed
-    python benchmarks/scaling.py --md benchmarks/profile/scaling.md   # the table docs/performance.md includes
+    python benchmarks/scaling.py --md benchmarks/profile/scaling.md --json benchmarks/profile/scaling.json \
+        --figure docs/figures/scaling.png             # the table and figure docs/performance.md shows
+    python benchmarks/scaling.py --from-json benchmarks/profile/scaling.json --figure docs/figures/scaling.png
 
 For every plant, in this process (one thread: numba's and torch's):
 
@@ -155,6 +157,38 @@ def markdown(rows: list[dict], command: str, started: str) -> str:
     return "\n".join(lines)
 
 
+def draw(rows: list[dict], path: str | Path) -> Path:
+    """The table against n, log-log: container decisions per CPU-second of each env path (left), the
+    planner's milliseconds per decision, median with the 95th percentile above it (right)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = [r["n"] for r in rows]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    for key, label in (("central_b1", "centralised env, B = 1"), ("central_b1024", f"centralised env, B = {BATCH}"),
+                       ("agents_local", "agents' env, local obs."), ("agents_portable", "agents' env, portable obs.")):
+        left.plot(n, [r[f"{key}_decisions"] for r in rows], marker="o", label=label)
+    left.set(xscale="log", yscale="log", xlabel="containers n", ylabel="container decisions per CPU-second",
+             title="Environment throughput, one core")
+    left.legend(fontsize=8)
+    median = np.array([r["planner"]["median_ms"] for r in rows])
+    p95 = np.array([r["planner"]["p95_ms"] for r in rows])
+    right.errorbar(n, median, yerr=[np.zeros_like(median), p95 - median], marker="o", capsize=3)
+    right.set(xscale="log", yscale="log", xlabel="containers n", ylabel="ms CPU per decision",
+              title="planner_agents (K = 16, H = 8): median, 95th pct.")
+    for ax in (left, right):
+        ax.set_xticks(n, [str(k) for k in n])
+        ax.minorticks_off()
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def main(argv=None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--plants", nargs="+", default=list(PLANTS))
@@ -163,7 +197,15 @@ def main(argv=None) -> list[dict]:
     p.add_argument("--smoke", action="store_true", help="two small plants, tiny measurements")
     p.add_argument("--json", default=None)
     p.add_argument("--md", default=None, help="also write the table to this file")
+    p.add_argument("--figure", default=None, help="also draw the table against n to this PNG file")
+    p.add_argument("--from-json", default=None, help="measure nothing: draw --figure from this --json file")
     ns = p.parse_args(argv)
+    if ns.from_json:
+        if not ns.figure:
+            p.error("--from-json draws a figure: give --figure")
+        rows = json.loads(Path(ns.from_json).read_text())
+        print(f"wrote {draw(rows, ns.figure)}")
+        return rows
     import numba
     import torch
 
@@ -181,6 +223,8 @@ def main(argv=None) -> list[dict]:
         Path(ns.md).write_text(text)
     if ns.json:
         Path(ns.json).write_text(json.dumps(rows, indent=1) + "\n")
+    if ns.figure:
+        draw(rows, ns.figure)
     return rows
 
 

@@ -230,3 +230,8 @@ def test_scaling_smoke_measures_every_path_of_each_plant(tmp_path):
         assert r["agents_sims"] == 1024 // r["n"]
         assert 0 < r["planner"]["median_ms"] <= r["planner"]["p95_ms"]
     assert out_md.read_text().strip() in proc.stdout and "| `n32_m4_dt120` | 32 | 4 |" in proc.stdout
+    # the figure, drawn again from the saved measurements alone
+    figure = tmp_path / "scaling.png"
+    subprocess.run([sys.executable, str(REPO / "benchmarks" / "scaling.py"), "--from-json", str(out_json),
+                    "--figure", str(figure)], capture_output=True, text=True, timeout=120, check=True, cwd=tmp_path)
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
