@@ -17,8 +17,8 @@ PPO trained on that plant, the rule-based controllers and the planner there?
 (:data:`SEEDS`, 101-105: no published run uses them) is one run at the paper's budget; with
 ``--in-domain`` (the default) each method is also trained on every target plant, and each
 ``--centralised`` method (:data:`CENTRALISED`, the controller's view, retrained for every plant) on
-every plant. Each run's best model (the paper's choice: the best training return; nothing is chosen
-on the episodes reported) is evaluated on ``--episodes`` *fresh* episodes (δ = 120 s, T = 600, seeds
+every plant. Each run's validated model (its sample-efficiency curve's pick on validation episodes,
+seeds 20000+; nothing is chosen on the episodes reported) is evaluated on ``--episodes`` *fresh* episodes (δ = 120 s, T = 600, seeds
 30000+, used for nothing else) of the plant it was trained on and, for the shared methods trained on a
 source plant, of every target plant. The controllers (:data:`CONTROLLERS`) are evaluated on the same
 episodes of every plant, ``planner_agents`` on the first ``--planner-episodes`` of them (its decision
@@ -260,16 +260,16 @@ def execute(args: Args) -> list[str]:
 
 # ---- decision times --------------------------------------------------------------------------------
 def _timed(job: tuple) -> tuple:
-    """(label/plant, model sha, timing) of a controller (run None) or of a run's best model on a plant."""
+    """(label/plant, model sha, timing) of a controller (run None) or of a run's evaluated model on a plant."""
     from containergym_marl.core.params import PlantParams
     from containergym_marl.evaluation.decision_time import decision_time
-    from containergym_marl.evaluation.run_policies import policy_from_run
+    from containergym_marl.evaluation.run_policies import evaluated_which, policy_from_run
     from containergym_marl.methods import get_method
 
     key, plant, run, sha, protocol, steps = job
     config = protocol.plant(plant)
     policy = (get_method(key.split("/")[0]).controller(PlantParams.from_config(config)) if run is None
-              else policy_from_run(run, "best"))
+              else policy_from_run(run, evaluated_which(run)))
     return key, sha, decision_time(policy, config, steps, protocol.first_seed)
 
 
@@ -459,7 +459,7 @@ def markdown(report: dict) -> str:
                 "on every plant" if args["centralised"] else "")
              + f"; seeds {', '.join(map(str, args['seeds']))}, "
              + (f"{args['timesteps']:,} samples per run" if args["timesteps"] else "the paper's budget")
-             + f". Each run's best model on {args['episodes']} fresh episodes (δ = 120 s, T = 600, seeds 30000+) "
+             + f". Each run's validated model (its curve's pick on validation episodes) on {args['episodes']} fresh episodes (δ = 120 s, T = 600, seeds 30000+) "
              f"of its plant and, trained on a source plant, of every larger one (zero-shot: from …); the rules "
              f"on the same episodes, `{PLANNER}` on the first {args['planner_episodes']}. "
              "Return per container: the mean return / n, mean over seeds [min, max]; overflow: the share of all "
