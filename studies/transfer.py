@@ -285,10 +285,9 @@ def timing_jobs(args: Args, plans: dict) -> list[tuple]:
     for plant in [*args.sources, *args.targets]:
         for name in [*CONTROLLERS, PLANNER]:
             jobs.append((f"{name}/{plant}", plant, None, None, protocol, args.timing_steps))
-        runs = [(f"{m} (trained here)", plans[m].runs, m, plant) for m in args.methods if plant in plans[m].configs]
+        runs = [(label, plan.runs, m, plant) for label, plan, m in trained_here(args, plans, plant)]
         runs += [(f"{m} from {source}", plans[m].runs, m, source) for m in args.methods for source in args.sources
                  if plant in args.targets]
-        runs += [(f"{m} (trained here)", plans["centralised"].runs, m, plant) for m in args.centralised]
         for label, folder, method, trained_on in runs:
             run = Path(folder).resolve() / run_name(method, trained_on, seed)
             if (run / "run.json").is_file():
@@ -313,11 +312,10 @@ def decision_times(args: Args, plans: dict) -> dict:
 
 
 # ---- training cost ---------------------------------------------------------------------------------
-def trained_here(args: Args, plans: dict, plant: str) -> list[tuple[str, str, str]]:
-    """(label, compare out folder, method) of every method trained on ``plant``."""
+def trained_here(args: Args, plans: dict, plant: str) -> list[tuple[str, CompareArgs, str]]:
+    """(label, compare plan, method) of every method trained on ``plant``."""
     found = [(f"{m} (trained here)", plans[m], m) for m in args.methods if plant in plans[m].configs]
-    found += [(f"{m} (trained here)", plans["centralised"], m) for m in args.centralised]
-    return [(label, plan.out, method) for label, plan, method in found]
+    return found + [(f"{m} (trained here)", plans["centralised"], m) for m in args.centralised]
 
 
 def keep_curves(args: Args, plans: dict) -> int:
@@ -327,10 +325,9 @@ def keep_curves(args: Args, plans: dict) -> int:
 
     copied = 0
     for plant in [*args.sources, *args.targets]:
-        for _, _, method in trained_here(args, plans, plant):
-            folder = plans["centralised" if method in args.centralised else method].runs
+        for _, plan, method in trained_here(args, plans, plant):
             for seed in args.seeds:
-                run = Path(folder).resolve() / run_name(method, plant, seed)
+                run = Path(plan.runs).resolve() / run_name(method, plant, seed)
                 summary = read_run_summary(run) if run.is_dir() else None
                 if summary is None or not (run / "curve.json").is_file():
                     continue
@@ -427,8 +424,8 @@ def summarise(args: Args, timing: dict | None = None) -> dict:
             if ev is not None:
                 cells[name] = _cell([ev], n)
         trained = trained_here(args, plans, plant)
-        groups = [(label, [Path(out) / "evaluations" / plant / f"{evaluation_key(method, s)}.json"
-                           for s in args.seeds]) for label, out, method in trained]
+        groups = [(label, [Path(plan.out) / "evaluations" / plant / f"{evaluation_key(method, s)}.json"
+                           for s in args.seeds]) for label, plan, method in trained]
         groups += [(f"{m} from {source}", [zero_shot_path(args, m, source, plant, s) for s in args.seeds])
                    for m in args.methods for source in args.sources if plant in args.targets]
         for label, paths in groups:

@@ -53,7 +53,6 @@ the lock is held until the run's last file is copied).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re
@@ -149,6 +148,7 @@ def _check_evaluated_models(evaluations: list[Path], runs: Path) -> None:
     model that run now has its seed stand for (evaluated_files: the validated model where its curve picked
     one, else the best): the table would show numbers of another model than the one shipped."""
     from containergym_marl.evaluation.run_policies import evaluated_files
+    from containergym_marl.orchestration.plan import model_sha256, run_files  # the hash compare records
 
     for path in evaluations:
         try:
@@ -165,7 +165,7 @@ def _check_evaluated_models(evaluations: list[Path], runs: Path) -> None:
         if run_status(run) != "finished":
             continue
         model = run / evaluated_files(run)[-1]
-        if (sha := hashlib.sha256(model.read_bytes()).hexdigest()) != made["model_sha256"]:
+        if (sha := model_sha256(run_files(run))) != made["model_sha256"]:
             raise ValueError(f"{str(path)!r} evaluates a model of {run.name} with sha256 {made['model_sha256'][:12]}…, "
                              f"but the run's {model.name} has {sha[:12]}…: evaluate it again (compare) before "
                              f"publishing; nothing was written")
