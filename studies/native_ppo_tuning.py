@@ -41,10 +41,11 @@ left running is marked failed when the search starts again and its setting is qu
 finished runs are reused, from the journal where their folders are gone (another machine). One search per method at a time (a lock on its folder); the ``--workers``
 processes share the journal.
 
-**Regression guards.** ``--guards`` trains the default and the best finished trial's setting on
+**Regression guards.** ``--guards`` trains the default and every setting judged on every run on
 :data:`GUARD_ROWS` (the contended rows, where the published native PPO does well) with the same
-seeds, validates them the same way and adds their table to trials.md (``guards.json``): a chosen
-setting must not lose there what it gains on the search rows.
+seeds, validates them the same way and adds their table to trials.md (``guards.json``). A setting
+*passes* them where, on every guard row, the IQM of its runs' shares is at least the default's minus
+:data:`GUARD_TOLERANCE`: a chosen setting must not lose there what it gains on the search rows.
 
 **The discount at δ = 60 s.** ``--discount`` trains the best finished trial's setting with γ = 0.995
 per decision (:data:`DT60_GAMMA`; or the γ given) on the search's δ = 60 s rows with the same seeds
@@ -52,8 +53,9 @@ and sets it beside the same setting's own runs at γ = 0.99 (``discount.json``, 
 γ = 0.99 per 60-s decision halves the horizon in plant time. The result is a labelled variant; the
 settings file keeps the paper's γ.
 
-**What is chosen.** ``--write-config`` writes the best finished trial's settings (highest value) as the
-method's settings file, ``configs/hyperparams/<method>.toml``, which ``train`` and ``compare`` read
+**What is chosen.** ``--write-config`` writes the settings of the best finished trial (highest value)
+that passes the regression guards (every finished trial's guards must have run; before any guard has
+run, the best finished trial, and the file says so) as the method's settings file, ``configs/hyperparams/<method>.toml``, which ``train`` and ``compare`` read
 (:mod:`containergym_marl.config.hyperparams`).
 """
 
@@ -88,6 +90,9 @@ SEEDS = (101, 102, 103, 104, 105)
 #: The regression guards: the contended rows, where the published native PPO does well, on which the
 #: chosen setting is checked against the default with the same seeds (``--guards``).
 GUARD_ROWS = ("n11_m2_dt120", "n16_m2_dt120")
+#: A setting passes the guards where, on every guard row, the IQM of its runs' shares of rule_based_agents'
+#: validation return is at least the default's minus this: about the spread of a 5-seed IQM there.
+GUARD_TOLERANCE = 0.05
 #: The discount every trial trains with (the paper's, per decision), and the labelled variant for δ = 60 s:
 #: 0.995 per decision of 60 s is about 0.99 per 120 s, the horizon in plant time of the δ = 120 s rows.
 GAMMA, DT60_GAMMA = 0.99, 0.995
@@ -392,13 +397,50 @@ def best_trial(study, option: str):
     return max(done, key=lambda t: t.value)
 
 
+def finished_settings(study, option: str) -> list:
+    """The finished trials, best value first, one per setting (the best of a setting's trials); a
+    ValueError naming ``option`` when none has finished."""
+    best_trial(study, option)
+    optuna = require_optuna()
+    done = [t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE]
+    out, seen = [], set()
+    for t in sorted(done, key=lambda t: (-t.value, t.number)):
+        if settings_key(t.params) not in seen:
+            seen.add(settings_key(t.params))
+            out.append(t)
+    return out
+
+
+def guard_label(trial) -> str:
+    return "default" if trial.params == DEFAULT_TRIAL else f"trial {trial.number}"
+
+
 def guard_settings(study) -> list[tuple[str, dict[str, Any], float]]:
-    """(label, settings, γ) the guards compare: the default and the best finished trial's setting."""
-    best = best_trial(study, "--guards")
+    """(label, settings, γ) the guards compare: the default, then every setting judged on every run,
+    best first."""
     chosen = [("default", dict(DEFAULT_TRIAL), GAMMA)]
-    if best.params != DEFAULT_TRIAL:
-        chosen.append((f"trial {best.number}", dict(best.params), GAMMA))
+    chosen += [(guard_label(t), dict(t.params), GAMMA) for t in finished_settings(study, "--guards")
+               if t.params != DEFAULT_TRIAL]
     return chosen
+
+
+def guard_verdict(guards: dict[str, Any], params: dict[str, Any]) -> tuple[bool, list[str]] | None:
+    """Whether ``params`` passes the regression guards of ``guards`` (guards.json), with the reason for
+    each guard row it fails ("n16_m2_dt120: IQM share 0.808 < the default's 0.986 - 0.05"); None where
+    the setting or the default lacks a run of some guard row and seed."""
+    def shares(hp) -> dict[str, list[float]] | None:
+        for entry in guards["settings"].values():
+            if settings_key(entry["params"]) == settings_key(hp) and entry["gamma"] == GAMMA:
+                got = {row: [e["score"] for e in entry["runs"] if e["row"] == row] for row in guards["rows"]}
+                return got if all(len(v) == len(guards["seeds"]) for v in got.values()) else None
+        return None
+
+    mine, default = shares(params), shares(DEFAULT_TRIAL)
+    if mine is None or default is None:
+        return None
+    failed = [f"{row}: IQM share {iqm(mine[row]):.3f} < the default's {iqm(default[row]):.3f} - {GUARD_TOLERANCE}"
+              for row in guards["rows"] if iqm(mine[row]) < iqm(default[row]) - GUARD_TOLERANCE]
+    return not failed, failed
 
 
 def discount_settings(study, gamma: float) -> list[tuple[str, dict[str, Any], float]]:
@@ -462,8 +504,8 @@ def run_comparison(method: str, settings, runs: Path, path: Path, rows, seeds, t
 #: The comparisons beside the search: option, file, title, what the table says it is
 COMPARISONS = {
     "guards": ("guards.json", "Regression guards",
-               "The default and the chosen setting on {rows} with seeds {seeds} at the paper's budget, scored as "
-               "above (`--guards`)."),
+               "The default and every setting judged on every run, on {rows} with seeds {seeds} at the paper's "
+               "budget, scored as above (`--guards`)."),
     "discount": ("discount.json", "Discount for δ = 60 s (a labelled variant)",
                  "The chosen setting on the search's δ = 60 s rows ({rows}) with seeds {seeds}, with the search's "
                  "γ and with γ per decision that keeps the δ = 120 s horizon in plant time (`--discount`); its "
@@ -492,6 +534,14 @@ def comparison_report(out: Path, which: str) -> str:
             lines.append(f"| {label} | {row} | {len(runs)} | {iqm(scores):.3f} | {np.mean(scores):.3f} | "
                          f"{'–' if half is None else f'{half:.3f}'} | "
                          f"{sum(e['overflowing_episodes'] for e in runs)} |")
+    if which == "guards":
+        verdicts = {label: guard_verdict(data, entry["params"]) for label, entry in data["settings"].items()
+                    if label != "default"}
+        lines += ["", f"A setting passes where its IQM share on every guard row is at least the default's - "
+                      f"{GUARD_TOLERANCE}: " + "; ".join(
+                          f"{label} " + ("has not run on every guard row and seed" if v is None else
+                                         "passes" if v[0] else "fails (" + ", ".join(v[1]) + ")")
+                          for label, v in verdicts.items()) + "."]
     return "\n".join(lines) + "\n"
 
 
@@ -542,23 +592,40 @@ def _cell(value) -> str:
     return str(value).lower() if isinstance(value, bool) else str(value)
 
 
-def _count(settings: set[str]) -> str:
+def _count(settings) -> str:
     return "1 setting" if len(settings) == 1 else f"{len(settings)} settings"
 
 
-def write_config(method: str, study, path: Path) -> dict[str, Any]:
-    """Write the best finished trial's settings (highest IQM share of rule_based_agents over every run)
-    as ``method``'s settings file, read by ``train`` and ``compare``; a ValueError when no trial has
-    finished."""
-    optuna = require_optuna()
-    best = best_trial(study, "--write-config")
+def write_config(method: str, study, out: Path, path: Path) -> dict[str, Any]:
+    """Write the settings of the best finished trial (highest IQM share of rule_based_agents over every
+    run) that passes the regression guards of ``out``/guards.json (the best finished trial where no
+    guard has run) as ``method``'s settings file, read by ``train`` and ``compare``; a ValueError when
+    no trial has finished, or when a finished setting ranked before the chosen one has no guard runs."""
+    ranked = finished_settings(study, "--write-config")
+    best, guarded = ranked[0], ""
+    guards_file = out / COMPARISONS["guards"][0]
+    if guards_file.is_file():
+        guards = json.loads(guards_file.read_text())
+        failing = []
+        for t in ranked:
+            verdict = guard_verdict(guards, t.params)
+            if verdict is None:
+                raise ValueError(f"--write-config: trial {t.number}'s setting has no regression guard runs on every "
+                                 f"guard row and seed in {guards_file}: run --guards first")
+            if verdict[0]:
+                best = t
+                break
+            failing.append(f"trial {t.number}")
+        guarded = (f" that passes the regression guards (IQM share on {', '.join(guards['rows'])} at least the "
+                   f"default's - {GUARD_TOLERANCE}" + (f"; {', '.join(failing)} fail" if failing else "") + ")")
+    else:
+        guarded = " (no regression guard run)"
     trials = study.get_trials(deepcopy=False)
-    judged = {settings_key(t.params) for t in trials if t.state == optuna.trial.TrialState.COMPLETE}
     tried = {settings_key(t.params) for t in trials if t.params}
     which = "the trainer's default setting" if best.params == DEFAULT_TRIAL else "a searched setting"
-    source = (f"studies/native_ppo_tuning.py: trial {best.number} ({which}), the best of {_count(judged)} judged "
-              f"on every run, of {_count(tried)} tried (the others were pruned), IQM share of rule_based_agents "
-              f"{best.value:.3f} on validation episodes (results/ppo_tuning/{method}/trials.md)")
+    source = (f"studies/native_ppo_tuning.py: trial {best.number} ({which}), the best of {_count(ranked)} judged "
+              f"on every run{guarded}, of {_count(tried)} tried (the others were pruned), IQM share of "
+              f"rule_based_agents {best.value:.3f} on validation episodes (results/ppo_tuning/{method}/trials.md)")
     write_settings(path, dict(best.params), source)
     return dict(best.params)
 
@@ -648,7 +715,10 @@ def main(argv=None) -> None:
         print(report(ns.method, study, out, rule))
         if ns.write_config is not None:
             path = Path(ns.write_config) if ns.write_config else settings_file(ns.method)
-            print(f"wrote {path}: {write_config(ns.method, study, path)}")
+            try:
+                print(f"wrote {path}: {write_config(ns.method, study, out, path)}")
+            except ValueError as exc:
+                p.error(str(exc))
 
 
 if __name__ == "__main__":

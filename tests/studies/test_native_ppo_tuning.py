@@ -115,7 +115,7 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     judged = {script.settings_key(t.params) for t in finished}
     tried = {script.settings_key(t.params) for t in _study(out).get_trials() if t.params}
     assert settings == best.params and f"trial {best.number} (" in source
-    assert (f"the best of {len(judged)} setting{'s' if len(judged) > 1 else ''} judged on every run, of {len(tried)} "
+    assert (f"the best of {len(judged)} setting{'s' if len(judged) > 1 else ''} judged on every run (no regression guard run), of {len(tried)} "
             f"setting{'s' if len(tried) > 1 else ''} tried") in source
 
     # the regression guards (at smoke size: the search's own row and seed) compare the default with
@@ -123,13 +123,22 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     journal = (out / "fast_shared_ppo" / "journal.log").read_bytes()
     _search(out, runs, "--guards")
     guards = json.loads((out / "fast_shared_ppo" / "guards.json").read_text())
-    expected = {"default": DEFAULT_TRIAL} | ({} if best.params == DEFAULT_TRIAL else {f"trial {best.number}": best.params})
+    # the default first, then every setting judged on every run, best first
+    ranked, seen = [], set()
+    for t in sorted(finished, key=lambda t: (-t.value, t.number)):
+        if script.settings_key(t.params) not in seen:
+            seen.add(script.settings_key(t.params))
+            ranked.append(t)
+    expected = {"default": DEFAULT_TRIAL} | {f"trial {t.number}": t.params for t in ranked if t.params != DEFAULT_TRIAL}
+    assert list(guards["settings"]) == list(expected)
     assert {label: g["params"] for label, g in guards["settings"].items()} == expected
     searched = {(t.params == DEFAULT_TRIAL, e["row"], e["seed"]): e["validation_return"]
                 for t in finished for k, e in t.user_attrs.items() if k.startswith("run_")}
+    searched = {(script.settings_key(t.params), e["row"], e["seed"]): e["validation_return"]
+                for t in finished for k, e in t.user_attrs.items() if k.startswith("run_")}
     for label, g in guards["settings"].items():
         (entry,) = g["runs"]
-        assert entry["validation_return"] == searched[(label == "default", entry["row"], entry["seed"])]
+        assert entry["validation_return"] == searched[(script.settings_key(g["params"]), entry["row"], entry["seed"])]
     assert "## Regression guards" in (out / "fast_shared_ppo" / "trials.md").read_text()
     assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
 
@@ -139,7 +148,7 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     discount = json.loads((out / "fast_shared_ppo" / "discount.json").read_text())
     (same, other) = discount["settings"].values()
     assert same["params"] == other["params"] == best.params and (same["gamma"], other["gamma"]) == (0.99, 0.995)
-    assert same["runs"][0]["validation_return"] == searched[(best.params == DEFAULT_TRIAL, "n5_m2_dt120", 101)]
+    assert same["runs"][0]["validation_return"] == searched[(script.settings_key(best.params), "n5_m2_dt120", 101)]
     (variant_run,) = [p for p in (runs / "fast_shared_ppo").glob("*/*") if json.loads(
         (p / "args.json").read_text())["gamma"] == 0.995]
     assert json.loads((variant_run / "args.json").read_text())["hyperparams"] == best.params
@@ -337,3 +346,55 @@ def test_a_comparison_reuses_the_runs_its_own_file_records_where_their_folders_a
     with pytest.raises(pytest.fail.Exception, match="trained again"):  # another γ is another run, not that one
         tuning.run_comparison("fast_shared_ppo", [("γ = 0.99", hp, 0.99)], tmp_path / "no_runs", path,
                               ["n5_m2_dt60"], [101], None, 1, {"n5_m2_dt60": 100.0}, known={})
+
+
+def test_the_settings_file_takes_the_best_finished_setting_that_passes_the_regression_guards(tmp_path):
+    """Three finished settings, best first: trial A loses 0.18 of the default's IQM share on one guard row
+    (fails), B loses 0.04 (passes, within 0.05), the default passes by definition: the file takes B and
+    names A as failing. A finished setting with no guard runs before the chosen one is an error, not a
+    silent pick; with no guards.json at all the best finished setting is taken and the file says so."""
+    from containergym_marl.config.hyperparams import read_settings
+
+    script = _load_script()
+    study = optuna.create_study(direction="maximize")
+    a, b = {**DEFAULT_TRIAL, "n_epochs": 5}, {**DEFAULT_TRIAL, "n_epochs": 20}
+    numbers = {}
+    for params, value in ((DEFAULT_TRIAL, 0.6), (a, 0.8), (b, 0.7), (a, 0.75)):
+        study.enqueue_trial(params)
+        trial = study.ask()
+        for name, v in params.items():
+            trial.suggest_categorical(name, [3, 5, 10, 20] if name == "n_epochs" else [v])
+        study.tell(trial, value)
+        numbers.setdefault(script.settings_key(params), trial.number)
+    rows, seeds = ["n11_m2_dt120", "n16_m2_dt120"], [101, 102, 103]
+
+    def entry(params, shares):
+        runs = [{"row": row, "seed": seed, "score": shares[row], "validation_return": 1.0, "overflowing_episodes": 0,
+                 "half_budget_return": 1.0} for seed in seeds for row in rows]
+        return {"params": params, "gamma": 0.99, "runs": runs}
+
+    guards = {"rows": rows, "seeds": seeds, "rule_based_agents_validation_return": {r: 1.0 for r in rows},
+              "settings": {"default": entry(DEFAULT_TRIAL, {"n11_m2_dt120": 0.85, "n16_m2_dt120": 0.99}),
+                           "trial A": entry(a, {"n11_m2_dt120": 0.90, "n16_m2_dt120": 0.81}),
+                           "trial B": entry(b, {"n11_m2_dt120": 0.81, "n16_m2_dt120": 0.95})}}
+    assert script.guard_verdict(guards, a) == (False, ["n16_m2_dt120: IQM share 0.810 < the default's 0.990 - 0.05"])
+    assert script.guard_verdict(guards, b) == (True, [])
+    assert script.guard_verdict(guards, DEFAULT_TRIAL) == (True, [])
+    assert script.guard_verdict(guards, {**DEFAULT_TRIAL, "n_epochs": 3}) is None
+    assert [label for label, _, _ in script.guard_settings(study)] == [
+        "default", f"trial {numbers[script.settings_key(a)]}", f"trial {numbers[script.settings_key(b)]}"]
+
+    out, path = tmp_path / "out", tmp_path / "chosen.toml"
+    out.mkdir()
+    assert script.write_config("fast_shared_ppo_team", study, out, path) == a  # no guards run yet: the best
+    assert "(no regression guard run)" in read_settings(path)[1]
+    (out / "guards.json").write_text(json.dumps(guards))
+    assert script.write_config("fast_shared_ppo_team", study, out, path) == b
+    settings, source = read_settings(path)
+    assert settings == b and f"trial {numbers[script.settings_key(b)]} (a searched setting)" in source
+    assert f"trial {numbers[script.settings_key(a)]} fail" in source and "passes the regression guards" in source
+    del guards["settings"]["trial B"]
+    (out / "guards.json").write_text(json.dumps(guards))
+    with pytest.raises(ValueError, match=f"trial {numbers[script.settings_key(b)]}'s setting has no regression guard"):
+        script.write_config("fast_shared_ppo_team", study, out, path)
+    assert read_settings(path)[0] == b  # the file is left as it was
