@@ -77,6 +77,8 @@ VARIANTS: dict[str, Variant] = {
     "greedy_request_weight_4": Variant(("greedy=true", "request_weight=4")),
     # each agent labelled by its best response to the others' requests as the learner made them (issue 38)
     "greedy_response": Variant(("greedy=true",), "dagger_response_agents"),
+    # the reference's labels: the labelling planner with planner_agents_shielded's deadline check
+    "greedy_shielded": Variant(("greedy=true", "safety_risk=1e-6")),
     # the contended states (more containers due than free PUs) a quarter or half of every minibatch
     "greedy_contended_0.25": Variant(("greedy=true", "contended_share=0.25"), "dagger_contended_agents"),
     "greedy_contended_0.5": Variant(("greedy=true", "contended_share=0.5"), "dagger_contended_agents"),

@@ -108,7 +108,7 @@ from containergym_marl.config.bounds import (
 from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation, check_same_observation
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors, save_tensors
-from containergym_marl.policies.planner import PlannerAgents
+from containergym_marl.policies.planner import SHIELD, PlannerAgents
 from containergym_marl.rundir import RunError, RunWarning
 from containergym_marl.training import fast_ppo
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
@@ -158,6 +158,10 @@ class DAggerArgs:
     hidden: tuple[int, ...] = (64, 64)  # hidden units of the policy and value networks (fast_shared_ppo's)
     futures: int = 16  # K of the labelling planner (planner_agents' default)
     horizon: int = 8  # H of the labelling planner (planner_agents' default)
+    # the labelling planner's deadline check (PlannerAgents' safety_risk, ε): 0 is off, planner_agents' labels;
+    # 1e-6 labels with the reference, planner_agents_shielded (policies.planner.SHIELD), whose decisions near an
+    # overflow empty the containers that could not otherwise be emptied in time
+    safety_risk: float = 0.0
     imitation_share: float = 1.0  # share of the budget DAgger trains; dagger_ppo_agents: 0.5, PPO the rest
     # the fine-tuning's behaviour-cloning term (DAPG): bc_coef × the cross-entropy on the imitation's data set beside
     # PPO's loss, its weight halving every bc_half_life of the fine-tuning's samples; 0: PPO alone
@@ -236,6 +240,12 @@ class DAggerArgs:
         check_observation(self.observation, "hp: observation")
         if self.labels not in LABELS:
             raise ValueError(f"hp: labels must be one of {LABELS}, got {self.labels!r}")
+        if not (math.isfinite(self.safety_risk) and 0 <= self.safety_risk < 1):
+            raise ValueError(f"hp: safety_risk must be a probability in [0, 1) (0: no deadline check), "
+                             f"got {self.safety_risk}")
+        if self.safety_risk > 0 and self.labels != "planner":
+            raise ValueError(f"hp: safety_risk applies to the planner's own decisions (labels='planner'); "
+                             f"labels={self.labels!r} takes its best responses, which the check does not shield")
 
     def learning_rate_at(self, samples: int, budget: int) -> float:
         """Adam's step size after ``samples`` of an imitation budget of ``budget`` samples."""
@@ -254,7 +264,9 @@ class Labeller:
     CPU seconds it spends."""
 
     def __init__(self, num_sims: int, hp: DAggerArgs, seed: int):
-        self.planners = [PlannerAgents(futures=hp.futures, horizon=hp.horizon) for _ in range(num_sims)]
+        shield = {"safety_risk": hp.safety_risk, "safety_horizon_steps": SHIELD["safety_horizon_steps"]} \
+            if hp.safety_risk > 0 else {}
+        self.planners = [PlannerAgents(futures=hp.futures, horizon=hp.horizon, **shield) for _ in range(num_sims)]
         for b, planner in enumerate(self.planners):
             planner.reset(seed + b)
         self.cpu_s = 0.0
@@ -635,7 +647,8 @@ def write_record(run: Path, state: DAggerState, hp: DAggerArgs) -> None:
     """``imitation.json``: the expert, the totals so far and one row per iteration."""
     last = state.history[-1] if state.history else {}
     atomic_write_text(Path(run) / RECORD, json.dumps({
-        "expert": "planner_agents", "futures": hp.futures, "horizon": hp.horizon,
+        "expert": "planner_agents_shielded" if hp.safety_risk > 0 else "planner_agents", "futures": hp.futures,
+        "horizon": hp.horizon, "safety_risk": hp.safety_risk,
         "samples": state.num_timesteps,
         "label_cpu_s": last.get("label_cpu_s", 0.0), "planned_decisions": last.get("planned_decisions", 0),
         "iterations": state.history}, indent=1))

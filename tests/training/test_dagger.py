@@ -5,6 +5,7 @@ fine-tuning phase continues the same run; bad settings are refused before anythi
 
 from __future__ import annotations
 
+import copy
 import json
 
 import numpy as np
@@ -16,7 +17,7 @@ from containergym_marl.envs.container_agents_v0 import parallel_env
 from containergym_marl.envs.vector import ContainerAgentsVecEnv
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.policies.actor_critic import ActorCritic, policy_for
-from containergym_marl.policies.planner import PlannerAgents
+from containergym_marl.policies.planner import PlannerAgents, ShieldedPlannerAgents
 from containergym_marl.rundir import checkpoints, read_metrics, read_run_summary
 from containergym_marl.training import TrainArgs, train
 from containergym_marl.training.checkpoints import TrainingProgress, read_progress
@@ -37,19 +38,23 @@ TINY = dict(n_envs=2, progress_bar=False, hyperparams={"n_steps": 16, "minibatch
 
 
 @pytest.mark.parametrize("labels, config, n_steps, episode_steps", [
-    ("planner", "n5_m2_dt120", 30, 20), ("response", "n5_m2_dt120", 30, 20), ("planner", "n11_m2_dt120", 80, 60)])
+    ("planner", "n5_m2_dt120", 30, 20), ("response", "n5_m2_dt120", 30, 20), ("planner", "n11_m2_dt120", 80, 60),
+    ("shielded", "n11_m2_dt120", 80, 60)])
 def test_labels_are_planner_agents_decisions_in_the_learners_states(labels, config, n_steps, episode_steps):
     """The learner (an untrained policy, so it often disagrees with the planner) acts in 2 simulations,
     across an episode end; replaying its actions in single environments with the simulations' seeds,
     a PlannerAgents evaluated there as in an evaluation decides exactly the labels (``response``: its
-    best response to the learner's requests there, ``PlannerAgents.respond``), every agent's
+    best response to the learner's requests there, ``PlannerAgents.respond``; ``shielded``: the
+    reference with its deadline check, ``ShieldedPlannerAgents``, from ``safety_risk`` = 1e-6, which
+    decides otherwise than the plain planner in some of these states), every agent's
     observation is the one the learner saw, and its contended flag its simulation's
     ``PlannerAgents.contended`` there. On n11_m2 the learner mostly waits (its output bias), so that
     containers reach their optimum together and some states are contended."""
     seed = 7
     env = ContainerAgentsVecEnv(config, 2, episode_length_steps=episode_steps)
     n = env.n_agents
-    hp = DAggerArgs(labels=labels)
+    hp = DAggerArgs(labels="planner", safety_risk=1e-6) if labels == "shielded" else DAggerArgs(labels=labels)
+    shield_differs = 0
     model = ActorCritic("decentralised", env.observation_space.shape[0], 2, generator=torch.Generator().manual_seed(0))
     if config == "n11_m2_dt120":
         with torch.no_grad():  # logits + (2, 0): a request about one step in eight
@@ -59,13 +64,13 @@ def test_labels_are_planner_agents_decisions_in_the_learners_states(labels, conf
     labeller = Labeller(env.num_sims, hp, seed)
     rollout, *_ = collect(model, env, obs, torch.ones(env.num_envs), labeller, n_steps, 0.99,
                           torch.Generator().manual_seed(1), expert_acts=False, greedy=False,
-                          episodes=Episodes(env.num_sims, TrainingProgress()), labels=labels)
+                          episodes=Episodes(env.num_sims, TrainingProgress()), labels=hp.labels)
     assert labeller.planned > 0, "the planner should have planned (a choice between candidates) somewhere"
     assert rollout.contended.any() == (config == "n11_m2_dt120") and not rollout.contended.all()
     assert (rollout.labels == 1).any() and (rollout.actions != rollout.labels).any()
     for b in range(env.num_sims):
         single = parallel_env(config, episode_length_steps=episode_steps)
-        planner = PlannerAgents()
+        planner = ShieldedPlannerAgents() if labels == "shielded" else PlannerAgents()
         planner.reset(seed + b)
         observations, _ = single.reset(seed=seed + b)
         for t in range(n_steps):
@@ -75,8 +80,14 @@ def test_labels_are_planner_agents_decisions_in_the_learners_states(labels, conf
             np.testing.assert_array_equal(np.stack([observations[a] for a in agents]),
                                           rollout.obs[t, b * n:(b + 1) * n].numpy())
             acted = rollout.actions[t, b * n:(b + 1) * n].numpy().astype(bool)
-            if labels == "planner":
+            if labels != "response":
+                if labels == "shielded":  # the same planner, at the same point of its stream, without the check
+                    plain = copy.deepcopy(planner)
+                    plain.safety_risk = None
+                    sim = single.unwrapped.simulator
+                    undecided = plain.decide(sim.state, sim.params).astype(int).tolist()
                 decided = planner.act(observations, single)
+                shield_differs += labels == "shielded" and undecided != [decided[a] for a in agents]
             else:
                 sim = single.unwrapped.simulator
                 decided = dict(zip(agents, planner.respond(sim.state, sim.params, acted).astype(int).tolist()))
@@ -84,6 +95,7 @@ def test_labels_are_planner_agents_decisions_in_the_learners_states(labels, conf
             sim = single.unwrapped.simulator  # every agent of the simulation carries its state's contention
             assert rollout.contended[t, b * n:(b + 1) * n].tolist() == [bool(planner.contended(sim.state, sim.params)[0])] * n
             observations, *_ = single.step({a: int(rollout.actions[t, b * n + i]) for i, a in enumerate(agents)})
+    assert (shield_differs > 0) == (labels == "shielded")
 
 
 class _RandomAgents:
@@ -300,6 +312,9 @@ def test_a_saved_data_set_keeps_its_contended_flags_and_an_older_one_loads_with_
     ("dagger_ppo_agents", {"ppo_bogus": 1}, "ppo_bogus"),
     ("dagger_agents", {"request_weight": "0"}, "request_weight"),
     ("dagger_agents", {"anneal_lr": "sometimes"}, "anneal_lr"),
+    ("dagger_agents", {"safety_risk": 1.0}, "safety_risk"),
+    ("dagger_agents", {"safety_risk": -1e-6}, "safety_risk"),
+    ("dagger_response_agents", {"safety_risk": 1e-6}, "safety_risk"),  # the best responses are not shielded
 ])
 def test_bad_settings_are_refused_before_anything_is_written(algo, hp, field, tmp_path):
     with pytest.raises(ValueError, match=field):
