@@ -80,9 +80,10 @@ def main(argv=None) -> dict:
     ns = p.parse_args(argv)
     hp = json.loads(ns.hp)
     if not hp:
-        from containergym_marl.config.hyperparams import read_settings, settings_file
+        from containergym_marl.config import load_config
+        from containergym_marl.config.hyperparams import method_settings
 
-        hp = read_settings(settings_file(ns.algo))[0]
+        hp = method_settings(ns.algo, load_config(ns.config).n_containers)
     sides = {"this": REPO, "other": ns.other.resolve()}
     results: dict[str, list[dict]] = {name: [] for name in sides}
     with tempfile.TemporaryDirectory(dir=ns.dir) as tmp:

@@ -55,8 +55,12 @@ settings file keeps the paper's γ.
 
 **What is chosen.** ``--write-config`` writes the settings of the best finished trial (highest value)
 that passes the regression guards (every finished trial's guards must have run; before any guard has
-run, the best finished trial, and the file says so) as the method's settings file, ``configs/hyperparams/<method>.toml``, which ``train`` and ``compare`` read
-(:mod:`containergym_marl.config.hyperparams`).
+run, the best finished trial, and the file says so) as the method's settings file. With ``--by-size``
+it writes settings per plant size instead: for the plants of fewer than :data:`LARGE_PLANTS` containers
+the finished setting of highest IQM share over its runs on the search rows of that size, and for the
+larger plants (a ``[[by_size]]`` entry) the one of highest IQM share over its runs on the larger search
+rows and its guard runs. The file, ``configs/hyperparams/<method>.toml``, is what ``train`` and
+``compare`` read (:mod:`containergym_marl.config.hyperparams`).
 """
 
 from __future__ import annotations
@@ -73,6 +77,7 @@ from typing import Any
 
 import numpy as np
 
+from containergym_marl.config import load_config
 from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import evaluate
 from containergym_marl.evaluation.protocol import VALIDATION
@@ -93,6 +98,9 @@ GUARD_ROWS = ("n11_m2_dt120", "n16_m2_dt120")
 #: A setting passes the guards where, on every guard row, the IQM of its runs' shares of rule_based_agents'
 #: validation return is at least the default's minus this: about the spread of a 5-seed IQM there.
 GUARD_TOLERANCE = 0.05
+#: ``--write-config --by-size``: settings of their own for the plants of at least this many containers
+#: (the search's n11_m11_dt60 and the guard rows), chosen on those runs alone.
+LARGE_PLANTS = 11
 #: The discount every trial trains with (the paper's, per decision), and the labelled variant for δ = 60 s:
 #: 0.995 per decision of 60 s is about 0.99 per 120 s, the horizon in plant time of the δ = 120 s rows.
 GAMMA, DT60_GAMMA = 0.99, 0.995
@@ -582,8 +590,30 @@ def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
                      f" | {len(r['runs'])} | {fmt(r['value'])} | {fmt(r['mean_score'])} | "
                      f"{fmt(r['half_budget_score'])} | {r['overflowing_episodes']} | {r['cpu_s'] / 3600:.2f} |")
     text = "\n".join(lines) + "\n" + "".join(comparison_report(out, which) for which in COMPARISONS)
+    text += size_report(study, out)
     atomic_write_text(out / "trials.md", text)
     return text
+
+
+def size_report(study, out: Path) -> str:
+    """The table of each finished setting's IQM share by plant size (what ``--write-config --by-size``
+    chooses on), or "" before the guards have run or before any trial has finished."""
+    guards_file = out / COMPARISONS["guards"][0]
+    optuna = require_optuna()
+    if not guards_file.is_file() or not any(t.state == optuna.trial.TrialState.COMPLETE
+                                            for t in study.get_trials(deepcopy=False)):
+        return ""
+    guards = json.loads(guards_file.read_text())
+    lines = ["", "## By plant size", "",
+             f"Each setting judged on every run: the IQM share of rule_based_agents over its runs on the plants of "
+             f"fewer than {LARGE_PLANTS} containers (the search's), and over its runs on the plants of at least "
+             f"{LARGE_PLANTS} (the search's and the regression guards'), what `--write-config --by-size` chooses on.",
+             "", f"| setting | plants < {LARGE_PLANTS} | plants >= {LARGE_PLANTS} |", "|---|---|---|"]
+    for t in finished_settings(study, "--report"):
+        scores = size_scores(t, guards)
+        cells = ("–", "–") if scores is None else (f"{scores['small']:.3f}", f"{scores['large']:.3f}")
+        lines.append(f"| {guard_label(t)} | {cells[0]} | {cells[1]} |")
+    return "\n".join(lines) + "\n"
 
 
 def _cell(value) -> str:
@@ -630,6 +660,61 @@ def write_config(method: str, study, out: Path, path: Path) -> dict[str, Any]:
     return dict(best.params)
 
 
+def plant_size(row: str) -> int:
+    return load_config(row).n_containers
+
+
+def size_scores(trial, guards: dict[str, Any]) -> dict[str, float] | None:
+    """The IQM share of rule_based_agents of ``trial``'s runs on the plants of fewer than
+    :data:`LARGE_PLANTS` containers (``"small"``: the search's own runs there) and of at least that many
+    (``"large"``: its search runs there and its regression guard runs, all on validation episodes); None
+    where its guard runs are not all there."""
+    verdict = guard_verdict(guards, trial.params)
+    if verdict is None:
+        return None
+    runs = [v for k, v in trial.user_attrs.items() if k.startswith("run_")]
+    small = [r["score"] for r in runs if plant_size(r["row"]) < LARGE_PLANTS]
+    large = [r["score"] for r in runs if plant_size(r["row"]) >= LARGE_PLANTS]
+    (entry,) = [e for e in guards["settings"].values()
+                if settings_key(e["params"]) == settings_key(trial.params) and e["gamma"] == GAMMA][:1]
+    large += [e["score"] for e in entry["runs"]]
+    return {"small": iqm(small), "large": iqm(large)}
+
+
+def write_config_by_size(method: str, study, out: Path, path: Path) -> dict[str, Any]:
+    """Write settings per plant size as ``method``'s settings file: for the plants of fewer than
+    :data:`LARGE_PLANTS` containers the finished setting of highest IQM share over its runs there, for the
+    larger ones (a ``[[by_size]]`` entry) the one of highest IQM share over its runs there and its
+    regression guard runs; one setting for all where both are the same. A ValueError when no trial has
+    finished, the guards have not run, or a finished setting lacks guard runs."""
+    ranked = finished_settings(study, "--write-config")
+    guards_file = out / COMPARISONS["guards"][0]
+    if not guards_file.is_file():
+        raise ValueError(f"--write-config --by-size: no regression guards in {guards_file}: run --guards first")
+    guards = json.loads(guards_file.read_text())
+    scores = {}
+    for t in ranked:
+        scores[t.number] = size_scores(t, guards)
+        if scores[t.number] is None:
+            raise ValueError(f"--write-config --by-size: trial {t.number}'s setting has no regression guard runs "
+                             f"on every guard row and seed in {guards_file}: run --guards first")
+    rows = {"small": [r for r in ROWS if plant_size(r) < LARGE_PLANTS],
+            "large": [r for r in ROWS if plant_size(r) >= LARGE_PLANTS] + list(guards["rows"])}
+    chosen = {}
+    for size in ("small", "large"):
+        best = max(ranked, key=lambda t: (scores[t.number][size], -t.number))
+        which = "the trainer's default setting" if best.params == DEFAULT_TRIAL else "a searched setting"
+        where = (f"fewer than {LARGE_PLANTS} containers" if size == "small" else f"at least {LARGE_PLANTS} containers")
+        chosen[size] = (best, f"studies/native_ppo_tuning.py: trial {best.number} ({which}), of {_count(ranked)} "
+                              f"judged on every run the best on the plants of {where}: IQM share of rule_based_agents "
+                              f"{scores[best.number][size]:.3f} over its runs on {', '.join(rows[size])} with seeds "
+                              f"{SEEDS[0]}-{SEEDS[-1]}, validation episodes (results/ppo_tuning/{method}/trials.md)")
+    (small, small_source), (large, large_source) = chosen["small"], chosen["large"]
+    by_size = [] if small.params == large.params else [(LARGE_PLANTS, dict(large.params), large_source)]
+    write_settings(path, dict(small.params), small_source, by_size=by_size)
+    return {"settings": dict(small.params), **({"by_size": {LARGE_PLANTS: dict(large.params)}} if by_size else {})}
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--method", default="fast_shared_ppo",
@@ -657,7 +742,13 @@ def main(argv=None) -> None:
     p.add_argument("--write-config", nargs="?", const="", default=None, metavar="PATH",
                    help="train nothing: write the best finished trial's settings as the method's settings file "
                         "(default configs/hyperparams/<method>.toml)")
+    p.add_argument("--by-size", action="store_true",
+                   help=f"with --write-config: settings of their own for the plants of at least {LARGE_PLANTS} "
+                        "containers, chosen on the search's runs there and the regression guards' (which must have "
+                        "run); the others chosen on the smaller plants' runs")
     ns = p.parse_args(argv)
+    if ns.by_size and ns.write_config is None:
+        p.error("--by-size: goes with --write-config")
     ns.report = ns.report or ns.write_config is not None
     optuna = require_optuna()
     out, runs = Path(ns.out) / ns.method, Path(ns.runs) / ns.method
@@ -716,7 +807,8 @@ def main(argv=None) -> None:
         if ns.write_config is not None:
             path = Path(ns.write_config) if ns.write_config else settings_file(ns.method)
             try:
-                print(f"wrote {path}: {write_config(ns.method, study, out, path)}")
+                chosen = (write_config_by_size if ns.by_size else write_config)(ns.method, study, out, path)
+                print(f"wrote {path}: {chosen}")
             except ValueError as exc:
                 p.error(str(exc))
 

@@ -12,6 +12,19 @@ or the trainer's defaults)::
     learning_rate = 0.0003
     n_epochs = 10
 
+Settings may depend on the plant's size, where a search found that what suits the small plants loses
+on the large ones (rl-baselines3-zoo keeps settings per environment for the same reason). Each
+``[[by_size]]`` entry holds a ``min_containers``, its own ``source`` and ``[by_size.settings]``; a plant of
+n containers takes the entry of the largest ``min_containers`` <= n, in place of ``[settings]``
+(whole settings, not merged: a setting is one point of the search)::
+
+    [[by_size]]
+    min_containers = 11
+    source = "studies/native_ppo_tuning.py, trial 8 on the plants of 11 and 16 containers"
+
+    [by_size.settings]
+    learning_rate = 0.0002
+
 A run records the settings it trained with in its ``args.json``; a resumed run takes them from
 there, not from the file as it is now. Methods without a file train at their algorithm's defaults
 (the SB3 methods: the paper's settings).
@@ -43,8 +56,16 @@ def settings_file(method: str) -> Path:
     return hyperparams_dir() / f"{method}.toml"
 
 
-def read_settings(path: str | Path) -> tuple[dict[str, Any], str]:
-    """The settings and source of one file; a ValueError naming the file and the offending key."""
+def read_settings(path: str | Path, n_containers: int | None = None) -> tuple[dict[str, Any], str]:
+    """The settings and source of one file for a plant of ``n_containers`` (its ``[[by_size]]`` entry
+    where one applies; None: the ``[settings]`` table); a ValueError naming the file and the offending
+    key. Every entry is checked, whichever applies."""
+    return _pick(read_settings_file(path), n_containers)
+
+
+def read_settings_file(path: str | Path) -> dict[str, Any]:
+    """The whole file: ``{"settings", "source", "by_size": [{"min_containers", "source", "settings"}]}``,
+    ``by_size`` sorted by ``min_containers``; a ValueError naming the file and the offending key."""
     path = Path(path)
     with open_file(path, "rb") as f:
         raw = f.read(_MAX_FILE_BYTES + 1)
@@ -57,30 +78,68 @@ def read_settings(path: str | Path) -> tuple[dict[str, Any], str]:
         data = tomllib.loads(text)
     except (UnicodeDecodeError, ValueError) as exc:  # TOMLDecodeError is a ValueError
         raise ValueError(f"{path}: not a TOML file ({exc})") from None
-    unknown = sorted(set(data) - {"source", "settings"})
+    unknown = sorted(set(data) - {"source", "settings", "by_size"})
     if unknown:
-        raise ValueError(f"{path}: unknown key(s) {unknown}; expected 'source' and a [settings] table")
+        raise ValueError(f"{path}: unknown key(s) {unknown}; expected 'source', a [settings] table and "
+                         f"[[by_size]] entries")
+    source, settings = _table(path, data, "")
+    entries = data.get("by_size", [])
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise ValueError(f"{path}: 'by_size' must be a list of tables ([[by_size]])")
+    by_size = []
+    for k, entry in enumerate(entries):
+        where = f"by_size[{k}]"
+        unknown = sorted(set(entry) - {"min_containers", "source", "settings"})
+        if unknown:
+            raise ValueError(f"{path}: {where}: unknown key(s) {unknown}; expected 'min_containers', 'source' "
+                             f"and 'settings'")
+        size = entry.get("min_containers")
+        if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+            raise ValueError(f"{path}: {where}.min_containers must be an integer >= 1, got {size!r}")
+        if "settings" not in entry:
+            raise ValueError(f"{path}: {where}: no settings table")
+        entry_source, entry_settings = _table(path, entry, f"{where}.")
+        by_size.append({"min_containers": size, "source": entry_source, "settings": entry_settings})
+    sizes = [e["min_containers"] for e in by_size]
+    if len(set(sizes)) != len(sizes):
+        raise ValueError(f"{path}: by_size: min_containers {sorted(sizes)} names a size twice")
+    return {"settings": settings, "source": source, "by_size": sorted(by_size, key=lambda e: e["min_containers"])}
+
+
+def _table(path: Path, data: dict[str, Any], where: str) -> tuple[str, dict[str, Any]]:
+    """(source, settings) of the file's top level or of one by_size entry, every value checked."""
     source, settings = data.get("source", ""), data.get("settings", {})
     if not isinstance(source, str) or not isinstance(settings, dict):
-        raise ValueError(f"{path}: 'source' must be a string and 'settings' a table")
+        raise ValueError(f"{path}: '{where}source' must be a string and '{where}settings' a table")
     for key, value in settings.items():
         if isinstance(value, float) and not math.isfinite(value):
-            raise ValueError(f"{path}: settings.{key} = {value} is not a finite number")
+            raise ValueError(f"{path}: {where}settings.{key} = {value} is not a finite number")
         if not isinstance(value, (bool, int, float, str)) and not (
                 isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
-            raise ValueError(f"{path}: settings.{key} must be a number, a boolean, a string or a list of "
+            raise ValueError(f"{path}: {where}settings.{key} must be a number, a boolean, a string or a list of "
                              f"integers, got {value!r}")
-    return dict(settings), source
+    return source, dict(settings)
 
 
-def method_settings(method: str) -> dict[str, Any]:
-    """``method``'s settings from its file; {} when it has none."""
+def _pick(whole: dict[str, Any], n_containers: int | None) -> tuple[dict[str, Any], str]:
+    """(settings, source) for a plant of ``n_containers``: the by_size entry of the largest
+    min_containers <= n, else the [settings] table."""
+    chosen = [e for e in whole["by_size"] if n_containers is not None and e["min_containers"] <= n_containers]
+    entry = chosen[-1] if chosen else whole
+    return dict(entry["settings"]), entry["source"]
+
+
+def method_settings(method: str, n_containers: int | None = None) -> dict[str, Any]:
+    """``method``'s settings from its file for a plant of ``n_containers`` (None: its [settings] table,
+    for any size); {} when it has none."""
     path = settings_file(method)
-    return read_settings(path)[0] if path.is_file() else {}
+    return read_settings(path, n_containers)[0] if path.is_file() else {}
 
 
-def write_settings(path: str | Path, settings: dict[str, Any], source: str) -> None:
-    """Write a settings file (crash-safe): ``source`` and the ``[settings]`` table, keys sorted."""
+def write_settings(path: str | Path, settings: dict[str, Any], source: str,
+                   by_size: list[tuple[int, dict[str, Any], str]] = ()) -> None:
+    """Write a settings file (crash-safe): ``source`` and the ``[settings]`` table, keys sorted, then
+    one ``[[by_size]]`` entry per (min_containers, settings, source) of ``by_size``."""
     def value(v: Any) -> str:
         if isinstance(v, bool):
             return "true" if v else "false"
@@ -92,8 +151,17 @@ def write_settings(path: str | Path, settings: dict[str, Any], source: str) -> N
 
     lines = [f"source = {value(source)}", "", "[settings]"]
     lines += [f"{key} = {value(settings[key])}" for key in sorted(settings)]
-    atomic_write_text(Path(path), "\n".join(lines) + "\n")
-    read_settings(path)  # what was written reads back
+    for size, entry_settings, entry_source in sorted(by_size, key=lambda e: e[0]):
+        lines += ["", "[[by_size]]", f"min_containers = {int(size)}", f"source = {value(entry_source)}", "",
+                  "[by_size.settings]"]
+        lines += [f"{key} = {value(entry_settings[key])}" for key in sorted(entry_settings)]
+    text = "\n".join(lines) + "\n"
+    whole = tomllib.loads(text)  # what is written reads back, checked before the file is replaced
+    if len(whole.get("by_size", [])) != len(by_size):
+        raise ValueError(f"{path}: by_size: expected {len(by_size)} entries")
+    atomic_write_text(Path(path), text)
+    read_settings_file(path)
 
 
-__all__ = ["hyperparams_dir", "method_settings", "read_settings", "settings_file", "write_settings"]
+__all__ = ["hyperparams_dir", "method_settings", "read_settings", "read_settings_file", "settings_file",
+           "write_settings"]

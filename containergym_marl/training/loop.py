@@ -280,8 +280,9 @@ def run_settings(args: TrainArgs) -> dict[str, Any]:
     its ``args.json`` recorded with ``--hp`` on top (not the file as it is now)."""
     if args.resume and (args.run_dir() / "args.json").is_file():
         base = run_args(args.run_dir()).get("hyperparams") or {}
-    else:
-        base = method_settings(get_algorithm(args.algo).method_name(args.reward_mode))
+    else:  # the file's settings for this plant's size
+        n_containers = load_config(args.config, **args.overrides).n_containers
+        base = method_settings(get_algorithm(args.algo).method_name(args.reward_mode), n_containers)
     return {**base, **args.hyperparams}
 
 

@@ -398,3 +398,67 @@ def test_the_settings_file_takes_the_best_finished_setting_that_passes_the_regre
     with pytest.raises(ValueError, match=f"trial {numbers[script.settings_key(b)]}'s setting has no regression guard"):
         script.write_config("fast_shared_ppo_team", study, out, path)
     assert read_settings(path)[0] == b  # the file is left as it was
+
+
+def test_settings_by_plant_size_are_chosen_on_each_sizes_runs(tmp_path):
+    """--by-size: A wins on the small plants' runs and loses on the large ones (its search run on
+    n11_m11_dt60 and its guard runs), the default the other way round: the file holds A in [settings]
+    and the default from 11 containers on, each with its own source; a plant takes the one of its size.
+    Where one setting wins both, the file has no by_size entry."""
+    from containergym_marl.config.hyperparams import read_settings
+
+    script = _load_script()
+    study = optuna.create_study(direction="maximize")
+    a = {**DEFAULT_TRIAL, "n_epochs": 5}
+    numbers = {}
+
+    def finished(params, small_score, large_score):
+        study.enqueue_trial(params)
+        trial = study.ask()
+        for name, v in params.items():
+            trial.suggest_categorical(name, [3, 5, 10, 20] if name == "n_epochs" else [v])
+        for k, (row, score) in enumerate([("n5_m2_dt120", small_score)] * 3 + [("n11_m11_dt60", large_score)] * 3):
+            trial.set_user_attr(f"run_{k:02d}", {"row": row, "seed": 101 + k % 3, "score": score,
+                                                 "overflowing_episodes": 0, "half_budget_score": score, "cpu_s": 1.0})
+        study.tell(trial, (small_score + large_score) / 2)
+        numbers[script.settings_key(params)] = trial.number
+
+    rows, seeds = ["n11_m2_dt120", "n16_m2_dt120"], [101, 102, 103]
+
+    def entry(params, share):
+        return {"params": params, "gamma": 0.99, "runs": [{"row": r, "seed": s, "score": share} for s in seeds
+                                                          for r in rows]}
+
+    finished(DEFAULT_TRIAL, 0.5, 0.8)
+    finished(a, 0.9, 0.3)
+    out = tmp_path / "out"
+    out.mkdir()
+    path = tmp_path / "chosen.toml"
+    with pytest.raises(ValueError, match="no regression guards"):
+        script.write_config_by_size("fast_shared_ppo_team", study, out, path)
+    guards = {"rows": rows, "seeds": seeds, "settings": {"default": entry(DEFAULT_TRIAL, 0.9)}}
+    (out / "guards.json").write_text(json.dumps(guards))
+    with pytest.raises(ValueError, match=f"trial {numbers[script.settings_key(a)]}'s setting has no regression"):
+        script.write_config_by_size("fast_shared_ppo_team", study, out, path)
+    assert not path.exists()
+    guards["settings"]["trial A"] = entry(a, 0.85)
+    (out / "guards.json").write_text(json.dumps(guards))
+    scores = {k: script.size_scores(t, guards) for k, t in
+              ((script.settings_key(t.params), t) for t in study.get_trials())}
+    assert scores[script.settings_key(a)] == {"small": pytest.approx(0.9), "large": pytest.approx(
+        float(np.mean(sorted([0.3] * 3 + [0.85] * 6)[2:7])))}  # IQM of 9: the middle 5 (after 2 cut each side)
+    assert scores[script.settings_key(DEFAULT_TRIAL)]["large"] == pytest.approx(
+        float(np.mean(sorted([0.8] * 3 + [0.9] * 6)[2:7])))
+    got = script.write_config_by_size("fast_shared_ppo_team", study, out, path)
+    assert got == {"settings": a, "by_size": {11: DEFAULT_TRIAL}}
+    assert read_settings(path, 5)[0] == a and read_settings(path, 11)[0] == read_settings(path, 16)[0] == DEFAULT_TRIAL
+    small_source, large_source = read_settings(path, 5)[1], read_settings(path, 16)[1]
+    assert f"trial {numbers[script.settings_key(a)]} (a searched setting)" in small_source
+    assert "fewer than 11 containers" in small_source and "n5_m2_dt120" in small_source
+    assert "the trainer's default setting" in large_source
+    assert "n11_m11_dt60, n11_m2_dt120, n16_m2_dt120" in large_source
+    assert "## By plant size" in script.size_report(study, out)
+    guards["settings"]["default"] = entry(DEFAULT_TRIAL, 0.5)  # now A wins the large plants too: one setting for all
+    (out / "guards.json").write_text(json.dumps(guards))
+    assert script.write_config_by_size("fast_shared_ppo_team", study, out, path) == {"settings": a}
+    assert read_settings(path, 16)[0] == a

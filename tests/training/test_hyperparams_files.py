@@ -32,9 +32,10 @@ def test_the_shipped_files_are_the_native_methods_and_valid():
     assert shipped == ["fast_ppo", "fast_shared_ppo", "fast_shared_ppo_team"]
     for name in shipped:
         assert name in METHODS and METHODS[name].algo in ("fast_ppo", "fast_shared_ppo")
-        settings, source = files.read_settings(files.settings_file(name))
-        assert source and settings
-        PPOArgs.from_hyperparams(settings)  # every key a PPOArgs field, every value within bounds
+        whole = files.read_settings_file(files.settings_file(name))
+        for entry in [whole, *whole["by_size"]]:  # the settings of every plant size
+            assert entry["source"] and entry["settings"]
+            PPOArgs.from_hyperparams(entry["settings"])  # every key a PPOArgs field, every value within bounds
 
 
 def test_a_new_run_takes_its_methods_file_under_hp(folder, tmp_path):
@@ -61,7 +62,41 @@ def test_a_resumed_run_keeps_its_recorded_settings(folder, tmp_path):
     assert steps and steps[-1] == 480 and all(s % 160 == 0 for s in steps)
 
 
+def test_a_plant_takes_the_settings_of_its_size(folder, tmp_path):
+    """[[by_size]] entries replace [settings] (whole, not merged) from their min_containers on: the
+    entry of the largest min_containers <= n applies; a resumed run keeps what it recorded."""
+    files.write_settings(folder / "fast_shared_ppo.toml", {"n_steps": 16, "learning_rate": 1e-3}, "small plants",
+                         by_size=[(16, {"n_steps": 4}, "the largest"), (11, {"n_steps": 8}, "from 11 on")])
+    path = folder / "fast_shared_ppo.toml"
+    assert files.read_settings(path) == ({"n_steps": 16, "learning_rate": 1e-3}, "small plants")
+    assert [files.read_settings(path, n) for n in (5, 10, 11, 15, 16, 128)] == [
+        ({"n_steps": 16, "learning_rate": 1e-3}, "small plants")] * 2 + [({"n_steps": 8}, "from 11 on")] * 2 + [
+        ({"n_steps": 4}, "the largest")] * 2
+    assert [e["min_containers"] for e in files.read_settings_file(path)["by_size"]] == [11, 16]
+    small = train(TrainArgs(algo="fast_shared_ppo", timesteps=160, out=str(tmp_path / "a"), **TINY))
+    assert _settings(small) == {"n_steps": 16, "learning_rate": 1e-3}
+    large = train(TrainArgs(algo="fast_shared_ppo", timesteps=528, out=str(tmp_path / "b"),
+                            **{**TINY, "config": "n11_m2_dt120"}))
+    assert _settings(large) == {"n_steps": 8}
+    steps = [int(r.split(",")[0]) for r in (large / "metrics.csv").read_text().splitlines()[1:]]
+    assert steps and all(s % (8 * 2 * 11) == 0 for s in steps)  # 8 steps x 2 sims x 11 agents per update
+    files.write_settings(path, {"n_steps": 16}, "changed since")
+    resumed = train(TrainArgs(algo="fast_shared_ppo", timesteps=704, out=str(large), resume=True,
+                              **{**TINY, "config": "n11_m2_dt120"}))
+    assert _settings(resumed) == {"n_steps": 8}
+
+
 @pytest.mark.parametrize("text, named", [
+    ("[settings]\nn_steps = 8\n[[by_size]]\nmin_containers = 0\n[by_size.settings]\nn_steps = 4\n",
+     r"by_size\[0\]\.min_containers"),
+    ("[settings]\nn_steps = 8\n[[by_size]]\nmin_containers = 2\nsetings = 1\n", "setings"),
+    ("[settings]\nn_steps = 8\n[[by_size]]\nmin_containers = 2\n", r"by_size\[0\]: no settings"),
+    ("[settings]\nn_steps = 8\n[[by_size]]\nmin_containers = 2\n[by_size.settings]\nlearning_rate = inf\n",
+     r"by_size\[0\]\.settings\.learning_rate"),
+    ("[settings]\nn_steps = 8\n" + "[[by_size]]\nmin_containers = 2\n[by_size.settings]\nn_steps = 4\n" * 2,
+     "names a size twice"),
+    ("by_size = 3\n", "by_size"),
+    ("[settings]\nn_steps = 8\n[[by_size]]\nmin_containers = 5\n[by_size.settings]\nn_epochs = 0\n", "n_epochs"),
     ("[settings]\nn_epochs = 0\n", "n_epochs"),  # out of PPOArgs' bounds
     ("[settings]\nlearning_rte = 0.1\n", "learning_rte"),  # not a setting
     ("[settings]\nlearning_rate = nan\n", "settings.learning_rate"),
