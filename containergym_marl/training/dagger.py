@@ -647,7 +647,9 @@ def write_record(run: Path, state: DAggerState, hp: DAggerArgs) -> None:
     """``imitation.json``: the expert, the totals so far and one row per iteration."""
     last = state.history[-1] if state.history else {}
     atomic_write_text(Path(run) / RECORD, json.dumps({
-        "expert": "planner_agents_shielded" if hp.safety_risk > 0 else "planner_agents", "futures": hp.futures,
+        # the reference's name where its check is the reference's; another ε is planner_agents with that check
+        "expert": "planner_agents_shielded" if hp.safety_risk == SHIELD["safety_risk"] else "planner_agents",
+        "futures": hp.futures,
         "horizon": hp.horizon, "safety_risk": hp.safety_risk,
         "samples": state.num_timesteps,
         "label_cpu_s": last.get("label_cpu_s", 0.0), "planned_decisions": last.get("planned_decisions", 0),
