@@ -158,7 +158,7 @@ FINDINGS = {
     "Shared PPO's (SB3) IQM interval with the team reward never lies above the one with individual "
     "rewards; it lies below on `n5_m5_dt120`, `n11_m11_dt120` and `n16_m2_dt120`, and the two overlap on "
     "the other rows.": team_no_better,
-    "The package's own shared PPO, each at its settings file, scores a lower IQM with the team reward than with "
+    "The package's own shared PPO scores a lower IQM with the team reward than with "
     "individual rewards on every row, on the test and on the fresh episodes.": native_team_below,
     "SB3's PPO with the paper's settings has its median seed (ranked on the test episodes, as the paper ranks its "
     "seeds) within 5 points of the paper's median PPO seed on the four δ = 120 s paper rows (3–5 seeds here, 15 "
