@@ -60,6 +60,8 @@ dataset_size (DAgger)        1 ≤ size ≤ 2**26 samples                       
 buffer_size (SB3 replay)     1 ≤ size ≤ 2**24 samples (SB3's default: 10**6)      MAX_REPLAY_BUFFER
 futures, horizon             1 ≤ K ≤ 1024, 1 ≤ H ≤ 1024 (DAgger's labelling       MAX_PLANNER_FUTURES,
                              planner; defaults 16, 8)                             MAX_PLANNER_HORIZON
+own check's lead_steps       0 ≤ L ≤ 1024 fills (a learned container-agent        MAX_OWN_CHECK_LEAD_STEPS
+                             policy's own deadline check)
 memory of a run              its estimate (``training.train_args.memory_estimate``:     machine_memory()
                              buffers, data set, networks, simulations) ≤ the
                              machine's physical memory
@@ -114,6 +116,7 @@ MAX_DATASET_SIZE = 2**26
 MAX_REPLAY_BUFFER = 2**24
 MAX_PLANNER_FUTURES = 1024
 MAX_PLANNER_HORIZON = 1024
+MAX_OWN_CHECK_LEAD_STEPS = 1024
 #: Largest config file read (the built-in ones are ~3 kB; a 16-container plant ~6 kB).
 MAX_CONFIG_BYTES = 1_000_000
 #: Deepest nesting of lists and tables in a config file, and most parts of a dotted key (ours: 3).

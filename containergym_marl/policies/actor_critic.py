@@ -17,6 +17,7 @@ The file (``torch.save`` of plain containers)::
      "view": "centralised" | "decentralised",
      "observation_size": F, "n_actions": A, "hidden": [64, 64], "action_mask": bool,
      "observation": "local",              # the container agents' observation variant it was trained on
+     "own_check": {"risk": ε, "lead_steps": L},  # only with a container agent's own deadline check
      "state_dict": {"actor.0.weight": ..., ..., "critic.4.bias": ...},
      "meta": {...}}                       # where it came from (algorithm, config, seed, samples)
 
@@ -25,10 +26,17 @@ written before the variants existed: they read as ``"local"``, the observation t
 A model acts only on the variant it records (its policy adapter refuses another, naming both), and
 an evaluation builds that variant; a centralised model's is always ``"local"``.
 
+``own_check`` (absent from older files: None) is a decentralised model's own deadline check
+(:func:`~containergym_marl.policies.safety.own_deadline_due`): wherever the model acts, an agent whose
+own observation says its container would overflow within ``lead_steps`` + 1 fills with probability
+above ``risk`` asks for a free PU, whatever the network says. It is part of the policy: the policy
+adapters apply it, so every evaluation of the model does.
+
 The same model as safetensors (:meth:`ActorCritic.save_safetensors`, ``.safetensors``: a format
 that holds tensors and a string header, never code): the state dict's tensors, and the other fields
 as the header's metadata (``format``, ``version``, ``view``, ``observation_size``, ``n_actions``,
-``hidden``, ``action_mask``, ``observation``, ``meta``; numbers, lists and ``meta`` as JSON text).
+``hidden``, ``action_mask``, ``observation``, ``own_check``, ``meta``; numbers, lists, ``own_check`` and
+``meta`` as JSON text).
 :meth:`ActorCritic.load` reads either by the file's suffix, with the same checks.
 
 The network is Stable-Baselines3's ``MlpPolicy`` for a discrete action: separate policy and value
@@ -54,6 +62,7 @@ import numpy as np
 
 from containergym_marl.config.bounds import MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_NETWORK_PARAMETERS
 from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation, check_same_observation
+from containergym_marl.policies.safety import check_own_check, own_deadline_due
 from containergym_marl.extras import missing_extra
 
 FORMAT = "containergym-marl actor-critic"
@@ -101,11 +110,13 @@ class ActorCritic:
         generator: the torch.Generator of a fresh initialisation (all randomness from the run's seed).
         observation: the container agents' observation variant it acts on
             (:data:`~containergym_marl.core.observations.OBSERVATIONS`; "local" for a centralised model).
+        own_check: a decentralised model's own deadline check, ``{"risk": ε, "lead_steps": L}``, or None.
     """
 
     def __init__(self, view: str, observation_size: int, n_actions: int, hidden: Sequence[int] = (64, 64),
                  action_mask: bool = False, state_dict: dict[str, Any] | None = None,
-                 meta: dict[str, Any] | None = None, generator=None, observation: str = DEFAULT_OBSERVATION):
+                 meta: dict[str, Any] | None = None, generator=None, observation: str = DEFAULT_OBSERVATION,
+                 own_check: dict[str, Any] | None = None):
         torch = _torch()
         if view not in VIEWS:
             raise ValueError(f"view: expected one of {VIEWS}, got {view!r}")
@@ -113,6 +124,9 @@ class ActorCritic:
         if view == "centralised" and observation != DEFAULT_OBSERVATION:
             raise ValueError(f"observation: {observation!r} is a variant of the container agents' observation; "
                              f"a centralised model observes the global state ({DEFAULT_OBSERVATION!r})")
+        self.own_check = check_own_check(own_check)
+        if view == "centralised" and self.own_check is not None:
+            raise ValueError("own_check: a container agent's own check; a centralised model has no container agents")
         self.view, self.action_mask = view, bool(action_mask)
         self.observation_size, self.n_actions, self.hidden = check_network(observation_size, n_actions, hidden)
         self.meta = dict(meta or {})
@@ -143,7 +157,9 @@ class ActorCritic:
                 "observation_size": self.observation_size, "n_actions": self.n_actions, "hidden": self.hidden,
                 "action_mask": self.action_mask, "observation": self.observation,
                 "state_dict": {k: v.detach().clone() for k, v in self.net.state_dict().items()},
-                "meta": self.meta}
+                "meta": self.meta,
+                # only where there is one: a model without keeps the bytes of a file written before the check
+                **({"own_check": self.own_check} if self.own_check is not None else {})}
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "model") -> "ActorCritic":
@@ -160,8 +176,9 @@ class ActorCritic:
         if data["view"] == "centralised" and observation != DEFAULT_OBSERVATION:
             raise ValueError(f"{source}: a centralised model with the container agents' {observation!r} observation")
         try:
+            own_check = check_own_check(data.get("own_check"), f"{source}: own_check")
             return cls(data["view"], *sizes, data["action_mask"], data["state_dict"], data.get("meta"),
-                       observation=observation)
+                       observation=observation, own_check=own_check)
         except (TypeError, RuntimeError, ValueError) as exc:
             raise ValueError(f"{source}: its shape and weights do not match ({type(exc).__name__}: {exc})") from exc
 
@@ -178,7 +195,8 @@ class ActorCritic:
         metadata = {"format": data["format"], "version": str(data["version"]), "view": data["view"],
                     "observation_size": str(data["observation_size"]), "n_actions": str(data["n_actions"]),
                     "hidden": json.dumps(list(data["hidden"])), "action_mask": json.dumps(bool(data["action_mask"])),
-                    "observation": data["observation"], "meta": json.dumps(data["meta"], sort_keys=True)}
+                    "observation": data["observation"], "meta": json.dumps(data["meta"], sort_keys=True),
+                    **({"own_check": json.dumps(data["own_check"])} if "own_check" in data else {})}
         blob = _safetensors_torch().save({k: v.contiguous() for k, v in data["state_dict"].items()}, metadata)
         return atomic_write(path, lambda tmp: tmp.write_bytes(blob))
 
@@ -226,6 +244,7 @@ def read_safetensors(path: str | Path) -> dict[str, Any]:
                 "n_actions": int(metadata["n_actions"]), "hidden": json.loads(metadata["hidden"]),
                 "action_mask": json.loads(metadata["action_mask"]), "state_dict": tensors,
                 "observation": metadata.get("observation", DEFAULT_OBSERVATION),
+                "own_check": json.loads(metadata.get("own_check", "null")),
                 "meta": json.loads(metadata.get("meta", "{}"))}
     except (KeyError, ValueError, TypeError) as exc:
         raise ValueError(f"{source}: its safetensors header lacks or garbles a field of the "
@@ -378,9 +397,16 @@ class CentralisedActorCriticPolicy(_ActorCriticPolicy):
 
 class SharedActorCriticPolicy(_ActorCriticPolicy):
     """A native-PPO policy shared by every container agent of the decentralised view (one batched
-    forward per step)."""
+    forward per step), with the model's own check where it has one."""
 
     view = "decentralised"
+
+    def _actions(self, observations: np.ndarray, masks: np.ndarray | None) -> list[int]:
+        actions = super()._actions(observations, masks)
+        if self.model.own_check is None:
+            return actions
+        due = own_deadline_due(observations, **self.model.own_check)
+        return [1 if d else a for a, d in zip(actions, due.tolist())]
 
     def act(self, observations: dict[str, Any], env: Any) -> dict[str, int]:
         if getattr(env, "observation", DEFAULT_OBSERVATION) != self.observation:

@@ -51,7 +51,9 @@ import math
 
 import numpy as np
 
+from containergym_marl.config.bounds import MAX_OWN_CHECK_LEAD_STEPS
 from containergym_marl.config.pu_time import jit, pu_time_s
+from containergym_marl.core.observations import SCALAR_FEATURES
 from containergym_marl.core.params import PlantParams
 
 #: The version at which each view's shielded decisions last changed: results of that version or later stand.
@@ -171,3 +173,54 @@ def _taken_pus(timers_s: np.ndarray, emptyings: int) -> list[bool]:
         raise ValueError(f"emptied: {emptyings} emptyings but only {emptyings - left} free PU(s)")
     return taken
 
+
+
+# ---- a container agent's own check --------------------------------------------------------------------
+#: The entries of a container agent's observation (every variant) that its own check reads.
+_OWN = tuple(SCALAR_FEATURES.index(name) for name in
+             ("volume_frac", "fill_rate_frac", "fill_noise_frac", "free_pu_frac"))
+
+
+@jit
+def _own_due(observations, columns, risk, fills, out):
+    volume, rate, noise, free = columns
+    for i in range(observations.shape[0]):
+        total = 0.0
+        for k in range(1, fills + 1):  # the union bound above, in units of the container's v_max
+            gap = 1.0 - observations[i, volume] - k * observations[i, rate]
+            if observations[i, noise] > 0.0:
+                total += 0.5 * math.erfc(gap / (observations[i, noise] * math.sqrt(2.0 * k)))
+            elif gap <= 0.0:
+                total += 1.0
+        out[i] = total > risk and observations[i, free] > 0.0
+
+
+def own_deadline_due(observations: np.ndarray, risk: float, lead_steps: int) -> np.ndarray:
+    """(N,) bool: the container agents that must ask now by their own check: a PU is free and, by the
+    agent's own observation alone, its container overflows within ``lead_steps`` + 1 more fills with
+    probability (the union bound above) above ``risk`` unless emptied now, i.e. its deadline is at
+    most ``lead_steps`` fills. It reads ``volume_frac`` (v / v_max), ``fill_rate_frac`` (μδ / v_max),
+    ``fill_noise_frac`` (σ√δ / v_max) and ``free_pu_frac``, entries of every observation variant, so
+    it needs nothing an agent does not see: a safety layer a decentralised policy can carry."""
+    obs = np.ascontiguousarray(observations, dtype=np.float64)
+    if obs.ndim != 2 or obs.shape[1] < len(SCALAR_FEATURES):
+        raise ValueError(f"observations: expected (N, F >= {len(SCALAR_FEATURES)}) container-agent observations, "
+                         f"got shape {obs.shape}")
+    out = np.empty(obs.shape[0], dtype=np.bool_)
+    _own_due(obs, np.asarray(_OWN, dtype=np.int64), float(risk), int(lead_steps) + 1, out)
+    return out
+
+
+def check_own_check(value, where: str = "own_check") -> dict | None:
+    """``value`` as a learned policy's own check, ``{"risk": ε, "lead_steps": L}`` (ε in (0, 1), L an
+    integer in [0, MAX_OWN_CHECK_LEAD_STEPS]), or None; a ValueError naming ``where`` otherwise."""
+    if value is None:
+        return None
+    if not isinstance(value, dict) or set(value) != {"risk", "lead_steps"}:
+        raise ValueError(f"{where}: expected None or {{'risk': ε, 'lead_steps': L}}, got {value!r}")
+    risk, lead = value["risk"], value["lead_steps"]
+    if isinstance(risk, bool) or not isinstance(risk, (int, float)) or not (math.isfinite(risk) and 0 < risk < 1):
+        raise ValueError(f"{where}: risk must be a probability in (0, 1), got {risk!r}")
+    if isinstance(lead, bool) or not isinstance(lead, (int, np.integer)) or not 0 <= lead <= MAX_OWN_CHECK_LEAD_STEPS:
+        raise ValueError(f"{where}: lead_steps must be an integer in [0, {MAX_OWN_CHECK_LEAD_STEPS}], got {lead!r}")
+    return {"risk": float(risk), "lead_steps": int(lead)}

@@ -102,6 +102,7 @@ from containergym_marl.config.bounds import (
     MAX_MINIBATCH,
     MAX_N_STEPS,
     MAX_PLANNER_FUTURES,
+    MAX_OWN_CHECK_LEAD_STEPS,
     MAX_PLANNER_HORIZON,
     check_count,
 )
@@ -109,6 +110,7 @@ from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_obser
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors, save_tensors
 from containergym_marl.policies.planner import SHIELD, PlannerAgents
+from containergym_marl.policies.safety import own_deadline_due
 from containergym_marl.rundir import RunError, RunWarning
 from containergym_marl.training import fast_ppo
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
@@ -162,6 +164,11 @@ class DAggerArgs:
     # 1e-6 labels with the reference, planner_agents_shielded (policies.planner.SHIELD), whose decisions near an
     # overflow empty the containers that could not otherwise be emptied in time
     safety_risk: float = 0.0
+    # the student's own deadline check (policies.safety.own_deadline_due), part of the trained policy wherever it
+    # acts: an agent whose own observation says its container would overflow within own_check_lead_steps + 1 fills
+    # with probability above own_check_risk asks for a free PU; 0 is no check. The imitation alone (no fine-tuning)
+    own_check_risk: float = 0.0
+    own_check_lead_steps: int = 1
     imitation_share: float = 1.0  # share of the budget DAgger trains; dagger_ppo_agents: 0.5, PPO the rest
     # the fine-tuning's behaviour-cloning term (DAPG): bc_coef × the cross-entropy on the imitation's data set beside
     # PPO's loss, its weight halving every bc_half_life of the fine-tuning's samples; 0: PPO alone
@@ -243,9 +250,22 @@ class DAggerArgs:
         if not (math.isfinite(self.safety_risk) and 0 <= self.safety_risk < 1):
             raise ValueError(f"hp: safety_risk must be a probability in [0, 1) (0: no deadline check), "
                              f"got {self.safety_risk}")
+        if not (math.isfinite(self.own_check_risk) and 0 <= self.own_check_risk < 1):
+            raise ValueError(f"hp: own_check_risk must be a probability in [0, 1) (0: no check), got {self.own_check_risk}")
+        if not 0 <= self.own_check_lead_steps <= MAX_OWN_CHECK_LEAD_STEPS:
+            raise ValueError(f"hp: own_check_lead_steps must be in [0, {MAX_OWN_CHECK_LEAD_STEPS}], "
+                             f"got {self.own_check_lead_steps}")
+        if self.own_check_risk > 0 and self.ppo is not None:
+            raise ValueError("hp: own_check_risk applies to the imitation alone: a check that overrides the sampled "
+                             "actions would make PPO's fine-tuning learn from actions its policy did not take")
         if self.safety_risk > 0 and self.labels != "planner":
             raise ValueError(f"hp: safety_risk applies to the planner's own decisions (labels='planner'); "
                              f"labels={self.labels!r} takes its best responses, which the check does not shield")
+
+    def own_check(self) -> dict[str, Any] | None:
+        """The model's own check (:func:`~containergym_marl.policies.safety.check_own_check`), or None."""
+        return None if self.own_check_risk == 0 else {"risk": self.own_check_risk,
+                                                      "lead_steps": self.own_check_lead_steps}
 
     def learning_rate_at(self, samples: int, budget: int) -> float:
         """Adam's step size after ``samples`` of an imitation budget of ``budget`` samples."""
@@ -389,7 +409,8 @@ def new_state(env, hp: DAggerArgs, seed: int, meta: dict[str, Any]) -> DAggerSta
     obs_size = env.observation_space.shape[0]
     check_same_observation(hp.observation, getattr(env, "observation", DEFAULT_OBSERVATION), "the new DAgger model")
     model = ActorCritic("decentralised", obs_size, int(env.action_space.n), hp.hidden,
-                        meta={**meta, "expert": "planner_agents"}, generator=generator, observation=hp.observation)
+                        meta={**meta, "expert": "planner_agents"}, generator=generator, observation=hp.observation,
+                        own_check=hp.own_check())
     return DAggerState(model, _optimizer(model, hp), generator, Dataset(hp.dataset_size, obs_size),
                        hyperparams=_jsonable(hp))
 
@@ -513,6 +534,8 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
                     actions = logits.argmax(-1)
                 else:  # Gumbel-max: a sample, from the run's generator
                     actions = (logits - torch.log(-torch.log(torch.rand(logits.shape, generator=generator)))).argmax(-1)
+                if model.own_check is not None:  # the check is part of the policy: it acts as deployed
+                    actions = torch.where(torch.from_numpy(own_deadline_due(obs.numpy(), **model.own_check)), 1, actions)
                 requests = None if labels == "planner" else actions.numpy().reshape(env.num_sims, -1).astype(bool)
                 made = labeller.label(env.simulator, requests)
                 step_labels = torch.from_numpy(made.reshape(-1).astype(np.int64))
