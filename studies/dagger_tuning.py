@@ -79,7 +79,9 @@ VARIANTS: dict[str, Variant] = {
     "greedy_response": Variant(("greedy=true",), "dagger_response_agents"),
     # the reference's labels: the labelling planner with planner_agents_shielded's deadline check
     "greedy_shielded": Variant(("greedy=true", "safety_risk=1e-6")),
-    # the same with the student's own deadline check (ε = 1e-4, a lead of one fill), in collection and evaluation
+    # the student's own deadline check (ε = 1e-4, a lead of one fill), in collection and evaluation, with the
+    # planner's labels and with the reference's
+    "greedy_own_1": Variant(("greedy=true", "own_check_risk=1e-4", "own_check_lead_steps=1")),
     "greedy_shielded_own_1": Variant(("greedy=true", "safety_risk=1e-6", "own_check_risk=1e-4",
                                       "own_check_lead_steps=1")),
     # the contended states (more containers due than free PUs) a quarter or half of every minibatch
