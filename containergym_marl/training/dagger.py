@@ -126,7 +126,7 @@ FINE_TUNE_SETTINGS = ("imitation_share", "bc_coef", "bc_half_life")
 #: The imitation's data set, kept for the fine-tuning's behaviour-cloning term (``bc_coef``), in ``checkpoints/``.
 BC_DATASET = "bc_dataset.pt"
 #: PPO settings a fine-tuning takes from the imitated model, not from ``ppo_<key>``.
-MODEL_SETTINGS = ("hidden", "action_mask")
+MODEL_SETTINGS = ("hidden", "action_mask", "own_check_risk", "own_check_lead_steps")
 #: The record of the imitation phase in the run directory, rewritten after every iteration.
 RECORD = "imitation.json"
 #: What an agent's label is: the planner's decision for all agents (``planner``), or the agent's best
@@ -197,7 +197,8 @@ class DAggerArgs:
         ppo_fields = {f"ppo_{f.name}" for f in dataclasses.fields(fast_ppo.PPOArgs)} if fine_tune else set()
         taken = sorted(k for k in hyperparams if k in ppo_fields and k[4:] in MODEL_SETTINGS)
         if taken:
-            raise ValueError(f"hp: {taken} cannot be set: the fine-tuning keeps the imitated model's network")
+            raise ValueError(f"hp: {taken} cannot be set: the fine-tuning keeps the imitated model (its network "
+                             f"and its own check)")
         unknown = sorted(k for k in hyperparams if k not in own and k not in ppo_fields)
         if unknown:
             choices = sorted(own) + sorted(ppo_fields - {f"ppo_{k}" for k in MODEL_SETTINGS})

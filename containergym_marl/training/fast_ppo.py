@@ -66,11 +66,13 @@ from containergym_marl.config.bounds import (
     MAX_HIDDEN_WIDTH,
     MAX_MINIBATCH,
     MAX_N_STEPS,
+    MAX_OWN_CHECK_LEAD_STEPS,
     MAX_ROLLOUT_SAMPLES,
     check_count,
 )
 from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic, load_tensors
+from containergym_marl.policies.safety import own_deadline_due
 from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
 from containergym_marl.training.native import MemoryShapes
@@ -107,6 +109,12 @@ class PPOArgs:
     action_mask: bool = False  # mask the emptying actions while no PU is free
     hidden: tuple[int, ...] = (64, 64)  # hidden units of the policy and of the value network (SB3: 64, 64)
     observation: str = DEFAULT_OBSERVATION  # the container agents' observation variant (fast_shared_ppo only)
+    # the container agents' own deadline check (policies.safety.own_deadline_due; fast_shared_ppo only), part of the
+    # environment the policy learns in and of the trained policy: an agent whose own observation says its container
+    # would overflow within own_check_lead_steps + 1 fills with probability above own_check_risk has its request made,
+    # whatever it sampled (PPO learns from the actions it sampled); 0: no check
+    own_check_risk: float = 0.0
+    own_check_lead_steps: int = 1
 
     @classmethod
     def from_hyperparams(cls, hyperparams: dict[str, Any]) -> "PPOArgs":
@@ -147,6 +155,16 @@ class PPOArgs:
                 raise ValueError(f"hp: {name} must be a finite number >= 0, got {value}")
         check_hidden(self.hidden)
         check_observation(self.observation, "hp: observation")
+        if not (math.isfinite(self.own_check_risk) and 0 <= self.own_check_risk < 1):
+            raise ValueError(f"hp: own_check_risk must be a probability in [0, 1) (0: no check), got {self.own_check_risk}")
+        if not 0 <= self.own_check_lead_steps <= MAX_OWN_CHECK_LEAD_STEPS:
+            raise ValueError(f"hp: own_check_lead_steps must be in [0, {MAX_OWN_CHECK_LEAD_STEPS}], "
+                             f"got {self.own_check_lead_steps}")
+
+    def own_check(self) -> dict[str, Any] | None:
+        """The model's own check (:func:`~containergym_marl.policies.safety.check_own_check`), or None."""
+        return None if self.own_check_risk == 0 else {"risk": self.own_check_risk,
+                                                      "lead_steps": self.own_check_lead_steps}
 
 
 def check_hidden(hidden: tuple[int, ...]) -> None:
@@ -211,7 +229,8 @@ def new_state(env, hp: PPOArgs, view: str, seed: int, meta: dict[str, Any]) -> T
     """A fresh model (initialised from ``seed``) and optimiser for ``env``'s spaces."""
     generator = torch.Generator().manual_seed(int(seed))
     model = ActorCritic(view, env.observation_space.shape[0], int(env.action_space.n), hp.hidden,
-                        action_mask=hp.action_mask, meta=meta, generator=generator, observation=hp.observation)
+                        action_mask=hp.action_mask, meta=meta, generator=generator, observation=hp.observation,
+                        own_check=hp.own_check())
     return TrainingState(model, _optimizer(model, hp), generator, 0, dataclasses.asdict(hp))
 
 
@@ -297,7 +316,10 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
                 start_buf[t] = episode_start
                 if masks is not None:
                     mask_buf[t] = masks
-                next_obs, rewards, dones, infos = env.step(actions.numpy())
+                executed = actions.numpy()
+                if model.own_check is not None:  # the agents' own check: the environment the policy learns in
+                    executed = np.where(own_deadline_due(obs.numpy(), **model.own_check), 1, executed)
+                next_obs, rewards, dones, infos = env.step(executed)
                 rewards = torch.from_numpy(rewards)
                 if dones.any():
                     # A time-limit cut is not a terminal state: bootstrap with the value of the last

@@ -129,7 +129,11 @@ class TrainArgs:
         if spec.native:
             if self.vec != "native":
                 raise ValueError(f"vec: {self.algo} trains on the native vector env only, not {self.vec!r}")
-            return spec.trainer().settings(self.hyperparams)  # torch missing: a message naming the extra
+            settings = spec.trainer().settings(self.hyperparams)  # torch missing: a message naming the extra
+            if spec.view == "centralised" and getattr(settings, "own_check_risk", 0) > 0:
+                raise ValueError(f"hp: own_check_risk is the container agents' own check; {self.algo} is a "
+                                 f"centralised controller")
+            return settings
         return None
 
 

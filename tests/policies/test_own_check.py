@@ -148,3 +148,43 @@ def test_the_student_acts_with_its_check_while_dagger_collects():
                           labels="planner")
     due = own_deadline_due(rollout.obs.reshape(-1, rollout.obs.shape[-1]).numpy(), 1e-4, 1)
     assert due.any() and rollout.actions.reshape(-1).numpy().astype(bool).tolist() == due.tolist()
+
+
+def test_ppo_learns_in_the_environment_its_check_makes_and_ships_with_it(tmp_path):
+    """fast_shared_ppo with the check: every step the environment executes the sampled actions with a
+    request wherever the agents' own observations are due (PPO keeps the sampled actions); the model
+    file carries the check. A centralised controller, and a DAgger fine-tuning's PPO, refuse it."""
+    from containergym_marl.envs.vector import ContainerAgentsVecEnv
+    from containergym_marl.training.checkpoints import TrainingProgress
+    from containergym_marl.training.fast_ppo import PPOArgs, learn, new_state
+
+    env = ContainerAgentsVecEnv("n5_m2_dt120", 2, episode_length_steps=40)
+    hp = PPOArgs(n_steps=20, minibatch_size=100, own_check_risk=1e-4, own_check_lead_steps=1)
+    state = new_state(env, hp, "decentralised", 0, {})
+    assert state.model.own_check == {"risk": 1e-4, "lead_steps": 1}
+    with torch.no_grad():  # a policy that mostly waits, so that containers fill up and fall due
+        state.model.net.actor[-1].bias.copy_(torch.tensor([5.0, -5.0]))
+    seen, step, reset, last = [], env.step, env.reset, {}
+
+    def recording_reset(*args, **kwargs):  # what the policy sees first
+        last["obs"] = reset(*args, **kwargs).copy()
+        return last["obs"]
+
+    def recording_step(actions):  # the actions executed, and the observations they were chosen on
+        seen.append((np.array(actions), last["obs"]))
+        out = step(actions)
+        last["obs"] = out[0].copy()
+        return out
+
+    env.step, env.reset = recording_step, recording_reset
+    learn(tmp_path, state, env, 400, 0.99, hp, TrainingProgress(), interval=10**9)
+    executed = np.concatenate([a for a, _ in seen])
+    due = np.concatenate([own_deadline_due(o, 1e-4, 1) for _, o in seen])
+    assert due.any() and executed[due].all()  # every due agent asked
+    with pytest.raises(ValueError, match="own_check_risk"):
+        train(TrainArgs(algo="fast_ppo", out=str(tmp_path / "c"), timesteps=100,
+                        hyperparams={"own_check_risk": 1e-4}, progress_bar=False))
+    with pytest.raises(ValueError, match="ppo_own_check_risk"):
+        train(TrainArgs(algo="dagger_ppo_agents", out=str(tmp_path / "d"), timesteps=100,
+                        hyperparams={"ppo_own_check_risk": 1e-4}, progress_bar=False))
+    assert not (tmp_path / "c").exists() and not (tmp_path / "d").exists()
