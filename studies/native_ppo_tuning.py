@@ -53,6 +53,12 @@ and sets it beside the same setting's own runs at γ = 0.99 (``discount.json``, 
 γ = 0.99 per 60-s decision halves the horizon in plant time. The result is a labelled variant; the
 settings file keeps the paper's γ.
 
+**The agents' own check.** ``--own-check`` trains the best finished trial's setting with the container
+agents' own deadline check (ε = 1e-4, a lead of one fill: ``own_check_risk``, ``own_check_lead_steps``
+of :class:`~containergym_marl.training.fast_ppo.PPOArgs`) on the search's rows and the guard rows with
+the same seeds, beside the same setting's runs without it (the search's and the guards', reused)
+(``own_check.json``, a table in trials.md). A labelled variant: the settings file does not take it.
+
 **What is chosen.** ``--write-config`` writes the settings of the best finished trial (highest value)
 that passes the regression guards (every finished trial's guards must have run; before any guard has
 run, the best finished trial, and the file says so) as the method's settings file. With ``--by-size``
@@ -104,6 +110,8 @@ LARGE_PLANTS = 11
 #: The discount every trial trains with (the paper's, per decision), and the labelled variant for δ = 60 s:
 #: 0.995 per decision of 60 s is about 0.99 per 120 s, the horizon in plant time of the δ = 120 s rows.
 GAMMA, DT60_GAMMA = 0.99, 0.995
+#: ``--own-check``: the container agents' own check's default ε, and its lead (fills)
+OWN_CHECK_RISK, OWN_CHECK_LEAD_STEPS = 1e-4, 1
 #: Runs before the pruner may stop a trial: every n = 5 row of the first seed.
 WARMUP_RUNS = 4
 #: The searched settings: a list of choices, or (low, high) for a log-uniform float.
@@ -459,6 +467,15 @@ def discount_settings(study, gamma: float) -> list[tuple[str, dict[str, Any], fl
             (f"trial {best.number}, γ = {gamma}", dict(best.params), gamma)]
 
 
+def own_check_settings(study, risk: float) -> list[tuple[str, dict[str, Any], float]]:
+    """(label, settings, γ) of the own-check variant: the best finished trial's setting, and the same
+    with the container agents' own check (ε = ``risk``, a lead of :data:`OWN_CHECK_LEAD_STEPS` fill)."""
+    best = best_trial(study, "--own-check")
+    return [(f"trial {best.number}", dict(best.params), GAMMA),
+            (f"trial {best.number}, own check ε = {risk:g}",
+             {**best.params, "own_check_risk": risk, "own_check_lead_steps": OWN_CHECK_LEAD_STEPS}, GAMMA)]
+
+
 def comparison_folder(hp: dict[str, Any], gamma: float) -> str:
     """The runs' folder of a setting trained with ``gamma`` (the search's own for its γ)."""
     return settings_key(hp if gamma == GAMMA else {**hp, "gamma": gamma})
@@ -480,8 +497,11 @@ def run_comparison(method: str, settings, runs: Path, path: Path, rows, seeds, t
     result = {"rows": list(rows), "seeds": list(seeds), "rule_based_agents_validation_return": rule,
               "settings": {label: {"params": hp, "gamma": gamma, "runs": []} for label, hp, gamma in settings}}
     known = dict(known)
-    if path.is_file():  # an earlier call's runs (the comparison's own runs are not in the journal)
-        for earlier in json.loads(path.read_text())["settings"].values():
+    # an earlier call's runs, and the other comparisons' (the comparisons' own runs are not in the journal)
+    for other in [path] + [path.parent / f for f, _, _ in COMPARISONS.values() if path.parent / f != path]:
+        if not other.is_file():
+            continue
+        for earlier in json.loads(other.read_text())["settings"].values():
             for entry in earlier["runs"]:
                 key = (comparison_folder(earlier["params"], earlier["gamma"]), entry["row"], entry["seed"])
                 known.setdefault(key, entry)
@@ -518,6 +538,11 @@ COMPARISONS = {
                  "The chosen setting on the search's δ = 60 s rows ({rows}) with seeds {seeds}, with the search's "
                  "γ and with γ per decision that keeps the δ = 120 s horizon in plant time (`--discount`); its "
                  "γ = 0.99 runs are the search's own. A variant to cite as such, never a silent default."),
+    "own_check": ("own_check.json", "The container agents' own check (a labelled variant)",
+                  "The best finished trial's setting on {rows} with seeds {seeds}, without and with the container "
+                  "agents' own deadline check (`--own-check`: in training, where the environment executes a request "
+                  "wherever an agent's own observation is due, and in every evaluation); its runs without are the "
+                  "search's and the guards' own. A variant to cite as such."),
 }
 
 
@@ -739,6 +764,11 @@ def main(argv=None) -> None:
                    help="train nothing new for the search: train the best finished trial's setting with discount "
                         f"GAMMA (default {DT60_GAMMA}) on the search's δ = 60 s rows with the same seeds, beside its own "
                         f"runs at γ = {GAMMA}: a labelled variant")
+    p.add_argument("--own-check", nargs="?", const=OWN_CHECK_RISK, default=None, type=float, metavar="RISK",
+                   help="train nothing new for the search: train the best finished trial's setting with the container "
+                        f"agents' own check (ε = RISK, default {OWN_CHECK_RISK}; a lead of {OWN_CHECK_LEAD_STEPS} fill) on "
+                        "the search's rows and the guards' with the same seeds, beside its runs without: a labelled "
+                        "variant (decentralised methods)")
     p.add_argument("--write-config", nargs="?", const="", default=None, metavar="PATH",
                    help="train nothing: write the best finished trial's settings as the method's settings file "
                         "(default configs/hyperparams/<method>.toml)")
@@ -760,10 +790,18 @@ def main(argv=None) -> None:
     journal = out / "journal.log"
     with RunLock(out):  # one search of a method at a time (an OS lock, released however the search ends)
         study = open_study(ns.method, journal, sampler_seed=0,
-                           read_only=(ns.report or ns.guards or ns.discount is not None) and journal.is_file())
-        if ns.guards or ns.discount is not None:
+                           read_only=(ns.report or ns.guards or ns.discount is not None or ns.own_check is not None)
+                           and journal.is_file())
+        if ns.guards or ns.discount is not None or ns.own_check is not None:
             if ns.guards:
                 which, chosen, compared = "guards", guard_settings(study), rows[:1] if ns.smoke else GUARD_ROWS
+            elif ns.own_check is not None:
+                if ns.method == "fast_ppo":
+                    p.error("--own-check: the container agents' check; fast_ppo is a centralised controller")
+                if not 0 < ns.own_check < 1:
+                    p.error(f"--own-check: expected a probability in (0, 1), got {ns.own_check}")
+                which, chosen = "own_check", own_check_settings(study, ns.own_check)
+                compared = rows if ns.smoke else ROWS + GUARD_ROWS
             else:
                 if not 0 < ns.discount <= 1:
                     p.error(f"--discount: expected a discount factor in (0, 1], got {ns.discount}")

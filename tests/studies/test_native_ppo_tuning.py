@@ -14,6 +14,7 @@ import pytest
 
 optuna = pytest.importorskip("optuna")
 
+from containergym_marl.policies.actor_critic import ActorCritic  # noqa: E402
 from containergym_marl.rundir import run_name  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
@@ -154,6 +155,19 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert json.loads((variant_run / "args.json").read_text())["hyperparams"] == best.params
     assert other["runs"][0]["samples"] >= 8192
     assert "## Discount for δ = 60 s (a labelled variant)" in (out / "fast_shared_ppo" / "trials.md").read_text()
+    assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
+
+    # the agents' own check: the chosen setting again with the check, beside its own search run (reused)
+    _search(out, runs, "--own-check")
+    checked = json.loads((out / "fast_shared_ppo" / "own_check.json").read_text())
+    (plain, with_check) = checked["settings"].values()
+    assert plain["params"] == best.params and with_check["params"] == {**best.params, "own_check_risk": 1e-4,
+                                                                         "own_check_lead_steps": 1}
+    assert plain["runs"][0]["validation_return"] == searched[(script.settings_key(best.params), "n5_m2_dt120", 101)]
+    (checked_run,) = [p for p in (runs / "fast_shared_ppo").glob("*/*") if p.is_dir() and json.loads(
+        (p / "args.json").read_text())["hyperparams"].get("own_check_risk") == 1e-4]
+    assert ActorCritic.load(checked_run / "final_model.pt").own_check == {"risk": 1e-4, "lead_steps": 1}
+    assert "## The container agents' own check (a labelled variant)" in (out / "fast_shared_ppo" / "trials.md").read_text()
     assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
 
     # another method's search starts from this one's best settings after its own default, reading this
