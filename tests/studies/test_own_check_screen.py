@@ -42,3 +42,13 @@ def test_a_bad_check_is_refused_before_anything_is_written(tmp_path, checks, mat
     done = subprocess.run([sys.executable, SCRIPT, "--checks", *checks, "--out", str(tmp_path / "out")],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 2 and match in done.stderr and not (tmp_path / "out").exists()
+
+
+def test_the_committed_table_is_what_the_script_writes_from_its_json():
+    sys.path.insert(0, str(REPO / "studies"))
+    try:
+        from own_check_screen import table
+    finally:
+        sys.path.remove(str(REPO / "studies"))
+    out = REPO / "results" / "own_check"
+    assert (out / "screen.md").read_text() == table(json.loads((out / "screen.json").read_text()))
