@@ -503,7 +503,8 @@ def run_comparison(method: str, settings, runs: Path, path: Path, rows, seeds, t
             continue
         for earlier in json.loads(other.read_text())["settings"].values():
             for entry in earlier["runs"]:
-                key = (comparison_folder(earlier["params"], earlier["gamma"]), entry["row"], entry["seed"])
+                # guards.json of an earlier version names no γ: its runs are at the search's
+                key = (comparison_folder(earlier["params"], earlier.get("gamma", GAMMA)), entry["row"], entry["seed"])
                 known.setdefault(key, entry)
 
     def record(label, entry):

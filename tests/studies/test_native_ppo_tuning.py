@@ -476,3 +476,23 @@ def test_settings_by_plant_size_are_chosen_on_each_sizes_runs(tmp_path):
     (out / "guards.json").write_text(json.dumps(guards))
     assert script.write_config_by_size("fast_shared_ppo_team", study, out, path) == {"settings": a}
     assert read_settings(path, 16)[0] == a
+
+
+def test_a_comparison_reuses_another_comparisons_runs_also_from_a_file_that_names_no_gamma(tmp_path, monkeypatch):
+    """--own-check beside guards.json written before the files named γ (fast_shared_ppo's): its runs are at
+    the search's γ, taken from it, and nothing is trained again."""
+    sys.path.insert(0, str(REPO / "studies"))
+    try:
+        import native_ppo_tuning as tuning
+    finally:
+        sys.path.remove(str(REPO / "studies"))
+    hp = {"rollout_samples": 2048, "n_steps": 64}
+    entry = {"row": "n11_m2_dt120", "seed": 101, "validation_return": 80.0, "overflowing_episodes": 1,
+             "half_budget_samples": 1000, "half_budget_return": 70.0, "samples": 2000, "cpu_s": 1.0,
+             "wall_time_s": 1.0}
+    (tmp_path / "guards.json").write_text(json.dumps({"settings": {"trial 1": {"params": hp, "runs": [entry]}}}))
+    monkeypatch.setattr(tuning.multiprocessing, "get_context", lambda *_: pytest.fail("a recorded run trained again"))
+    result = tuning.run_comparison("fast_shared_ppo", [("trial 1", hp, tuning.GAMMA)], tmp_path / "no_runs",
+                                   tmp_path / "own_check.json", ["n11_m2_dt120"], [101], None, 1,
+                                   {"n11_m2_dt120": 100.0}, known={})
+    assert result["settings"]["trial 1"]["runs"] == [{**entry, "score": 0.8}]
