@@ -145,6 +145,15 @@ def test_recipe_evaluate_a_shipped_policy(recipe_dir, capsys):
     assert not (Path(ns["run"]) / "evaluation_best.json").exists()
 
 
+def test_recipe_give_any_policy_the_agents_own_check(recipe_dir, capsys):
+    """The late policy overflows on this episode; with the check it reaches the time limit."""
+    exec(compile(_recipe("Give any policy the agents' own check"), "docs/recipes.md", "exec"), {"__name__": "recipe"})
+    without, with_check = capsys.readouterr().out.splitlines()
+    assert re.fullmatch(r"without the check: (\d+) steps, return -?\d+\.\d\d", without)
+    assert int(without.split()[3]) < 600
+    assert re.fullmatch(r"with the check: 600 steps, return \d+\.\d\d", with_check)
+
+
 def test_recipe_train_one_small_run(recipe_dir):
     pytest.importorskip("torch", reason="the train extra is not installed")
     lines = [line for line in _recipe("Train one small run", "bash").splitlines() if line.strip()]
