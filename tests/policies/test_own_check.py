@@ -8,16 +8,22 @@ import math
 
 import numpy as np
 import pytest
-import torch
 
-from containergym_marl import load_config
-from containergym_marl.core.dynamics import PlantState
-from containergym_marl.core.observations import SCALAR_FEATURES, agent_observations
-from containergym_marl.core.params import PlantParams
-from containergym_marl.evaluation import EvalProtocol, evaluate
-from containergym_marl.policies.actor_critic import ActorCritic, policy_for
-from containergym_marl.policies.safety import check_own_check, deadlines, own_deadline_due, waiting_risk
-from containergym_marl.training import TrainArgs, train
+torch = pytest.importorskip("torch")
+
+from containergym_marl import load_config  # noqa: E402
+from containergym_marl.core.dynamics import PlantState  # noqa: E402
+from containergym_marl.core.observations import SCALAR_FEATURES, agent_observations  # noqa: E402
+from containergym_marl.core.params import PlantParams  # noqa: E402
+from containergym_marl.evaluation import EvalProtocol, evaluate  # noqa: E402
+from containergym_marl.policies.actor_critic import ActorCritic, policy_for  # noqa: E402
+from containergym_marl.policies.safety import (  # noqa: E402
+    check_own_check,
+    deadlines,
+    own_deadline_due,
+    waiting_risk,
+)
+from containergym_marl.training import TrainArgs, train  # noqa: E402
 
 COLUMN = {name: SCALAR_FEATURES.index(name) for name in SCALAR_FEATURES}
 
