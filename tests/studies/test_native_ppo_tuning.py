@@ -183,6 +183,13 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
 
 
+def _recorded_run(row: str, validation_return: float) -> dict:
+    """A run's entry as a comparison's file records it (seed 101)."""
+    return {"row": row, "seed": 101, "validation_return": validation_return, "overflowing_episodes": 2,
+            "half_budget_samples": 1000, "half_budget_return": 40.0, "samples": 2000, "cpu_s": 1.0,
+            "wall_time_s": 1.0}
+
+
 def _load_script():
     import importlib.util
 
@@ -340,15 +347,9 @@ def test_a_search_starts_from_another_searchs_best_distinct_settings():
 def test_a_comparison_reuses_the_runs_its_own_file_records_where_their_folders_are_gone(tmp_path, monkeypatch):
     """--discount or --guards again on a machine without their runs' folders: the runs recorded in
     their JSON file (not in the search's journal) are taken from it, and nothing is trained again."""
-    sys.path.insert(0, str(REPO / "studies"))
-    try:
-        import native_ppo_tuning as tuning
-    finally:
-        sys.path.remove(str(REPO / "studies"))
+    tuning = _load_script()
     hp = {"rollout_samples": 2048, "n_steps": 64}
-    entry = {"row": "n5_m2_dt60", "seed": 101, "validation_return": 50.0, "overflowing_episodes": 2,
-             "half_budget_samples": 1000, "half_budget_return": 40.0, "samples": 2000, "cpu_s": 1.0,
-             "wall_time_s": 1.0}
+    entry = _recorded_run("n5_m2_dt60", 50.0)
     path = tmp_path / "discount.json"
     path.write_text(json.dumps({"settings": {"old label": {"params": hp, "gamma": 0.995, "runs": [entry]}}}))
     monkeypatch.setattr(tuning.multiprocessing, "get_context", lambda *_: pytest.fail("a recorded run trained again"))
@@ -481,15 +482,9 @@ def test_settings_by_plant_size_are_chosen_on_each_sizes_runs(tmp_path):
 def test_a_comparison_reuses_another_comparisons_runs_also_from_a_file_that_names_no_gamma(tmp_path, monkeypatch):
     """--own-check beside guards.json written before the files named γ (fast_shared_ppo's): its runs are at
     the search's γ, taken from it, and nothing is trained again."""
-    sys.path.insert(0, str(REPO / "studies"))
-    try:
-        import native_ppo_tuning as tuning
-    finally:
-        sys.path.remove(str(REPO / "studies"))
+    tuning = _load_script()
     hp = {"rollout_samples": 2048, "n_steps": 64}
-    entry = {"row": "n11_m2_dt120", "seed": 101, "validation_return": 80.0, "overflowing_episodes": 1,
-             "half_budget_samples": 1000, "half_budget_return": 70.0, "samples": 2000, "cpu_s": 1.0,
-             "wall_time_s": 1.0}
+    entry = _recorded_run("n11_m2_dt120", 80.0)
     (tmp_path / "guards.json").write_text(json.dumps({"settings": {"trial 1": {"params": hp, "runs": [entry]}}}))
     monkeypatch.setattr(tuning.multiprocessing, "get_context", lambda *_: pytest.fail("a recorded run trained again"))
     result = tuning.run_comparison("fast_shared_ppo", [("trial 1", hp, tuning.GAMMA)], tmp_path / "no_runs",
