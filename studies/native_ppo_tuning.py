@@ -446,7 +446,7 @@ def guard_verdict(guards: dict[str, Any], params: dict[str, Any]) -> tuple[bool,
     the setting or the default lacks a run of some guard row and seed."""
     def shares(hp) -> dict[str, list[float]] | None:
         for entry in guards["settings"].values():
-            if settings_key(entry["params"]) == settings_key(hp) and entry["gamma"] == GAMMA:
+            if settings_key(entry["params"]) == settings_key(hp) and entry.get("gamma", GAMMA) == GAMMA:
                 got = {row: [e["score"] for e in entry["runs"] if e["row"] == row] for row in guards["rows"]}
                 return got if all(len(v) == len(guards["seeds"]) for v in got.values()) else None
         return None
@@ -702,7 +702,7 @@ def size_scores(trial, guards: dict[str, Any]) -> dict[str, float] | None:
     small = [r["score"] for r in runs if plant_size(r["row"]) < LARGE_PLANTS]
     large = [r["score"] for r in runs if plant_size(r["row"]) >= LARGE_PLANTS]
     (entry,) = [e for e in guards["settings"].values()
-                if settings_key(e["params"]) == settings_key(trial.params) and e["gamma"] == GAMMA][:1]
+                if settings_key(e["params"]) == settings_key(trial.params) and e.get("gamma", GAMMA) == GAMMA][:1]
     large += [e["score"] for e in entry["runs"]]
     return {"small": iqm(small), "large": iqm(large)}
 

@@ -491,3 +491,8 @@ def test_a_comparison_reuses_another_comparisons_runs_also_from_a_file_that_name
                                    tmp_path / "own_check.json", ["n11_m2_dt120"], [101], None, 1,
                                    {"n11_m2_dt120": 100.0}, known={})
     assert result["settings"]["trial 1"]["runs"] == [{**entry, "score": 0.8}]
+    # and its guards are judged as at the search's γ (the report and --write-config read them)
+    old = {"rows": ["n11_m2_dt120"], "seeds": [101],
+           "settings": {"default": {"params": tuning.DEFAULT_TRIAL, "runs": [{**entry, "score": 0.9}]},
+                        "trial 1": {"params": hp, "runs": [{**entry, "score": 0.8}]}}}
+    assert tuning.guard_verdict(old, hp) == (False, ["n11_m2_dt120: IQM share 0.800 < the default's 0.900 - 0.05"])
