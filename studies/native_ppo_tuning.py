@@ -440,16 +440,24 @@ def guard_settings(study) -> list[tuple[str, dict[str, Any], float]]:
     return chosen
 
 
+def guard_entry(guards: dict[str, Any], params: dict[str, Any]) -> dict[str, Any] | None:
+    """The entry of ``params`` at the search's γ in ``guards`` (guards.json; one of an earlier version
+    names no γ: its runs are at the search's), or None."""
+    return next((entry for entry in guards["settings"].values()
+                 if settings_key(entry["params"]) == settings_key(params) and entry.get("gamma", GAMMA) == GAMMA),
+                None)
+
+
 def guard_verdict(guards: dict[str, Any], params: dict[str, Any]) -> tuple[bool, list[str]] | None:
     """Whether ``params`` passes the regression guards of ``guards`` (guards.json), with the reason for
     each guard row it fails ("n16_m2_dt120: IQM share 0.808 < the default's 0.986 - 0.05"); None where
     the setting or the default lacks a run of some guard row and seed."""
     def shares(hp) -> dict[str, list[float]] | None:
-        for entry in guards["settings"].values():
-            if settings_key(entry["params"]) == settings_key(hp) and entry.get("gamma", GAMMA) == GAMMA:
-                got = {row: [e["score"] for e in entry["runs"] if e["row"] == row] for row in guards["rows"]}
-                return got if all(len(v) == len(guards["seeds"]) for v in got.values()) else None
-        return None
+        entry = guard_entry(guards, hp)
+        if entry is None:
+            return None
+        got = {row: [e["score"] for e in entry["runs"] if e["row"] == row] for row in guards["rows"]}
+        return got if all(len(v) == len(guards["seeds"]) for v in got.values()) else None
 
     mine, default = shares(params), shares(DEFAULT_TRIAL)
     if mine is None or default is None:
@@ -701,9 +709,7 @@ def size_scores(trial, guards: dict[str, Any]) -> dict[str, float] | None:
     runs = [v for k, v in trial.user_attrs.items() if k.startswith("run_")]
     small = [r["score"] for r in runs if plant_size(r["row"]) < LARGE_PLANTS]
     large = [r["score"] for r in runs if plant_size(r["row"]) >= LARGE_PLANTS]
-    (entry,) = [e for e in guards["settings"].values()
-                if settings_key(e["params"]) == settings_key(trial.params) and e.get("gamma", GAMMA) == GAMMA][:1]
-    large += [e["score"] for e in entry["runs"]]
+    large += [e["score"] for e in guard_entry(guards, trial.params)["runs"]]
     return {"small": iqm(small), "large": iqm(large)}
 
 

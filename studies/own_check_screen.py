@@ -57,12 +57,12 @@ def screen_run(run: Path, row: str, checks: dict[str, dict | None], protocol: Ev
     return, overflowing episodes)}."""
     which = evaluated_which(run)
     out = {"model": which}
+    policy = policy_from_run(run, which)
+    model = getattr(policy, "model", None)
+    if not hasattr(model, "own_check") or model.view != "decentralised":
+        raise ValueError(f"{run}: not a native container-agent model; the own check applies to those")
     for label, check in checks.items():
-        policy = policy_from_run(run, which)
-        model = getattr(policy, "model", None)
-        if not hasattr(model, "own_check") or model.view != "decentralised":
-            raise ValueError(f"{run}: not a native container-agent model; the own check applies to those")
-        model.own_check = check
+        model.own_check = check  # the same network, with each check in turn
         result = evaluate_batched(policy, row, protocol)
         out[label] = {"return_mean": float(np.mean([m.cumulative_reward for m in result.episodes])),
                       "overflowing_episodes": int(sum(bool(m.values["overflow"]) for m in result.episodes))}

@@ -224,3 +224,13 @@ def check_own_check(value, where: str = "own_check") -> dict | None:
     if isinstance(lead, bool) or not isinstance(lead, (int, np.integer)) or not 0 <= lead <= MAX_OWN_CHECK_LEAD_STEPS:
         raise ValueError(f"{where}: lead_steps must be an integer in [0, {MAX_OWN_CHECK_LEAD_STEPS}], got {lead!r}")
     return {"risk": float(risk), "lead_steps": int(lead)}
+
+
+def own_check_setting(risk: float, lead_steps: int) -> dict | None:
+    """A trainer's ``own_check_risk`` and ``own_check_lead_steps`` (``--hp``; risk 0: no check) as the
+    model's own check, or None; a ValueError naming the setting when one is out of its range."""
+    if not (math.isfinite(risk) and 0 <= risk < 1):
+        raise ValueError(f"hp: own_check_risk must be a probability in [0, 1) (0: no check), got {risk}")
+    if not 0 <= lead_steps <= MAX_OWN_CHECK_LEAD_STEPS:
+        raise ValueError(f"hp: own_check_lead_steps must be in [0, {MAX_OWN_CHECK_LEAD_STEPS}], got {lead_steps}")
+    return None if risk == 0 else {"risk": float(risk), "lead_steps": int(lead_steps)}

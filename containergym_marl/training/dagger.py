@@ -102,7 +102,6 @@ from containergym_marl.config.bounds import (
     MAX_MINIBATCH,
     MAX_N_STEPS,
     MAX_PLANNER_FUTURES,
-    MAX_OWN_CHECK_LEAD_STEPS,
     MAX_PLANNER_HORIZON,
     check_count,
 )
@@ -110,7 +109,7 @@ from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_obser
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors, save_tensors
 from containergym_marl.policies.planner import SHIELD, PlannerAgents
-from containergym_marl.policies.safety import own_deadline_due
+from containergym_marl.policies.safety import own_check_setting, own_deadline_due
 from containergym_marl.rundir import RunError, RunWarning
 from containergym_marl.training import fast_ppo
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
@@ -251,11 +250,7 @@ class DAggerArgs:
         if not (math.isfinite(self.safety_risk) and 0 <= self.safety_risk < 1):
             raise ValueError(f"hp: safety_risk must be a probability in [0, 1) (0: no deadline check), "
                              f"got {self.safety_risk}")
-        if not (math.isfinite(self.own_check_risk) and 0 <= self.own_check_risk < 1):
-            raise ValueError(f"hp: own_check_risk must be a probability in [0, 1) (0: no check), got {self.own_check_risk}")
-        if not 0 <= self.own_check_lead_steps <= MAX_OWN_CHECK_LEAD_STEPS:
-            raise ValueError(f"hp: own_check_lead_steps must be in [0, {MAX_OWN_CHECK_LEAD_STEPS}], "
-                             f"got {self.own_check_lead_steps}")
+        self.own_check()  # its two settings within their ranges
         if self.own_check_risk > 0 and self.ppo is not None:
             raise ValueError("hp: own_check_risk applies to the imitation alone: a check that overrides the sampled "
                              "actions would make PPO's fine-tuning learn from actions its policy did not take")
@@ -265,8 +260,7 @@ class DAggerArgs:
 
     def own_check(self) -> dict[str, Any] | None:
         """The model's own check (:func:`~containergym_marl.policies.safety.check_own_check`), or None."""
-        return None if self.own_check_risk == 0 else {"risk": self.own_check_risk,
-                                                      "lead_steps": self.own_check_lead_steps}
+        return own_check_setting(self.own_check_risk, self.own_check_lead_steps)
 
     def learning_rate_at(self, samples: int, budget: int) -> float:
         """Adam's step size after ``samples`` of an imitation budget of ``budget`` samples."""

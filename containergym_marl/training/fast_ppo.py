@@ -66,13 +66,12 @@ from containergym_marl.config.bounds import (
     MAX_HIDDEN_WIDTH,
     MAX_MINIBATCH,
     MAX_N_STEPS,
-    MAX_OWN_CHECK_LEAD_STEPS,
     MAX_ROLLOUT_SAMPLES,
     check_count,
 )
 from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic, load_tensors
-from containergym_marl.policies.safety import own_deadline_due
+from containergym_marl.policies.safety import own_check_setting, own_deadline_due
 from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
 from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
 from containergym_marl.training.native import MemoryShapes
@@ -155,16 +154,11 @@ class PPOArgs:
                 raise ValueError(f"hp: {name} must be a finite number >= 0, got {value}")
         check_hidden(self.hidden)
         check_observation(self.observation, "hp: observation")
-        if not (math.isfinite(self.own_check_risk) and 0 <= self.own_check_risk < 1):
-            raise ValueError(f"hp: own_check_risk must be a probability in [0, 1) (0: no check), got {self.own_check_risk}")
-        if not 0 <= self.own_check_lead_steps <= MAX_OWN_CHECK_LEAD_STEPS:
-            raise ValueError(f"hp: own_check_lead_steps must be in [0, {MAX_OWN_CHECK_LEAD_STEPS}], "
-                             f"got {self.own_check_lead_steps}")
+        self.own_check()  # its two settings within their ranges
 
     def own_check(self) -> dict[str, Any] | None:
         """The model's own check (:func:`~containergym_marl.policies.safety.check_own_check`), or None."""
-        return None if self.own_check_risk == 0 else {"risk": self.own_check_risk,
-                                                      "lead_steps": self.own_check_lead_steps}
+        return own_check_setting(self.own_check_risk, self.own_check_lead_steps)
 
 
 def check_hidden(hidden: tuple[int, ...]) -> None:
