@@ -239,6 +239,11 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       "decentralised PPO, native trainer: one policy shared by every container agent, "
                       "about 4096 samples per update whatever the plant's size, minibatches of 1024", native=_PPO,
                       reward_modes=REWARD_MODES, **_NATIVE),
+        AlgorithmSpec("fast_shared_ppo_checked", None, SharedActorCriticPolicy,
+                      "fast_shared_ppo with the agents' own check, a rule in the policy: an agent's request is "
+                      "made wherever its own observation says its container may overflow within two fills",
+                      native="containergym_marl.training.fast_ppo:CHECKED_TRAINER", reward_modes=REWARD_MODES,
+                      **_NATIVE),
         AlgorithmSpec("dagger_agents", None, SharedActorCriticPolicy,
                       "decentralised imitation of planner_agents (DAgger): fast_shared_ppo's shared policy, "
                       "trained on the planner's decisions in the states it visits itself",

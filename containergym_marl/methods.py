@@ -101,6 +101,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     _learned("fast_ppo", twin="ppo"),
     _learned("fast_shared_ppo", "individual", counterpart="fast_ppo", twin="shared_ppo"),
     _learned("fast_shared_ppo", "team", counterpart="fast_ppo", twin="shared_ppo_team"),
+    # reinforcement learning with a rule in the policy (policies.safety.own_deadline_due): no planner in training
+    _learned("fast_shared_ppo_checked", "individual", counterpart="fast_ppo"),
     # imitation of planner_agents: the centralised planner is their counterpart, as planner_agents'
     _learned("dagger_agents", counterpart="planner"),
     _learned("dagger_ppo_agents", "team", counterpart="planner"),

@@ -34,6 +34,7 @@ def test_each_method_is_what_its_name_says():
         "maskable_ppo": ("learned", "centralised"), "shared_ppo": ("learned", "decentralised"),
         "shared_ppo_team": ("learned", "decentralised"), "fast_ppo": ("learned", "centralised"),
         "fast_shared_ppo": ("learned", "decentralised"), "fast_shared_ppo_team": ("learned", "decentralised"),
+        "fast_shared_ppo_checked": ("learned", "decentralised"),
         "dagger_agents": ("learned", "decentralised"), "dagger_ppo_agents": ("learned", "decentralised"),
         "dagger_response_agents": ("learned", "decentralised"), "mappo": ("learned", "decentralised"),
         "dagger_contended_agents": ("learned", "decentralised"), "dagger_dapg_agents": ("learned", "decentralised"),

@@ -513,10 +513,14 @@ def batch_memory(settings: PPOArgs, shapes: MemoryShapes, prefix: str = "") -> d
 
 
 class PPOTrainer:
-    """The native PPO as ``train`` runs it (:class:`~containergym_marl.training.native.NativeTrainer`)."""
+    """The native PPO as ``train`` runs it (:class:`~containergym_marl.training.native.NativeTrainer`);
+    ``defaults``: the method's own settings (its settings file and ``--hp`` override them)."""
+
+    def __init__(self, defaults: dict[str, Any] | None = None):
+        self.defaults = dict(defaults or {})
 
     def settings(self, hyperparams: dict[str, Any]) -> PPOArgs:
-        return PPOArgs.from_hyperparams(hyperparams)
+        return PPOArgs.from_hyperparams({**self.defaults, **hyperparams})
 
     def default_sims(self, settings: PPOArgs, agents_per_sim: int) -> int:
         return settings.num_sims(agents_per_sim)
@@ -548,7 +552,12 @@ class PPOTrainer:
 
 #: The registry's native PPO (``fast_ppo``, ``fast_shared_ppo``).
 TRAINER = PPOTrainer()
+#: ``fast_shared_ppo_checked``'s check: the setting that removed most of the published policies'
+#: overflows at the least cost in return on validation episodes (``studies/own_check_screen.py``).
+OWN_CHECK_SETTINGS = {"own_check_risk": 1e-4, "own_check_lead_steps": 1}
+#: ``fast_shared_ppo_checked``: the shared PPO that learns and acts with the agents' own check.
+CHECKED_TRAINER = PPOTrainer(defaults=OWN_CHECK_SETTINGS)
 
-__all__ = ["BehaviourCloning", "PPOArgs", "PPOTrainer", "TRAINER", "TrainingState", "batch_memory",
+__all__ = ["BehaviourCloning", "CHECKED_TRAINER", "OWN_CHECK_SETTINGS", "PPOArgs", "PPOTrainer", "TRAINER", "TrainingState", "batch_memory",
            "behaviour_cloning_gradients", "coerce_setting", "compute_gae", "explained_variance", "learn",
            "load_checkpoint", "log_rollout", "new_state", "save_final", "save_if_best", "state_from_model", "update"]

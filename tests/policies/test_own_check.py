@@ -194,3 +194,24 @@ def test_ppo_learns_in_the_environment_its_check_makes_and_ships_with_it(tmp_pat
         train(TrainArgs(algo="dagger_ppo_agents", out=str(tmp_path / "d"), timesteps=100,
                         hyperparams={"ppo_own_check_risk": 1e-4}, progress_bar=False))
     assert not (tmp_path / "c").exists() and not (tmp_path / "d").exists()
+
+
+def test_the_checked_method_trains_with_the_check_its_name_promises(tmp_path):
+    """fast_shared_ppo_checked: fast_shared_ppo with the check of OWN_CHECK_SETTINGS in every model it
+    writes, whatever its settings file says of PPO; ``--hp`` can still change the check; the plain
+    method's models carry none."""
+    from containergym_marl.training.fast_ppo import OWN_CHECK_SETTINGS
+
+    tiny = dict(config="n5_m2_dt120", n_envs=2, progress_bar=False, overrides={"episode_length_steps": 20},
+                timesteps=320)
+    expected = {"risk": OWN_CHECK_SETTINGS["own_check_risk"], "lead_steps": OWN_CHECK_SETTINGS["own_check_lead_steps"]}
+    runs = {"checked": train(TrainArgs(algo="fast_shared_ppo_checked", out=str(tmp_path / "a"),
+                                       hyperparams={"n_steps": 16, "minibatch_size": 80}, **tiny)),
+            "lead 0": train(TrainArgs(algo="fast_shared_ppo_checked", out=str(tmp_path / "b"),
+                                      hyperparams={"n_steps": 16, "minibatch_size": 80, "own_check_lead_steps": 0},
+                                      **tiny)),
+            "plain": train(TrainArgs(algo="fast_shared_ppo", out=str(tmp_path / "c"),
+                                     hyperparams={"n_steps": 16, "minibatch_size": 80}, **tiny))}
+    checks = {name: ActorCritic.load(run / "final_model.pt").own_check for name, run in runs.items()}
+    assert checks == {"checked": expected, "lead 0": {**expected, "lead_steps": 0}, "plain": None}
+    assert expected == {"risk": 1e-4, "lead_steps": 1}  # the screened setting (results/own_check/screen.md)

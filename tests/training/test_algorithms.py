@@ -19,7 +19,7 @@ def test_registry_entries_load_their_classes_and_views():
     from stable_baselines3 import DQN, PPO
 
     classes = {"ppo": PPO, "trpo": TRPO, "dqn": DQN, "maskable_ppo": MaskablePPO, "shared_ppo": PPO}
-    native = ("fast_ppo", "fast_shared_ppo", "dagger_agents", "dagger_ppo_agents", "dagger_response_agents",
+    native = ("fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked", "dagger_agents", "dagger_ppo_agents", "dagger_response_agents",
               "dagger_contended_agents", "dagger_dapg_agents")
     assert set(ALGORITHMS) == set(classes) | set(native)
     for name, cls in classes.items():
@@ -33,12 +33,17 @@ def test_registry_entries_load_their_classes_and_views():
     from containergym_marl.training import dagger, fast_ppo
 
     trainers = [get_algorithm(a).trainer() for a in native]
-    assert trainers == [fast_ppo.TRAINER, fast_ppo.TRAINER, dagger.IMITATION, dagger.IMITATION_THEN_PPO,
-                        dagger.RESPONSE_IMITATION, dagger.CONTENDED_IMITATION, dagger.IMITATION_THEN_DAPG]
+    assert trainers == [fast_ppo.TRAINER, fast_ppo.TRAINER, fast_ppo.CHECKED_TRAINER, dagger.IMITATION,
+                        dagger.IMITATION_THEN_PPO, dagger.RESPONSE_IMITATION, dagger.CONTENDED_IMITATION,
+                        dagger.IMITATION_THEN_DAPG]
+    assert fast_ppo.TRAINER.settings({}).own_check() is None  # the plain PPO has no check unless told
+    assert fast_ppo.CHECKED_TRAINER.settings({}).own_check() == {"risk": 1e-4, "lead_steps": 1}
+    assert fast_ppo.CHECKED_TRAINER.settings({"own_check_risk": 1e-3}).own_check()["risk"] == 1e-3  # --hp wins
+    imitations = trainers[3:]
     assert not dagger.IMITATION.fine_tune and dagger.IMITATION_THEN_PPO.fine_tune
-    assert [t.settings({}).labels for t in trainers[2:]] == ["planner", "planner", "response", "planner", "planner"]
-    assert [t.settings({}).contended_share for t in trainers[2:]] == [0.0, 0.0, 0.0, dagger.CONTENDED_SHARE, 0.0]
-    assert [t.settings({}).bc_coef for t in trainers[3::3]] == [0.0, dagger.DAPG_SETTINGS["bc_coef"]]
+    assert [t.settings({}).labels for t in imitations] == ["planner", "planner", "response", "planner", "planner"]
+    assert [t.settings({}).contended_share for t in imitations] == [0.0, 0.0, 0.0, dagger.CONTENDED_SHARE, 0.0]
+    assert [t.settings({}).bc_coef for t in imitations[1::3]] == [0.0, dagger.DAPG_SETTINGS["bc_coef"]]
     assert dagger.IMITATION_THEN_DAPG.fine_tune and dagger.IMITATION_THEN_DAPG.settings({}).ppo is not None
     assert dagger.CONTENDED_IMITATION.settings({"contended_share": 0.25}).contended_share == 0.25  # --hp wins
     with pytest.raises(ValueError, match="not trained by a native trainer"):

@@ -29,13 +29,20 @@ def _settings(run) -> dict:
 
 def test_the_shipped_files_are_the_native_methods_and_valid():
     shipped = sorted(p.stem for p in files.hyperparams_dir().glob("*.toml"))
-    assert shipped == ["fast_ppo", "fast_shared_ppo", "fast_shared_ppo_team"]
+    assert shipped == ["fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked", "fast_shared_ppo_team"]
     for name in shipped:
-        assert name in METHODS and METHODS[name].algo in ("fast_ppo", "fast_shared_ppo")
+        assert name in METHODS and METHODS[name].algo in ("fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked")
         whole = files.read_settings_file(files.settings_file(name))
         for entry in [whole, *whole["by_size"]]:  # the settings of every plant size
             assert entry["source"] and entry["settings"]
             PPOArgs.from_hyperparams(entry["settings"])  # every key a PPOArgs field, every value within bounds
+
+
+def test_the_checked_method_trains_at_the_shared_methods_setting():
+    """fast_shared_ppo_checked is fast_shared_ppo with the agents' own check: its file holds the same
+    PPO setting (the one the tuning study's --own-check comparison trained with the check)."""
+    assert files.read_settings_file(files.settings_file("fast_shared_ppo_checked"))["settings"] == \
+        files.read_settings_file(files.settings_file("fast_shared_ppo"))["settings"]
 
 
 def test_a_new_run_takes_its_methods_file_under_hp(folder, tmp_path):
