@@ -365,22 +365,29 @@ def evaluate_fresh(to: Path, min_seeds: int = 3) -> list[str]:
 
 
 def training_compute(runs: Path) -> str:
-    """What training the finished runs under ``runs`` took, per row: the sum of the runs' wall times
-    (``run.json``, all segments of a resumed run). Each run trains on one core."""
+    """What training the finished runs under ``runs`` took, per row and per method: the sum of the
+    runs' wall times (``run.json``, all segments of a resumed run). Each run trains on one core."""
     per_row: dict[str, list[float]] = {}
+    per_method: dict[str, list[float]] = {}
     for run in sorted(p for p in runs.iterdir() if p.is_dir()) if runs.is_dir() else []:
         if run_status(run) != "finished":
             continue
-        config = run_args(run)["config"]
-        wall_s = (read_run_summary(run) or {}).get("wall_time_s") or 0.0
-        per_row.setdefault(config, []).append(float(wall_s))
+        args = run_args(run)
+        wall_s = float((read_run_summary(run) or {}).get("wall_time_s") or 0.0)
+        per_row.setdefault(args["config"], []).append(wall_s)
+        per_method.setdefault(get_algorithm(args["algo"]).method_name(args.get("reward_mode")), []).append(wall_s)
+
+    def listed(groups: dict[str, list[float]], key) -> str:
+        return " · ".join(f"{name}: {len(v)} run{'' if len(v) == 1 else 's'}, {sum(v) / 3600:.1f} h"
+                          for name, v in sorted(groups.items(), key=lambda kv: key(kv[0])))
+
+    order = {name: k for k, name in enumerate(METHODS)}
     total_runs = sum(len(v) for v in per_row.values())
     total_h = sum(sum(v) for v in per_row.values()) / 3600
-    rows = " · ".join(f"{config}: {len(v)} run{'' if len(v) == 1 else 's'}, {sum(v) / 3600:.1f} h"
-                      for config, v in sorted(per_row.items(), key=lambda kv: tables.config_sort_key(kv[0])))
     return (f"Training compute of the {total_runs} finished runs published here: {total_h:.1f} core-hours (each run "
             f"trains on one core; the sum of the runs' wall times in their run.json, on a 2-core machine training "
-            f"two at a time). Per row: {rows}.\n")
+            f"two at a time). Per row: {listed(per_row, tables.config_sort_key)}.\n\n"
+            f"Per method: {listed(per_method, lambda name: (order.get(name, len(order)), name))}.\n")
 
 
 #: The columns of the compact table, in order (a method without any published evaluation is left out):

@@ -88,21 +88,24 @@ def test_training_compute_sums_finished_runs_per_row(tmp_path):
     import json
 
 
-    def run(name, config, wall_s, finished=True):
+    def run(name, config, wall_s, finished=True, algo="ppo", reward_mode=None):
         d = tmp_path / name
         d.mkdir()
-        (d / "args.json").write_text(json.dumps({"algo": "ppo", "config": config, "seed": 1}))
+        (d / "args.json").write_text(json.dumps({"algo": algo, "config": config, "seed": 1, "reward_mode": reward_mode}))
         if finished:
             (d / "run.json").write_text(json.dumps({"status": "finished", "wall_time_s": wall_s}))
-            (d / "final_model.zip").write_bytes(b"model")
+            (d / ("final_model.zip" if algo == "ppo" else "final_model.pt")).write_bytes(b"model")
 
     run("ppo_n5_m2_dt120_s1", "n5_m2_dt120", 1800.0)
     run("ppo_n5_m2_dt120_s2", "n5_m2_dt120", 5400.0)
     run("ppo_n11_m2_dt120_s1", "n11_m2_dt120", 3600.0)
     run("ppo_n11_m2_dt120_s2", "n11_m2_dt120", 0.0, finished=False)
+    run("fast_shared_ppo_team_n11_m2_dt120_s1", "n11_m2_dt120", 900.0, algo="fast_shared_ppo", reward_mode="team")
     text = publish_results.training_compute(tmp_path)
-    assert text.startswith("Training compute of the 3 finished runs published here: 3.0 core-hours")
-    assert text.endswith("Per row: n5_m2_dt120: 2 runs, 2.0 h · n11_m2_dt120: 1 run, 1.0 h.\n")
+    assert text.startswith("Training compute of the 4 finished runs published here: 3.2 core-hours")
+    assert "Per row: n5_m2_dt120: 2 runs, 2.0 h · n11_m2_dt120: 2 runs, 1.2 h.\n" in text
+    # per method, in the registry's order: the team reward's runs are their own method
+    assert text.endswith("Per method: ppo: 3 runs, 3.0 h · fast_shared_ppo_team: 1 run, 0.2 h.\n")
 
 
 def test_readme_block_is_replaced_in_place_and_a_missing_marker_is_named(tmp_path):
