@@ -24,6 +24,22 @@ class _TanhFunction(torch.autograd.Function):
         return grad * (1.0 - y * y)
 
 
+_MINUS_ONE = torch.tensor(-1.0)
+
+
+def tanh_of_doubled_(z2: torch.Tensor) -> torch.Tensor:
+    """:class:`Tanh` of x = z2 / 2, in place on ``z2``, outside autograd: 2·sigmoid(z2) − 1 as
+    −1 + 2·sigmoid(z2) in one pass (2·s is exact, so both round the same sum once). The same values as
+    the module's, in two passes instead of four."""
+    return torch.add(_MINUS_ONE, torch.sigmoid_(z2), alpha=2.0, out=z2)
+
+
+def tanh_(x: torch.Tensor) -> torch.Tensor:
+    """:class:`Tanh` of ``x`` in place, outside autograd (the same values): the decisions' forward,
+    without the module's and the autograd function's per-call cost."""
+    return tanh_of_doubled_(x.mul_(2.0))  # doubling is exact
+
+
 class Tanh(torch.nn.Module):
     """``torch.nn.Tanh`` computed through the sigmoid (no parameters: state dicts are unchanged)."""
 

@@ -138,6 +138,8 @@ class ActorCritic:
         self.net = net
         if state_dict is not None:
             net.load_state_dict(state_dict)
+        # the actor's Linear modules (they persist when their parameters' data moves)
+        self._actor_linears = [m for m in net.actor if isinstance(m, torch.nn.Linear)]
 
     # ---- acting ------------------------------------------------------------------------------
     def logits(self, observations, masks=None):
@@ -146,6 +148,19 @@ class ActorCritic:
         if masks is not None:
             logits = logits.masked_fill(~masks, MASKED_LOGIT)
         return logits
+
+    def decision_logits(self, observations):
+        """:meth:`logits` without masks, outside autograd, bit for bit: the same ``addmm`` and tanh as the
+        actor's modules, called directly (a decision on a dozen observations costs about half as much)."""
+        from containergym_marl.policies._fast_tanh import tanh_
+
+        torch = _torch()
+        layers = self._actor_linears
+        with torch.no_grad():
+            x = observations
+            for layer in layers[:-1]:
+                x = tanh_(torch.addmm(layer.bias, x, layer.weight.t()))
+            return torch.addmm(layers[-1].bias, x, layers[-1].weight.t())
 
     def value(self, observations):
         """State values [B] of observations [B, F]."""
@@ -373,8 +388,9 @@ class _ActorCriticPolicy:
     def _actions(self, observations: np.ndarray, masks: np.ndarray | None) -> list[int]:
         torch = _torch()
         with torch.no_grad():
-            logits = self.model.logits(torch.as_tensor(observations, dtype=torch.float32),
-                                       None if masks is None else torch.as_tensor(masks))
+            logits = self.model.decision_logits(torch.as_tensor(observations, dtype=torch.float32))
+            if masks is not None:
+                logits = logits.masked_fill(~torch.as_tensor(masks), MASKED_LOGIT)
             if self.deterministic:
                 return logits.argmax(-1).tolist()
             return torch.distributions.Categorical(logits=logits).sample().tolist()

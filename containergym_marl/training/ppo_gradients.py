@@ -20,6 +20,7 @@ from typing import Any
 
 import torch
 
+from containergym_marl.policies._fast_tanh import tanh_of_doubled_
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic
 
 
@@ -30,15 +31,6 @@ def _views(flat: torch.Tensor, params: list[torch.Tensor]) -> list[torch.Tensor]
         views.append(flat[offset:offset + p.numel()].view_as(p))
         offset += p.numel()
     return views
-
-
-_MINUS_ONE = torch.tensor(-1.0)
-
-
-def _tanh_of_doubled_(z2: torch.Tensor) -> torch.Tensor:
-    """The networks' tanh (policies/_fast_tanh.py: 2·sigmoid(2x) − 1) of x = z2 / 2, in place on
-    ``z2``: two passes instead of four, the same values (2x and 2s are exact)."""
-    return torch.add(_MINUS_ONE, torch.sigmoid_(z2), alpha=2.0, out=z2)
 
 
 class FlatAdam:
@@ -163,7 +155,7 @@ class MLPGradients:
                 inputs.append(x)
                 x = torch.addmm(bias, x, weight_t)
                 if i < last:
-                    x = _tanh_of_doubled_(x)
+                    x = tanh_of_doubled_(x)
             if keep:
                 self._inputs[k] = inputs
             outputs.append(x)

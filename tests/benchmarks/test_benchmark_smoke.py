@@ -235,3 +235,23 @@ def test_scaling_smoke_measures_every_path_of_each_plant(tmp_path):
     subprocess.run([sys.executable, str(REPO / "benchmarks" / "scaling.py"), "--from-json", str(out_json),
                     "--figure", str(figure)], capture_output=True, text=True, timeout=120, check=True, cwd=tmp_path)
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_decision_time_smoke_compares_the_two_forwards_on_the_same_decisions(tmp_path):
+    """benchmarks/decision_time.py at a few steps, with a model that carries the agents' own check:
+    both forwards decide the same (the script stops otherwise), and it reports both and the ratios."""
+    import torch
+
+    from containergym_marl.policies.actor_critic import ActorCritic
+
+    model = ActorCritic("decentralised", 25, 2, generator=torch.Generator().manual_seed(1),
+                        own_check={"risk": 1e-4, "lead_steps": 1})
+    model.save(tmp_path / "model.pt")
+    out_json = tmp_path / "decision.json"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "decision_time.py"), "--model",
+                           str(tmp_path / "model.pt"), "--steps", "40", "--rounds", "2", "--json", str(out_json)],
+                          capture_output=True, text=True, timeout=300, check=True, cwd=tmp_path)
+    assert "the same decisions" in proc.stdout
+    result = json.loads(out_json.read_text())
+    assert len(result["rounds"]) == 2 and result["ratio_wall"] > 0 and result["ratio_cpu"] > 0
+    assert all(r[side]["ms_median"] > 0 for r in result["rounds"] for side in ("direct", "modules"))

@@ -414,6 +414,28 @@ def test_the_sigmoid_form_of_tanh_equals_torch_tanh_and_its_gradient():
     np.testing.assert_allclose(grad.numpy(), (1 - torch.tanh(x) ** 2).detach().numpy(), atol=1e-6)
 
 
+@pytest.mark.parametrize("view, size, hidden", [("decentralised", 25, (64, 64)), ("centralised", 37, (32, 48, 16))])
+def test_the_decisions_forward_is_the_actors_modules_bit_for_bit(view, size, hidden):
+    """decision_logits (the evaluation policies' forward, without module calls) against the actor's
+    own modules, on observations of every scale, after the weights change in place as training changes
+    them; a masked policy's decisions with it are the masked logits' argmax."""
+    from containergym_marl.policies.actor_critic import policy_for
+
+    model = ActorCritic(view, size, 2 if view == "decentralised" else 6, hidden=hidden,
+                        generator=torch.Generator().manual_seed(3))
+    obs = torch.randn(500, size, generator=torch.Generator().manual_seed(4)) * torch.logspace(-3, 2, 500)[:, None]
+    for _ in range(2):
+        with torch.no_grad():
+            assert torch.equal(model.decision_logits(obs), model.net.actor(obs))
+            for p in model.net.actor.parameters():  # an optimiser's in-place step
+                p.add_(torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())) * 0.3)
+    masks = torch.rand(500, model.n_actions, generator=torch.Generator().manual_seed(5)) > 0.3
+    masks[:, 0] = True
+    with torch.no_grad():
+        expected = model.logits(obs, masks).argmax(-1).tolist()
+    assert policy_for(model)._actions(obs.numpy(), masks.numpy()) == expected
+
+
 def test_a_rollout_is_split_into_equal_minibatches(monkeypatch):
     """4160 samples with minibatches of about 1024: four Adam steps on 1040 samples each per epoch
     (SB3's slicing would take four of 1024 and a fifth of 64)."""
