@@ -31,7 +31,9 @@ class Method:
     ``counterpart``: the centralised method the table compares this (decentralised) one with;
     ``twin``: the same algorithm in another implementation (SB3's for the package's own PPO), which
     this one should learn at least as well as;
-    ``arbitration``: the rule that assigns free PUs to the decentralised view's requests."""
+    ``arbitration``: the rule that assigns free PUs to the decentralised view's requests;
+    ``teacher``: the method a learned one imitates in training (None: it learns from the rewards alone);
+    ``shield``: the fixed rule a learned policy carries beside its network (None: the network alone)."""
 
     name: str
     kind: str
@@ -41,6 +43,8 @@ class Method:
     counterpart: str | None = None
     twin: str | None = None
     arbitration: str = DEFAULT_ARBITRATION
+    teacher: str | None = None
+    shield: str | None = None
 
     @property
     def learned(self) -> bool:
@@ -77,10 +81,10 @@ def _controller(cls: type, kind: str, counterpart: str | None = None) -> Method:
 
 
 def _learned(algo: str, reward_mode: str | None = None, counterpart: str | None = None,
-             twin: str | None = None) -> Method:
+             twin: str | None = None, teacher: str | None = None, shield: str | None = None) -> Method:
     """A learned method, named by its algorithm's rule (``shared_ppo`` + team = ``shared_ppo_team``)."""
     return Method(get_algorithm(algo).method_name(reward_mode), "learned", algo=algo, reward_mode=reward_mode,
-                  counterpart=counterpart, twin=twin)
+                  counterpart=counterpart, twin=twin, teacher=teacher, shield=shield)
 
 
 #: Every method, by name, in the order of the table's columns.
@@ -102,13 +106,13 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     _learned("fast_shared_ppo", "individual", counterpart="fast_ppo", twin="shared_ppo"),
     _learned("fast_shared_ppo", "team", counterpart="fast_ppo", twin="shared_ppo_team"),
     # reinforcement learning with a rule in the policy (policies.safety.own_deadline_due): no planner in training
-    _learned("fast_shared_ppo_checked", "individual", counterpart="fast_ppo"),
+    _learned("fast_shared_ppo_checked", "individual", counterpart="fast_ppo", shield="the agents' own check"),
     # imitation of planner_agents: the centralised planner is their counterpart, as planner_agents'
-    _learned("dagger_agents", counterpart="planner"),
-    _learned("dagger_ppo_agents", "team", counterpart="planner"),
-    _learned("dagger_response_agents", counterpart="planner"),
-    _learned("dagger_contended_agents", counterpart="planner"),
-    _learned("dagger_dapg_agents", "team", counterpart="planner"),
+    _learned("dagger_agents", counterpart="planner", teacher="planner_agents"),
+    _learned("dagger_ppo_agents", "team", counterpart="planner", teacher="planner_agents"),
+    _learned("dagger_response_agents", counterpart="planner", teacher="planner_agents"),
+    _learned("dagger_contended_agents", counterpart="planner", teacher="planner_agents"),
+    _learned("dagger_dapg_agents", "team", counterpart="planner", teacher="planner_agents"),
     _learned("mappo", "team", counterpart="ppo"),  # trained by baselines/train_mappo.py; compare reads its files
 )}
 #: The controllers (rules and planners) by name: what ``containergym-marl evaluate NAME`` builds.

@@ -59,6 +59,11 @@ def test_each_method_is_what_its_name_says():
                                              "dagger_contended_agents", "dagger_dapg_agents", "planner_agents")
             } == {"planner"}
     assert METHODS["dagger_dapg_agents"].train_settings() == {"reward_mode": "team"}
+    # who learns from a teacher (the planner's imitations), and who carries a fixed rule beside its network
+    assert {n: m.teacher for n, m in METHODS.items() if m.teacher} == {
+        n: "planner_agents" for n in ("dagger_agents", "dagger_ppo_agents", "dagger_response_agents",
+                                      "dagger_contended_agents", "dagger_dapg_agents")}
+    assert {n: m.shield for n, m in METHODS.items() if m.shield} == {"fast_shared_ppo_checked": "the agents' own check"}
 
 
 def test_pairs_set_a_decentralised_method_against_a_centralised_one():

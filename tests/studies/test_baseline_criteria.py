@@ -110,3 +110,33 @@ def test_a_table_naming_a_row_outside_the_built_in_plants_is_refused_before_anyt
                            "--best-models"], capture_output=True, text=True, timeout=120)
     assert done.returncode != 0 and "row config '../../x' is not a built-in plant" in done.stderr
     assert not (tmp_path / "out").exists() and not (tmp_path / "x").exists()
+
+
+def test_the_moonshot_sets_every_method_without_a_teacher_against_the_rule_row_by_row(tmp_path):
+    """Two rows: fast_shared_ppo above the rule's fresh mean on both (its interval too on one), ppo on
+    one only, dagger_agents above on both but taught by the planner (left out), the checked method marked
+    with its rule; a method on one row only cannot hold on every row."""
+    def row(config, method, fresh_iqm, low=None, seeds=5):
+        return {"config": config, "method": method, "seeds": seeds, "iqm": fresh_iqm, "fresh_iqm": fresh_iqm,
+                "fresh_iqm_low": fresh_iqm - 1.0 if low is None else low, "fresh_overflow_rate": 0.0}
+
+    rows = [row("n5_m2_dt60", "rule_based_agents", 50.0, seeds=0), row("n11_m2_dt120", "rule_based_agents", 90.0, seeds=0),
+            row("n5_m2_dt60", "fast_shared_ppo", 50.5, low=49.0), row("n11_m2_dt120", "fast_shared_ppo", 92.0, low=91.0),
+            row("n5_m2_dt60", "ppo", 51.0), row("n11_m2_dt120", "ppo", 90.0),  # equal is not above
+            row("n5_m2_dt60", "dagger_agents", 59.0), row("n11_m2_dt120", "dagger_agents", 99.0),
+            row("n11_m2_dt120", "fast_shared_ppo_checked", 95.0)]
+    results = tmp_path / "published"
+    results.mkdir()
+    (results / "table.json").write_text(json.dumps({"rows": rows}))
+    done = subprocess.run([sys.executable, SCRIPT, "--results", str(results), "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    shots = {m["method"]: m for m in json.loads((tmp_path / "out" / "criteria.json").read_text())["moonshot"]}
+    assert set(shots) == {"fast_shared_ppo", "ppo", "fast_shared_ppo_checked"}
+    assert [(e["above"], e["interval_above"]) for e in shots["fast_shared_ppo"]["rows"]] == [(True, False), (True, True)]
+    assert {m: s["every_row"] for m, s in shots.items()} == {"fast_shared_ppo": True, "ppo": False,
+                                                            "fast_shared_ppo_checked": False}
+    text = (tmp_path / "out" / "criteria.md").read_text()
+    assert "**1 of 3 methods are above it on every row** (`fast_shared_ppo`)" in text
+    assert "| `fast_shared_ppo` | 2 of 2 | > 50.50 (49.00) | >> 92.00 (91.00) |" in text
+    assert "| `fast_shared_ppo_checked` (with the agents' own check) | 1 of 1 | – | >> 95.00 (94.00) |" in text
