@@ -131,7 +131,11 @@ class Cluster:
             return
         cpus = self.num_cpus or os.cpu_count() or 1
         before = ray_reaper.child_pids()
-        ray.init(address="local", num_cpus=cpus, resources={EVALUATION_SLOTS: cpus}, **opts)
+        # Ray runs its workers at nice + 15 so that its own servers keep the CPU; here the workers are
+        # the trainings themselves, and at nice + 15 any other process on the machine starves them. They
+        # run at the caller's priority (`nice containergym-marl compare ...` still lowers it).
+        ray.init(address="local", num_cpus=cpus, resources={EVALUATION_SLOTS: cpus},
+                 _system_config={"worker_niceness": 0}, **opts)
         # the processes this ray.init started, stopped by the reaper if this driver is killed
         self._reaper = ray_reaper.watch(sorted(ray_reaper.child_pids() - before))
         exposed = token_exposure()  # Ray writes the file 0644 in a 0755 folder: readable on a shared machine

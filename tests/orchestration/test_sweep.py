@@ -162,3 +162,19 @@ def test_compare_trains_and_evaluates_the_native_ppo_methods(tmp_path):
         ("fast_shared_ppo", "fast_ppo"), ("fast_shared_ppo_team", "fast_ppo")]
     again = compare(CompareArgs(out=str(out), **args))
     assert again["sweep"]["trained"] == []
+
+
+def test_the_local_instances_workers_train_at_the_callers_priority(monkeypatch):
+    """Ray starts its workers at nice + 15, below every other process: a sweep's trainings would starve
+    beside anything else the machine runs. The local instance compare starts keeps them at the caller's."""
+    import os
+
+    import ray
+
+    from containergym_marl.orchestration.cluster import Cluster
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    with Cluster(num_cpus=1) as cluster:
+        cluster.ray()
+        niceness = ray.get(ray.remote(num_cpus=1)(lambda: os.nice(0)).remote())
+    assert niceness == os.nice(0)
