@@ -10,6 +10,7 @@ import dataclasses
 import json
 import math
 import os
+import time
 import warnings
 import zipfile
 from dataclasses import dataclass, field
@@ -48,6 +49,8 @@ class TrainingProgress:
     best_timesteps: int | None = None
     wall_time_s: float = 0.0
     truncated: list[bool] = field(default_factory=list)
+    # CPU seconds of the training process (all its threads); None when a segment before went unmeasured
+    cpu_time_s: float | None = 0.0
 
     def add_episode(self, ret: float, length: int, truncated: bool | None = None) -> None:
         self.episodes += 1
@@ -74,7 +77,27 @@ class TrainingProgress:
                    lengths=[int(x) for x in data["lengths"]][-WINDOW:],
                    best_train_return=-math.inf if best is None else float(best),
                    best_timesteps=data.get("best_timesteps"), wall_time_s=float(data.get("wall_time_s", 0.0)),
-                   truncated=[bool(x) for x in data.get("truncated", [])][-WINDOW:])
+                   truncated=[bool(x) for x in data.get("truncated", [])][-WINDOW:],
+                   cpu_time_s=None if data.get("cpu_time_s") is None else float(data["cpu_time_s"]))
+
+
+class SegmentClock:
+    """The wall and CPU time of one training segment (a resumed run's earlier segments are what its
+    ``progress`` holds already): :meth:`wall` for metrics rows, :meth:`update` into ``progress``."""
+
+    def __init__(self, progress: TrainingProgress):
+        self.progress = progress
+        self._wall0, self._cpu0 = progress.wall_time_s, progress.cpu_time_s
+        self._t0, self._c0 = time.perf_counter(), time.process_time()
+
+    def wall(self) -> float:
+        return round(self._wall0 + time.perf_counter() - self._t0, 2)
+
+    def update(self) -> TrainingProgress:
+        self.progress.wall_time_s = self.wall()
+        if self._cpu0 is not None:
+            self.progress.cpu_time_s = round(self._cpu0 + time.process_time() - self._c0, 2)
+        return self.progress
 
 
 def checkpoint_interval(budget: int, num_slots: int, every: int | None = None) -> int:

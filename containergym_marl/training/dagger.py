@@ -112,7 +112,7 @@ from containergym_marl.policies.planner import SHIELD, PlannerAgents
 from containergym_marl.policies.safety import own_check_setting, own_deadline_due
 from containergym_marl.rundir import RunError, RunWarning
 from containergym_marl.training import fast_ppo
-from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
+from containergym_marl.training.checkpoints import SegmentClock, TrainingProgress, save_checkpoint
 from containergym_marl.training.native import MemoryShapes
 
 CHECKPOINT_FORMAT = "containergym-marl dagger checkpoint"
@@ -611,7 +611,7 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
     labeller = Labeller(env.num_sims, hp, seed)
     episodes = Episodes(env.num_sims, progress)
     obs, episode_start = torch.from_numpy(env.reset()), torch.ones(env.num_envs)
-    t0, wall0 = time.perf_counter(), progress.wall_time_s
+    clock = SegmentClock(progress)
     cpu0 = state.history[-1]["label_cpu_s"] if state.history else 0.0
     planned0 = state.history[-1]["planned_decisions"] if state.history else 0
     last_checkpoint = state.num_timesteps
@@ -628,7 +628,7 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
         with torch.no_grad():  # how far the policy that acted is from the planner, on its own states
             greedy = model.logits(flat_obs).argmax(-1)
         requests = flat_labels == 1
-        wall = round(wall0 + time.perf_counter() - t0, 2)
+        wall = clock.wall()
         saved_best = fast_ppo.save_if_best(run / "best_model.pt", model, progress, steps)
         fast_ppo.log_rollout(run, progress, steps, wall, saved_best)
         if on_samples is not None:
@@ -649,16 +649,16 @@ def learn(run: Path, state: DAggerState, env, budget: int, gamma: float, hp: DAg
             "request_recall": float((greedy[requests] == 1).float().mean()) if requests.any() else None,
             "cross_entropy": cross_entropy, "learning_rate": learning_rate,
             "label_cpu_s": round(cpu0 + labeller.cpu_s, 3), "planned_decisions": planned0 + labeller.planned,
-            "wall_time_s": round(wall0 + time.perf_counter() - t0, 2)})
+            "wall_time_s": clock.wall()})
         write_record(run, state, hp)
-        progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
+        clock.update()
         if steps - last_checkpoint >= interval and steps < checkpoint_before:
             save_tensors(dataset_file(run, steps), state.dataset.to_dict())
             last_checkpoint = save_checkpoint(run, state, progress, suffix=".pt")
             for old in (run / "checkpoints").glob("ckpt_dataset_*_steps.pt"):
                 if old.name != dataset_file(run, steps).name:  # one data set on disk: the newest checkpoint's
                     old.unlink()
-    progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
+    clock.update()
 
 
 def write_record(run: Path, state: DAggerState, hp: DAggerArgs) -> None:

@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,7 +72,7 @@ from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_obser
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic, load_tensors
 from containergym_marl.policies.safety import own_check_setting, own_deadline_due
 from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
-from containergym_marl.training.checkpoints import TrainingProgress, save_checkpoint
+from containergym_marl.training.checkpoints import SegmentClock, TrainingProgress, save_checkpoint
 from containergym_marl.training.native import MemoryShapes
 from containergym_marl.training.ppo_gradients import FlatAdam, MLPGradients, ppo_loss_gradients
 
@@ -288,7 +287,7 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
     episode_start = torch.ones(slots)
     num_sims = env.num_sims
     episode_return, episode_length = np.zeros(num_sims), np.zeros(num_sims, dtype=np.int64)
-    t0, wall0 = time.perf_counter(), progress.wall_time_s
+    clock = SegmentClock(progress)
     last_checkpoint = state.num_timesteps
     best_file = run / "best_model.pt"
 
@@ -351,15 +350,14 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
                              mask_buf.view(-1, n_actions) if mask_buf is not None else None, nets=nets, bc=bc,
                              bc_weight=0.0 if bc is None else bc.weight_at(steps - slots * n_steps))
         diagnostics["explained_variance"] = explained_variance(val_buf.view(-1), ret_buf.view(-1))
-        wall = round(wall0 + time.perf_counter() - t0, 2)
-        log_rollout(run, progress, steps, wall, saved_best, diagnostics)
+        log_rollout(run, progress, steps, clock.wall(), saved_best, diagnostics)
         if on_samples is not None:
             on_samples(steps, progress)
 
-        progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
+        clock.update()
         if steps - last_checkpoint >= interval and steps < budget:
             last_checkpoint = save_checkpoint(run, state, progress, suffix=".pt")
-    progress.wall_time_s = round(wall0 + time.perf_counter() - t0, 2)
+    clock.update()
 
 
 def compute_gae(rewards, values, starts, last_value, last_start, gamma: float, lam: float, out=None):

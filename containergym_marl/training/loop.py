@@ -21,7 +21,6 @@ import json
 import math
 import os
 import shutil
-import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -55,6 +54,7 @@ from containergym_marl.rundir import (
 from containergym_marl.models import load_model
 from containergym_marl.progress_bar import Bar
 from containergym_marl.training.checkpoints import (
+    SegmentClock,
     TrainingProgress,
     atomic_save_model,
     checkpoint_interval,
@@ -134,11 +134,7 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
             self.last_checkpoint = start
             self._acc = np.zeros(n_envs)
             self._len = np.zeros(n_envs, dtype=np.int64)
-            self._t0 = time.perf_counter()
-            self._wall0 = progress.wall_time_s
-
-        def _wall(self) -> float:
-            return round(self._wall0 + time.perf_counter() - self._t0, 2)
+            self._clock = SegmentClock(progress)
 
         def _on_step(self) -> bool:
             rewards, dones = self.training_env.last_plant_step()
@@ -156,7 +152,7 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
                 self.last_row = steps
                 self._log(steps)
             if steps - self.last_checkpoint >= interval and steps < budget:
-                self.progress.wall_time_s = self._wall()
+                self._clock.update()
                 self.last_checkpoint = save_checkpoint(run, self.model, self.progress,
                                                        replay_buffer=spec.replay_buffer)
 
@@ -180,7 +176,7 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
                 "train_episode_length_mean100": length,
                 "best_train_return": p.best_train_return,
                 "saved_best": int(improved),
-                "wall_time_s": self._wall(),
+                "wall_time_s": self._clock.wall(),
             })
             bar.advance_to(steps, _return_text(p))
 
@@ -188,7 +184,7 @@ def _make_callback(run: Path, spec: AlgorithmSpec, args: TrainArgs, progress: Tr
             if self.num_timesteps > self.last_row:  # replay-buffer algorithms: a last row at the end
                 self.last_row = self.num_timesteps
                 self._log(self.num_timesteps)
-            self.progress.wall_time_s = self._wall()
+            self._clock.update()
 
     return RunCallback()
 
@@ -261,7 +257,7 @@ def _resume(run: Path, spec: AlgorithmSpec, args: TrainArgs, env, load=None):
         best = max((r["best_train_return"] for r in rows_before), default=-math.inf)
         progress = TrainingProgress(
             episodes=int(kept[-1]["episodes"]) if kept else 0, best_train_return=best,
-            wall_time_s=kept[-1]["wall_time_s"] if kept else 0.0,
+            wall_time_s=kept[-1]["wall_time_s"] if kept else 0.0, cpu_time_s=None,
             best_timesteps=max((int(r["timesteps"]) for r in rows_before if r["saved_best"]), default=None))
     elif files["best"].is_file():  # the best model as it was at the checkpoint
         atomic_write(run / best_name, lambda tmp: tmp.write_bytes(files["best"].read_bytes()))
@@ -440,6 +436,7 @@ def _finish(run: Path, spec: AlgorithmSpec, args: TrainArgs, timesteps: int, pro
         "best_model": best_name if best else None,
         "resumed_from": resumed_from,
         "wall_time_s": progress.wall_time_s,
+        "cpu_time_s": progress.cpu_time_s,
         "note": no_episode_note(best_name) if progress.episodes == 0 and not best else None,
         **(extra or {}),
     }

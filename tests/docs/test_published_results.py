@@ -78,7 +78,7 @@ def test_fill_page_replaces_known_blocks_and_refuses_unknown_ones():
         raise AssertionError("an unknown block was accepted")
 
 
-def test_committed_compute_is_the_sum_of_the_committed_runs_wall_times():
+def test_committed_compute_is_the_sum_of_the_committed_runs_times():
     assert (PUBLISHED / "compute.md").read_text() == publish_results.training_compute(PUBLISHED / "runs")
 
 
@@ -88,12 +88,12 @@ def test_training_compute_sums_finished_runs_per_row(tmp_path):
     import json
 
 
-    def run(name, config, wall_s, finished=True, algo="ppo", reward_mode=None):
+    def run(name, config, wall_s, finished=True, algo="ppo", reward_mode=None, cpu_s=None):
         d = tmp_path / name
         d.mkdir()
         (d / "args.json").write_text(json.dumps({"algo": algo, "config": config, "seed": 1, "reward_mode": reward_mode}))
         if finished:
-            (d / "run.json").write_text(json.dumps({"status": "finished", "wall_time_s": wall_s}))
+            (d / "run.json").write_text(json.dumps({"status": "finished", "wall_time_s": wall_s, "cpu_time_s": cpu_s}))
             (d / ("final_model.zip" if algo == "ppo" else "final_model.pt")).write_bytes(b"model")
 
     run("ppo_n5_m2_dt120_s1", "n5_m2_dt120", 1800.0)
@@ -102,10 +102,17 @@ def test_training_compute_sums_finished_runs_per_row(tmp_path):
     run("ppo_n11_m2_dt120_s2", "n11_m2_dt120", 0.0, finished=False)
     run("fast_shared_ppo_team_n11_m2_dt120_s1", "n11_m2_dt120", 900.0, algo="fast_shared_ppo", reward_mode="team")
     text = publish_results.training_compute(tmp_path)
-    assert text.startswith("Training compute of the 4 finished runs published here: 3.2 core-hours")
+    assert text.startswith("Training compute of the 4 finished runs published here: 3.2 core-hours, the wall time")
     assert "Per row: n5_m2_dt120: 2 runs, 2.0 h · n11_m2_dt120: 2 runs, 1.2 h.\n" in text
     # per method, in the registry's order: the team reward's runs are their own method
     assert text.endswith("Per method: ppo: 3 runs, 3.0 h · fast_shared_ppo_team: 1 run, 0.2 h.\n")
+    # a run that recorded its CPU time counts by it (360 s of a 900 s wall time), the others by their wall time
+    (tmp_path / "fast_shared_ppo_team_n11_m2_dt120_s1" / "run.json").write_text(
+        json.dumps({"status": "finished", "wall_time_s": 900.0, "cpu_time_s": 360.0}))
+    text = publish_results.training_compute(tmp_path)
+    assert "3.1 core-hours, the CPU time of each run's training process (run.json's cpu_time_s), or its wall " \
+           "time for the 3 that predate it" in text and "fast_shared_ppo_team: 1 run, 0.1 h" in text
+    assert "n11_m2_dt120: 2 runs, 1.1 h" in text
 
 
 def test_readme_block_is_replaced_in_place_and_a_missing_marker_is_named(tmp_path):

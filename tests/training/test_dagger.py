@@ -151,6 +151,7 @@ def test_cli_trains_resumes_after_kill_9_and_evaluates(tmp_path):
 
     summary = read_run_summary(run)
     assert summary["resumed_from"] == steps and summary["timesteps"] >= 60000
+    assert summary["cpu_time_s"] > at_checkpoint.cpu_time_s > 0  # the resumed run's CPU time continues
     rows = read_metrics(run)
     samples = [int(r["timesteps"]) for r in rows]
     assert samples == sorted(set(samples)) and samples[-1] >= 60000

@@ -90,6 +90,45 @@ def test_checkpoint_progress_matches_the_metrics(base_run):
         assert progress.best_train_return == pytest.approx(rows[steps]["best_train_return"])
 
 
+def test_a_run_records_its_cpu_time_and_a_resume_adds_to_the_checkpoints(run_copy):
+    """run.json's cpu_time_s: the training process's CPU seconds, carried by each checkpoint and
+    continued by a resumed run; a checkpoint from before CPU times were kept leaves it unknown (None)."""
+    run = run_copy
+    at_384 = read_progress(run, 384)
+    assert 0 < read_progress(run, 128).cpu_time_s <= at_384.cpu_time_s <= read_run_summary(run)["cpu_time_s"]
+    (run / "final_model.zip").unlink()
+    with pytest.warns(RunWarning, match="dropped 1 row"):
+        train(TrainArgs(algo="ppo", out=str(run), timesteps=640, resume=True, **TINY))
+    assert read_run_summary(run)["cpu_time_s"] > at_384.cpu_time_s
+    progress_file = next(p for p in (run / "checkpoints").glob("*.json") if "384" in p.name)
+    data = json.loads(progress_file.read_text())
+    del data["cpu_time_s"]  # as written before
+    progress_file.write_text(json.dumps(data))
+    (run / "final_model.zip").unlink()
+    for steps in (512,):
+        for f in checkpoint_files(run, steps).values():
+            f.unlink(missing_ok=True)
+    with pytest.warns(RunWarning):
+        train(TrainArgs(algo="ppo", out=str(run), timesteps=640, resume=True, **TINY))
+    assert read_run_summary(run)["resumed_from"] == 384 and read_run_summary(run)["cpu_time_s"] is None
+
+
+def test_segment_clock_adds_a_segments_time_to_the_progress():
+    from containergym_marl.training.checkpoints import SegmentClock, TrainingProgress
+
+    progress = TrainingProgress(wall_time_s=10.0, cpu_time_s=5.0)
+    clock = SegmentClock(progress)
+    end = time.process_time() + 0.05
+    while time.process_time() < end:  # a segment of some CPU work
+        pass
+    clock.update()
+    assert progress.wall_time_s >= 10.05 and progress.cpu_time_s >= 5.04
+    unknown = TrainingProgress(wall_time_s=1.0, cpu_time_s=None)
+    SegmentClock(unknown).update()
+    assert unknown.cpu_time_s is None and unknown.wall_time_s >= 1.0
+    assert TrainingProgress.from_json(json.dumps({"episodes": 0, "returns": [], "lengths": []})).cpu_time_s is None
+
+
 def test_resume_from_an_older_checkpoint_restores_its_state(run_copy):
     """The checkpoint at 256 is older than the last metrics row (512): resuming there drops the
     rows after it, and the episode counter, window and best model are the checkpoint's."""
