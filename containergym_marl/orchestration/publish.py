@@ -27,7 +27,8 @@ for a native actor-critic, its weights as ``.safetensors`` (:mod:`~containergym_
 Every seed's policy and every rule-based controller is then evaluated on 200 fresh
 episodes (``<to>/fresh/``, seeds 30000-30199, used for nothing else). Finally ``<to>/table.{md,csv,json}`` is rebuilt from the evaluation files alone
 (``python -m containergym_marl.evaluation.table <to> --out <to>`` does the same), ``<to>/compute.md``
-sums the finished runs' training wall times per row. With ``--readme README.md`` the README shows a
+sums the finished runs' training time per row and per method (their CPU time where they recorded it,
+else their wall time). With ``--readme README.md`` the README shows a
 compact table of IQMs (rows × methods) between its results-table markers, and with
 ``--docs docs/results.md`` the generated blocks of the results page are rewritten (the compact table,
 the full table, one table per row); tests check that both show the committed files. Rerunning it is
