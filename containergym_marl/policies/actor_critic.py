@@ -213,7 +213,7 @@ class ActorCritic:
                     "observation": data["observation"], "meta": json.dumps(data["meta"], sort_keys=True),
                     **({"own_check": json.dumps(data["own_check"])} if "own_check" in data else {})}
         blob = _safetensors_torch().save({k: v.contiguous() for k, v in data["state_dict"].items()}, metadata)
-        return atomic_write(path, lambda tmp: tmp.write_bytes(blob))
+        return atomic_write(path, lambda tmp: tmp.write_bytes(_sorted_header(blob)))
 
     @classmethod
     def load(cls, path: str | Path) -> "ActorCritic":
@@ -235,6 +235,16 @@ def _safetensors_torch():
     except ImportError as error:
         raise missing_extra("the native PPO models' .safetensors files", "train", error) from error
     return safetensors.torch
+
+
+def _sorted_header(blob: bytes) -> bytes:
+    """A safetensors file with its JSON header's keys sorted. The library writes them in the order of a
+    hash map seeded anew each time, so the same model made different bytes at every write (and every
+    publish rewrote every published file); the tensors' bytes and offsets stay as they are."""
+    size = int.from_bytes(blob[:8], "little")
+    header = json.dumps(json.loads(blob[8:8 + size]), sort_keys=True, separators=(",", ":")).encode()
+    header += b" " * (-len(header) % 8)  # the format pads its header to a multiple of 8 bytes
+    return len(header).to_bytes(8, "little") + header + blob[8 + size:]
 
 
 def read_safetensors(path: str | Path) -> dict[str, Any]:

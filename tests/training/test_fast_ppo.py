@@ -437,6 +437,23 @@ def test_the_decisions_forward_is_the_actors_modules_bit_for_bit(view, size, hid
     assert policy_for(model)._actions(obs.numpy(), masks.numpy()) == expected
 
 
+def test_the_same_model_makes_the_same_safetensors_bytes(tmp_path):
+    """The library writes the header's keys in a hash map's order, seeded anew each time: the same
+    model gave different bytes at every write, and every publish rewrote every published file."""
+    from safetensors.torch import load_file
+
+    model = ActorCritic("decentralised", 25, 2, generator=torch.Generator().manual_seed(0),
+                        meta={"algo": "fast_shared_ppo", "seed": 3, "config": "n11_m2_dt120"},
+                        own_check={"risk": 1e-4, "lead_steps": 1})
+    files = [model.save_safetensors(tmp_path / f"m{k}.safetensors") for k in range(5)]
+    assert len({f.read_bytes() for f in files}) == 1
+    assert int.from_bytes(files[0].read_bytes()[:8], "little") % 8 == 0  # the header padded as the format pads it
+    again = ActorCritic.load(files[0])
+    assert again.own_check == model.own_check and again.meta == model.meta
+    plain = load_file(files[0])  # the format's own reader
+    assert all(torch.equal(plain[k], v) for k, v in model.net.state_dict().items())
+
+
 def test_a_rollout_is_split_into_equal_minibatches(monkeypatch):
     """4160 samples with minibatches of about 1024: four Adam steps on 1040 samples each per epoch
     (SB3's slicing would take four of 1024 and a fifth of 64)."""
