@@ -92,6 +92,7 @@ from containergym_marl.config.hyperparams import settings_file, write_settings
 from containergym_marl.files import atomic_write_text
 from containergym_marl.methods import get_method
 from containergym_marl.policies import RuleBasedAgents
+from containergym_marl.policies.safety import OWN_CHECK_LEAD_STEPS, OWN_CHECK_RISK  # --own-check's default
 from containergym_marl.rundir import RunLock, checkpoints, read_run_summary, run_name, run_status
 
 #: The rows every trial trains on: where the native PPO fell furthest below SB3's (issue 34).
@@ -110,8 +111,6 @@ LARGE_PLANTS = 11
 #: The discount every trial trains with (the paper's, per decision), and the labelled variant for δ = 60 s:
 #: 0.995 per decision of 60 s is about 0.99 per 120 s, the horizon in plant time of the δ = 120 s rows.
 GAMMA, DT60_GAMMA = 0.99, 0.995
-#: ``--own-check``: the container agents' own check's default ε, and its lead (fills)
-OWN_CHECK_RISK, OWN_CHECK_LEAD_STEPS = 1e-4, 1
 #: Runs before the pruner may stop a trial: every n = 5 row of the first seed.
 WARMUP_RUNS = 4
 #: The searched settings: a list of choices, or (low, high) for a log-uniform float.

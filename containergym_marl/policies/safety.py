@@ -226,6 +226,12 @@ def check_own_check(value, where: str = "own_check") -> dict | None:
     return {"risk": float(risk), "lead_steps": int(lead)}
 
 
+#: The agents' own check as ``fast_shared_ppo_checked`` and the tuning study's ``--own-check`` use it: the
+#: setting that removed most of the published policies' overflows at the least cost in return on
+#: validation episodes (``studies/own_check_screen.py``).
+OWN_CHECK_RISK, OWN_CHECK_LEAD_STEPS = 1e-4, 1
+
+
 def own_check_setting(risk: float, lead_steps: int) -> dict | None:
     """A trainer's ``own_check_risk`` and ``own_check_lead_steps`` (``--hp``; risk 0: no check) as the
     model's own check, or None; a ValueError naming the setting when one is out of its range."""

@@ -70,7 +70,7 @@ from containergym_marl.config.bounds import (
 )
 from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation
 from containergym_marl.policies.actor_critic import MASKED_LOGIT, ActorCritic, load_tensors
-from containergym_marl.policies.safety import own_check_setting, own_deadline_due
+from containergym_marl.policies.safety import OWN_CHECK_LEAD_STEPS, OWN_CHECK_RISK, own_check_setting, own_deadline_due
 from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
 from containergym_marl.training.checkpoints import SegmentClock, TrainingProgress, save_checkpoint
 from containergym_marl.training.native import MemoryShapes
@@ -550,9 +550,8 @@ class PPOTrainer:
 
 #: The registry's native PPO (``fast_ppo``, ``fast_shared_ppo``).
 TRAINER = PPOTrainer()
-#: ``fast_shared_ppo_checked``'s check: the setting that removed most of the published policies'
-#: overflows at the least cost in return on validation episodes (``studies/own_check_screen.py``).
-OWN_CHECK_SETTINGS = {"own_check_risk": 1e-4, "own_check_lead_steps": 1}
+#: ``fast_shared_ppo_checked``'s check (:data:`~containergym_marl.policies.safety.OWN_CHECK_RISK`)
+OWN_CHECK_SETTINGS = {"own_check_risk": OWN_CHECK_RISK, "own_check_lead_steps": OWN_CHECK_LEAD_STEPS}
 #: ``fast_shared_ppo_checked``: the shared PPO that learns and acts with the agents' own check.
 CHECKED_TRAINER = PPOTrainer(defaults=OWN_CHECK_SETTINGS)
 
