@@ -11,26 +11,13 @@ from __future__ import annotations
 import torch
 
 
-class _TanhFunction(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, x):
-        y = torch.sigmoid(x * 2.0).mul_(2.0).sub_(1.0)
-        ctx.save_for_backward(y)
-        return y
-
-    @staticmethod
-    def backward(ctx, grad):
-        (y,) = ctx.saved_tensors
-        return grad * (1.0 - y * y)
-
-
 _MINUS_ONE = torch.tensor(-1.0)
 
 
 def tanh_of_doubled_(z2: torch.Tensor) -> torch.Tensor:
-    """:class:`Tanh` of x = z2 / 2, in place on ``z2``, outside autograd: 2·sigmoid(z2) − 1 as
-    −1 + 2·sigmoid(z2) in one pass (2·s is exact, so both round the same sum once). The same values as
-    the module's, in two passes instead of four."""
+    """tanh of x = z2 / 2, in place on ``z2``, outside autograd: 2·sigmoid(z2) − 1 computed as
+    −1 + 2·sigmoid(z2), two passes (2·s is exact, so it rounds as 2·s − 1 would). The one formula of the
+    module, the trainer's forward (which doubles its weights instead of x) and the decisions'."""
     return torch.add(_MINUS_ONE, torch.sigmoid_(z2), alpha=2.0, out=z2)
 
 
@@ -38,6 +25,19 @@ def tanh_(x: torch.Tensor) -> torch.Tensor:
     """:class:`Tanh` of ``x`` in place, outside autograd (the same values): the decisions' forward,
     without the module's and the autograd function's per-call cost."""
     return tanh_of_doubled_(x.mul_(2.0))  # doubling is exact
+
+
+class _TanhFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x):
+        y = tanh_of_doubled_(x * 2.0)
+        ctx.save_for_backward(y)
+        return y
+
+    @staticmethod
+    def backward(ctx, grad):
+        (y,) = ctx.saved_tensors
+        return grad * (1.0 - y * y)
 
 
 class Tanh(torch.nn.Module):
