@@ -59,6 +59,13 @@ of :class:`~containergym_marl.training.fast_ppo.PPOArgs`) on the search's rows a
 the same seeds, beside the same setting's runs without it (the search's and the guards', reused)
 (``own_check.json``, a table in trials.md). A labelled variant: the settings file does not take it.
 
+**A wider space.** ``--space wide`` searches :data:`WIDE_SPACE`: the default space with SB3's minibatch of 64
+and its 6144 samples per update among the choices (a smaller minibatch costs more CPU per sample, which
+the default space kept down). It is a study of its own (``--out``/<method>/wide/: its journal, tables,
+comparisons and settings-file choice), whose first trials are the default, the first search's settings
+judged on every run (their runs and guard runs reused, nothing trained again) and SB3's update shape
+(:data:`SB3_SHAPE_TRIAL`), all judged on every run; the other options work on it as on the first search.
+
 **What is chosen.** ``--write-config`` writes the settings of the best finished trial (highest value)
 that passes the regression guards (every finished trial's guards must have run; before any guard has
 run, the best finished trial, and the file says so) as the method's settings file. With ``--by-size``
@@ -95,6 +102,7 @@ from containergym_marl.policies import RuleBasedAgents
 from containergym_marl.policies.safety import OWN_CHECK_LEAD_STEPS, OWN_CHECK_RISK  # --own-check's default
 from containergym_marl.rundir import RunLock, checkpoints, read_run_summary, run_name, run_status
 
+REPO = Path(__file__).resolve().parents[1]
 #: The rows every trial trains on: where the native PPO fell furthest below SB3's (issue 34).
 ROWS = ("n5_m2_dt60", "n5_m2_dt120", "n5_m5_dt60", "n5_m5_dt120", "n11_m11_dt60")
 #: Training seeds of the search; the published runs use 1-15.
@@ -124,9 +132,21 @@ SPACE: dict[str, Any] = {
     "ent_coef": [0.0, 1e-4, 1e-3, 3e-3, 1e-2],
     "clip_range": [0.1, 0.2, 0.3],
 }
+#: ``--space wide``: :data:`SPACE` with SB3's minibatch of 64 and its 6144 samples per update among the
+#: choices. The first search kept minibatches of at least 256 for speed (the update's cost per sample
+#: grows as its minibatch shrinks), and so never tried the shape SB3's paper runs learn with: 960
+#: gradient steps per 6144 samples where its settings took 20-80 per 4096.
+WIDE_SPACE: dict[str, Any] = {**SPACE, "rollout_samples": [2048, 4096, 6144, 8192, 16384],
+                              "minibatch_size": [64, 128, 256, 512, 1024, 2048]}
+SPACES = {"default": SPACE, "wide": WIDE_SPACE}
 #: The first trial of every search: the package's defaults (PPOArgs), stated in full.
 DEFAULT_TRIAL = {"rollout_samples": 4096, "n_steps": 64, "minibatch_size": 1024, "n_epochs": 10,
                  "learning_rate": 3e-4, "anneal_lr": False, "ent_coef": 0.0, "clip_range": 0.2}
+#: The wide search's first trial after the default and the first search's finished settings: SB3's update
+#: shape at the paper's settings (about 6144 samples per update, minibatches of 64, 10 epochs, SB3's step
+#: size), the rollout 128 steps long (SB3's shared runs: 152 steps of 8 simulations).
+SB3_SHAPE_TRIAL = {"rollout_samples": 6144, "n_steps": 128, "minibatch_size": 64, "n_epochs": 10,
+                   "learning_rate": 3e-4, "anneal_lr": False, "ent_coef": 0.0, "clip_range": 0.2}
 
 
 def require_optuna():
@@ -137,14 +157,14 @@ def require_optuna():
     return optuna
 
 
-def suggest(trial) -> dict[str, Any]:
-    """The trial's settings, drawn from :data:`SPACE`."""
+def suggest(trial, space: dict[str, Any] = SPACE) -> dict[str, Any]:
+    """The trial's settings, drawn from ``space`` (:data:`SPACE` or :data:`WIDE_SPACE`)."""
     hp = {}
-    for name, space in SPACE.items():
-        if isinstance(space, tuple):
-            hp[name] = trial.suggest_float(name, *space, log=True)
+    for name, choices in space.items():
+        if isinstance(choices, tuple):
+            hp[name] = trial.suggest_float(name, *choices, log=True)
         else:
-            hp[name] = trial.suggest_categorical(name, space)
+            hp[name] = trial.suggest_categorical(name, choices)
     return hp
 
 
@@ -225,13 +245,13 @@ def train_and_validate(method: str, row: str, seed: int, hp: dict[str, Any], run
 
 class Objective:
     def __init__(self, method: str, runs: Path, rows, seeds, rule: dict[str, float], timesteps: int | None,
-                 known: dict[tuple[str, str, int], dict[str, Any]]):
+                 known: dict[tuple[str, str, int], dict[str, Any]], space: dict[str, Any] = SPACE):
         self.method, self.runs, self.rows, self.seeds = method, runs, tuple(rows), tuple(seeds)
-        self.rule, self.timesteps, self.known = rule, timesteps, known
+        self.rule, self.timesteps, self.known, self.space = rule, timesteps, known, space
 
     def __call__(self, trial) -> float:
         optuna = require_optuna()
-        hp = suggest(trial)
+        hp = suggest(trial, self.space)
         # TPE proposes a setting of this discrete space again now and then: a setting already judged
         # takes the earlier trial's verdict, training nothing (a duplicate is not a new trial's evidence)
         finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
@@ -269,7 +289,7 @@ def pruner():
         def prune(self, study, trial) -> bool:
             step = trial.last_step
             if (step is None or step + 1 < WARMUP_RUNS or trial.user_attrs.get("default")
-                    or trial.user_attrs.get("finalist")):
+                    or trial.user_attrs.get("finalist") or trial.user_attrs.get("in_full")):
                 return False
             # one value per other setting: a setting tried again (queued after a kill, a finalist)
             # reuses its runs, and counting each of its trials would make it the median
@@ -297,11 +317,15 @@ def open_study(method: str, journal: Path, sampler_seed: int, read_only: bool = 
                                direction="maximize", load_if_exists=True)
 
 
-def _worker(method: str, journal: str, runs: str, rows, seeds, rule, timesteps, total: int, index: int) -> None:
+def _worker(method: str, journal: str, runs: str, rows, seeds, rule, timesteps, total: int, space: str,
+            parent: str | None, index: int) -> None:
     optuna = require_optuna()
     study = open_study(method, Path(journal), sampler_seed=index)
     done = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
-    study.optimize(Objective(method, Path(runs), rows, seeds, rule, timesteps, recorded_runs(study)),
+    known = recorded_runs(study)
+    if parent:  # the first search's runs: a setting it judged is judged again without training
+        known = {**recorded_runs(open_study(method, Path(parent), 0, read_only=True)), **known}
+    study.optimize(Objective(method, Path(runs), rows, seeds, rule, timesteps, known, SPACES[space]),
                    callbacks=[optuna.study.MaxTrialsCallback(total, states=done)])
 
 
@@ -375,7 +399,8 @@ def requeue_interrupted(study) -> int:
     for t in stale:
         study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)
         attrs = {"requeued_from": t.number,
-                 **{k: t.user_attrs[k] for k in ("default", "finalist", "finalist_of") if k in t.user_attrs}}
+                 **{k: t.user_attrs[k] for k in ("default", "finalist", "finalist_of", "in_full", "start_from")
+                    if k in t.user_attrs}}
         # a trial killed before its first suggestion has its settings only in the fixed parameters
         study.enqueue_trial(t.params or t.system_attrs.get("fixed_params", {}), user_attrs=attrs)
     return len(stale)
@@ -388,7 +413,7 @@ def trial_rows(study) -> list[dict[str, Any]]:
     for t in study.get_trials(deepcopy=False):
         runs = [v for k, v in sorted(t.user_attrs.items()) if k.startswith("run_")]
         out.append({"number": t.number, "state": t.state.name, "duplicate_of": t.user_attrs.get("duplicate_of"),
-                    "finalist_of": t.user_attrs.get("finalist_of"),
+                    "finalist_of": t.user_attrs.get("finalist_of"), "start_from": t.user_attrs.get("start_from"),
                     # a queued trial's settings are Optuna's fixed parameters until a worker takes it
                     "params": t.params or dict(t.system_attrs.get("fixed_params", {})), "value": t.value,
                     "runs": runs, "mean_score": float(np.mean([r["score"] for r in runs])) if runs else None,
@@ -503,16 +528,8 @@ def run_comparison(method: str, settings, runs: Path, path: Path, rows, seeds, t
     processes; writes ``path`` (JSON) after every run."""
     result = {"rows": list(rows), "seeds": list(seeds), "rule_based_agents_validation_return": rule,
               "settings": {label: {"params": hp, "gamma": gamma, "runs": []} for label, hp, gamma in settings}}
-    known = dict(known)
     # an earlier call's runs, and the other comparisons' (the comparisons' own runs are not in the journal)
-    for other in [path] + [path.parent / f for f, _, _ in COMPARISONS.values() if path.parent / f != path]:
-        if not other.is_file():
-            continue
-        for earlier in json.loads(other.read_text())["settings"].values():
-            for entry in earlier["runs"]:
-                # guards.json of an earlier version names no γ: its runs are at the search's
-                key = (comparison_folder(earlier["params"], earlier.get("gamma", GAMMA)), entry["row"], entry["seed"])
-                known.setdefault(key, entry)
+    known = {**comparison_runs(path.parent, first=path), **known}
 
     def record(label, entry):
         entry = {**entry, "score": entry["validation_return"] / rule[entry["row"]]}
@@ -535,6 +552,22 @@ def run_comparison(method: str, settings, runs: Path, path: Path, rows, seeds, t
             for label, entry in pool.imap_unordered(_comparison_task, tasks):
                 record(label, entry)
     return result
+
+
+def comparison_runs(folder: Path, first: Path | None = None) -> dict[tuple[str, str, int], dict[str, Any]]:
+    """The runs the comparison files in ``folder`` record (guards.json, discount.json, own_check.json;
+    ``first``'s entry kept where two record the same run), by (runs folder, row, seed)."""
+    known: dict[tuple[str, str, int], dict[str, Any]] = {}
+    files = [first] if first is not None else []
+    for other in files + [folder / f for f, _, _ in COMPARISONS.values() if folder / f != first]:
+        if not other.is_file():
+            continue
+        for earlier in json.loads(other.read_text())["settings"].values():
+            for entry in earlier["runs"]:
+                # guards.json of an earlier version names no γ: its runs are at the search's
+                key = (comparison_folder(earlier["params"], earlier.get("gamma", GAMMA)), entry["row"], entry["seed"])
+                known.setdefault(key, entry)
+    return known
 
 
 #: The comparisons beside the search: option, file, title, what the table says it is
@@ -586,18 +619,29 @@ def comparison_report(out: Path, which: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
+def report(method: str, study, out: Path, rule: dict[str, float], space: str = "default",
+           parent: Any = None) -> str:
+    """Write ``out``/trials.json and trials.md from the journal; ``parent``: the first search's study,
+    for a wide search (its runs that this one reused count in neither's compute twice)."""
     rows = trial_rows(study)
-    # a run reused by a trial queued again (the same setting) is counted once
-    cpu_h = sum(entry["cpu_s"] for entry in recorded_runs(study).values()) / 3600
+    # a run reused by a trial queued again (the same setting), or from the first search, is counted once
+    reused = recorded_runs(parent) if parent is not None else {}
+    cpu_h = sum(entry["cpu_s"] for key, entry in recorded_runs(study).items() if key not in reused) / 3600
     data = {"method": method, "rows": list(ROWS), "seeds": list(SEEDS), "validation_seeds": VALIDATION.seeds,
-            "rule_based_agents_validation_return": rule, "space": {k: list(v) for k, v in SPACE.items()},
-            "core_hours": round(cpu_h, 2), "trials": rows}
+            "rule_based_agents_validation_return": rule, "space_name": space,
+            "space": {k: list(v) for k, v in SPACES[space].items()}, "core_hours": round(cpu_h, 2), "trials": rows}
     atomic_write_text(out / "trials.json", json.dumps(data, indent=1) + "\n")
-    names = list(SPACE)
-    lines = [f"# `{method}`: the native PPO's settings searched on validation episodes", "",
-             f"Generated by `python studies/native_ppo_tuning.py --method {method} --report` from the Optuna "
-             f"journal beside it. Each trial trains on {', '.join(ROWS)} with seeds {SEEDS[0]}-{SEEDS[-1]} at the "
+    names = list(SPACES[space])
+    option = "" if space == "default" else f" --space {space}"
+    wide = ("" if space == "default" else
+            " The wide search: the first search's space with minibatches down to SB3's 64 and SB3's 6144 samples "
+            "per update among the choices; its first trials are the default, the first search's settings judged "
+            "on every run (their runs reused, not trained again: their CPU time counts in the first search's) and "
+            "SB3's update shape.")
+    lines = [f"# `{method}`: the native PPO's settings searched on validation episodes"
+             + ("" if space == "default" else f" ({space} space)"), "",
+             f"Generated by `python studies/native_ppo_tuning.py --method {method}{option} --report` from the Optuna "
+             f"journal beside it.{wide} Each trial trains on {', '.join(ROWS)} with seeds {SEEDS[0]}-{SEEDS[-1]} at the "
              f"paper's budget and scores each run's best model on validation episodes {VALIDATION.first_seed}-"
              f"{VALIDATION.seeds[-1]} (δ = 120 s, T = 600) as a share of rule_based_agents' return there; the "
              f"value is the IQM of the shares (pruned trials: the mean of the runs done). Half budget: the "
@@ -619,6 +663,8 @@ def report(method: str, study, out: Path, rule: dict[str, float]) -> str:
         state = r["state"].lower() + ("" if r["duplicate_of"] is None else f" (= trial {r['duplicate_of']})")
         if r.get("finalist_of") is not None:
             state += f" (finalist: trial {r['finalist_of']}'s setting, never pruned)"
+        if r.get("start_from"):
+            state += f" ({r['start_from']})"
         lines.append(f"| {r['number']} | {state} | " + " | ".join(cells) +
                      f" | {len(r['runs'])} | {fmt(r['value'])} | {fmt(r['mean_score'])} | "
                      f"{fmt(r['half_budget_score'])} | {r['overflowing_episodes']} | {r['cpu_s'] / 3600:.2f} |")
@@ -688,9 +734,20 @@ def write_config(method: str, study, out: Path, path: Path) -> dict[str, Any]:
     which = "the trainer's default setting" if best.params == DEFAULT_TRIAL else "a searched setting"
     source = (f"studies/native_ppo_tuning.py: trial {best.number} ({which}), the best of {_count(ranked)} judged "
               f"on every run{guarded}, of {_count(tried)} tried (the others were pruned), IQM share of "
-              f"rule_based_agents {best.value:.3f} on validation episodes (results/ppo_tuning/{method}/trials.md)")
+              f"rule_based_agents {best.value:.3f} on validation episodes ({_shown(out / 'trials.md')})")
     write_settings(path, dict(best.params), source)
     return dict(best.params)
+
+
+def _shown(path: Path) -> str:
+    """``path`` as a settings file names it: relative to the repository (this one's, or the checkout's a
+    frozen copy of the code writes into: from its ``results`` folder on)."""
+    path = path.resolve()
+    if path.is_relative_to(REPO):
+        return path.relative_to(REPO).as_posix()
+    parts = path.parts
+    return Path(*parts[len(parts) - 1 - parts[::-1].index("results"):]).as_posix() if "results" in parts \
+        else path.as_posix()
 
 
 def plant_size(row: str) -> int:
@@ -739,7 +796,7 @@ def write_config_by_size(method: str, study, out: Path, path: Path) -> dict[str,
         chosen[size] = (best, f"studies/native_ppo_tuning.py: trial {best.number} ({which}), of {_count(ranked)} "
                               f"judged on every run the best on the plants of {where}: IQM share of rule_based_agents "
                               f"{scores[best.number][size]:.3f} over its runs on {', '.join(rows[size])} with seeds "
-                              f"{SEEDS[0]}-{SEEDS[-1]}, validation episodes (results/ppo_tuning/{method}/trials.md)")
+                              f"{SEEDS[0]}-{SEEDS[-1]}, validation episodes ({_shown(out / 'trials.md')})")
     (small, small_source), (large, large_source) = chosen["small"], chosen["large"]
     by_size = [] if small.params == large.params else [(LARGE_PLANTS, dict(large.params), large_source)]
     write_settings(path, dict(small.params), small_source, by_size=by_size)
@@ -755,6 +812,10 @@ def main(argv=None) -> None:
     p.add_argument("--workers", type=int, default=2, help="processes, one core each")
     p.add_argument("--out", default="results/ppo_tuning", help="the journal and tables, in <out>/<method>/")
     p.add_argument("--runs", default="runs/ppo_tuning", help="the trials' runs, in <runs>/<method>/")
+    p.add_argument("--space", choices=sorted(SPACES), default="default",
+                   help="the settings searched: 'wide' adds SB3's minibatch of 64 and its 6144 samples per update to "
+                        "the default space, a search of its own in <out>/<method>/wide/ that starts from the default, "
+                        "the first search's settings judged on every run (their runs reused) and SB3's update shape")
     p.add_argument("--report", action="store_true", help="train nothing: write the tables of the journal")
     p.add_argument("--smoke", action="store_true", help="trials of 1 row x 1 seed at 8192 samples (a test)")
     p.add_argument("--finalists", type=int, default=0, metavar="K",
@@ -788,6 +849,16 @@ def main(argv=None) -> None:
     ns.report = ns.report or ns.write_config is not None
     optuna = require_optuna()
     out, runs = Path(ns.out) / ns.method, Path(ns.runs) / ns.method
+    # the wide search is a study of its own (Optuna keeps one space per study) beside the first one,
+    # whose runs it reuses; the runs of both share one folder per setting
+    parent_out = out if ns.space != "default" else None
+    if parent_out is not None:
+        if ns.start_from:
+            p.error(f"--start-from: a search in the {ns.space} space starts from this method's first search")
+        if not (parent_out / "journal.log").is_file() and not ns.smoke:
+            p.error(f"--space {ns.space}: starts from the first search's journal, {parent_out / 'journal.log'} "
+                    "is missing")
+        out = out / ns.space
     out.mkdir(parents=True, exist_ok=True)
     rows, seeds, timesteps, total = ROWS, SEEDS, None, ns.trials or 40
     if ns.smoke:  # two rollouts of about 4096 samples: a checkpoint after the first, at half the budget
@@ -798,6 +869,10 @@ def main(argv=None) -> None:
         study = open_study(ns.method, journal, sampler_seed=0,
                            read_only=(ns.report or ns.guards or ns.discount is not None or ns.own_check is not None)
                            and journal.is_file())
+        parent = (open_study(ns.method, parent_out / "journal.log", 0, read_only=True)
+                  if parent_out is not None and (parent_out / "journal.log").is_file() else None)
+        # the first search's runs and comparisons, for a wide search: a setting it judged is not trained again
+        reused = {**comparison_runs(parent_out), **recorded_runs(parent)} if parent is not None else {}
         if ns.guards or ns.discount is not None or ns.own_check is not None:
             if ns.guards:
                 which, chosen, compared = "guards", guard_settings(study), rows[:1] if ns.smoke else GUARD_ROWS
@@ -815,13 +890,21 @@ def main(argv=None) -> None:
                 compared = rows if ns.smoke else tuple(r for r in rows if r.endswith("_dt60"))
             run_comparison(ns.method, chosen, runs, out / COMPARISONS[which][0], compared, seeds, timesteps,
                            ns.workers, rule_returns(compared, out / "rule_based_agents_validation.json"),
-                           recorded_runs(study))
+                           {**reused, **recorded_runs(study)})
         elif not ns.report:
             requeued = requeue_interrupted(study)
             if requeued:
                 print(f"{requeued} interrupted trial(s) queued again")
             if not study.get_trials(deepcopy=False):
                 study.enqueue_trial(DEFAULT_TRIAL, user_attrs={"default": True})
+                if parent is not None:  # judged on every run, never pruned: references, as the default is
+                    judged = any(t.state == optuna.trial.TrialState.COMPLETE for t in parent.get_trials(deepcopy=False))
+                    for t in finished_settings(parent, f"--space {ns.space}") if judged else []:
+                        if t.params != DEFAULT_TRIAL:
+                            study.enqueue_trial(t.params, user_attrs={"start_from": f"first search trial {t.number}",
+                                                                      "in_full": True})
+                    study.enqueue_trial(SB3_SHAPE_TRIAL, user_attrs={"start_from": "SB3's update shape",
+                                                                     "in_full": True})
                 if ns.start_from:
                     other, _, count = ns.start_from.partition(":")
                     if other == ns.method or not (out.parent / other / "journal.log").is_file():
@@ -838,7 +921,8 @@ def main(argv=None) -> None:
                 waiting = len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.WAITING,)))
                 total = max(total, done + waiting)  # every queued trial runs, finalists requeued included
             if done < total:
-                args = (ns.method, str(journal), str(runs), rows, seeds, rule, timesteps, total)
+                args = (ns.method, str(journal), str(runs), rows, seeds, rule, timesteps, total, ns.space,
+                        str(parent_out / "journal.log") if parent is not None else None)
                 ctx = multiprocessing.get_context("spawn")
                 procs = [ctx.Process(target=_worker, args=(*args, k)) for k in range(max(ns.workers, 1))]
                 for proc in procs:
@@ -847,7 +931,7 @@ def main(argv=None) -> None:
                 for proc in procs:
                     proc.join()
             study = open_study(ns.method, journal, sampler_seed=0, read_only=True)
-        print(report(ns.method, study, out, rule))
+        print(report(ns.method, study, out, rule, ns.space, parent))
         if ns.write_config is not None:
             path = Path(ns.write_config) if ns.write_config else settings_file(ns.method)
             try:

@@ -182,6 +182,46 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert [t["params"] for t in team[:2]] == [DEFAULT_TRIAL, shared_best[0]]
     assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
 
+    # the wide space: a search of its own beside the first, whose first trials are the default, the
+    # first search's settings judged on every run (their runs taken from its journal: nothing trained
+    # again) and SB3's update shape, each judged on every run; the first search's journal left alone
+    first = {script.settings_key(t.params): t for t in ranked}
+    expected = [DEFAULT_TRIAL] + [t.params for t in ranked if t.params != DEFAULT_TRIAL] + [script.SB3_SHAPE_TRIAL]
+    folders = {p.name for p in (runs / "fast_shared_ppo").iterdir()}
+    _search(out, runs, "--space", "wide", "--trials", str(len(expected)))
+    wide = json.loads((out / "fast_shared_ppo" / "wide" / "trials.json").read_text())
+    assert [t["params"] for t in wide["trials"]] == expected and wide["space_name"] == "wide"
+    assert all(t["state"] == "COMPLETE" and len(t["runs"]) == 1 for t in wide["trials"])
+    for t in wide["trials"][:-1]:
+        (entry,) = t["runs"]
+        theirs = first[script.settings_key(t["params"])].user_attrs["run_00"]
+        assert (entry["validation_return"], entry["cpu_s"]) == (theirs["validation_return"], theirs["cpu_s"])
+    sb3 = script.settings_key(script.SB3_SHAPE_TRIAL)
+    assert {p.name for p in (runs / "fast_shared_ppo").iterdir()} - folders == {sb3}  # only SB3's shape trained
+    run = runs / "fast_shared_ppo" / sb3 / run_name("fast_shared_ppo", "n5_m2_dt120", 101)
+    assert json.loads((run / "args.json").read_text())["hyperparams"] == script.SB3_SHAPE_TRIAL
+    # its compute counts only what it trained itself
+    assert wide["core_hours"] == round(wide["trials"][-1]["runs"][0]["cpu_s"] / 3600, 2)
+    text = (out / "fast_shared_ppo" / "wide" / "trials.md").read_text()
+    assert "(wide space)" in text and "--space wide --report" in text and "(SB3's update shape)" in text
+    assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
+
+
+def test_the_wide_space_holds_every_setting_of_the_first_and_sb3s_update_shape():
+    """A wide search starts from the first search's settings and SB3's shape: each must be a point of
+    its space (Optuna stops a queued trial whose value is not among a parameter's choices)."""
+    script = _load_script()
+    for name, choices in script.SPACE.items():
+        wide = script.WIDE_SPACE[name]
+        assert wide == choices if isinstance(choices, tuple) else set(choices) <= set(wide)
+    for name, value in script.SB3_SHAPE_TRIAL.items():
+        choices = script.WIDE_SPACE[name]
+        assert choices[0] <= value <= choices[1] if isinstance(choices, tuple) else value in choices
+    assert 64 in script.WIDE_SPACE["minibatch_size"] and 64 not in script.SPACE["minibatch_size"]
+    study = optuna.create_study(direction="maximize", sampler=optuna.samplers.RandomSampler(seed=0))
+    study.enqueue_trial(script.SB3_SHAPE_TRIAL)
+    assert script.suggest(study.ask(), script.WIDE_SPACE) == script.SB3_SHAPE_TRIAL
+
 
 def _recorded_run(row: str, validation_return: float) -> dict:
     """A run's entry as a comparison's file records it (seed 101)."""
