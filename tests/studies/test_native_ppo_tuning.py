@@ -223,6 +223,19 @@ def test_the_wide_space_holds_every_setting_of_the_first_and_sb3s_update_shape()
     assert script.suggest(study.ask(), script.WIDE_SPACE) == script.SB3_SHAPE_TRIAL
 
 
+@pytest.mark.parametrize("extra,match", [
+    ([], "starts from the first search's journal"),
+    (["--start-from", "fast_shared_ppo:2"], "--start-from: a search in the wide space"),
+])
+def test_a_wide_search_without_its_first_search_is_refused_before_anything_is_written(tmp_path, capsys, extra, match):
+    script = _load_script()
+    with pytest.raises(SystemExit):
+        script.main(["--method", "fast_shared_ppo", "--space", "wide", "--out", str(tmp_path / "out"),
+                     "--runs", str(tmp_path / "runs"), *extra])
+    assert match in capsys.readouterr().err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
+
+
 def _recorded_run(row: str, validation_return: float) -> dict:
     """A run's entry as a comparison's file records it (seed 101)."""
     return {"row": row, "seed": 101, "validation_return": validation_return, "overflowing_episodes": 2,
