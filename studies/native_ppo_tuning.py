@@ -318,13 +318,12 @@ def open_study(method: str, journal: Path, sampler_seed: int, read_only: bool = 
 
 
 def _worker(method: str, journal: str, runs: str, rows, seeds, rule, timesteps, total: int, space: str,
-            parent: str | None, index: int) -> None:
+            reused: dict, index: int) -> None:
+    """One search process; ``reused``: a wide search's runs of the first search (judged again without training)."""
     optuna = require_optuna()
     study = open_study(method, Path(journal), sampler_seed=index)
     done = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
-    known = recorded_runs(study)
-    if parent:  # the first search's runs: a setting it judged is judged again without training
-        known = {**recorded_runs(open_study(method, Path(parent), 0, read_only=True)), **known}
+    known = {**reused, **recorded_runs(study)}
     study.optimize(Objective(method, Path(runs), rows, seeds, rule, timesteps, known, SPACES[space]),
                    callbacks=[optuna.study.MaxTrialsCallback(total, states=done)])
 
@@ -620,12 +619,12 @@ def comparison_report(out: Path, which: str) -> str:
 
 
 def report(method: str, study, out: Path, rule: dict[str, float], space: str = "default",
-           parent: Any = None) -> str:
-    """Write ``out``/trials.json and trials.md from the journal; ``parent``: the first search's study,
-    for a wide search (its runs that this one reused count in neither's compute twice)."""
+           reused: dict | None = None) -> str:
+    """Write ``out``/trials.json and trials.md from the journal; ``reused``: a wide search's runs of the
+    first search (their CPU time counts in the first search's, not twice)."""
     rows = trial_rows(study)
     # a run reused by a trial queued again (the same setting), or from the first search, is counted once
-    reused = recorded_runs(parent) if parent is not None else {}
+    reused = reused or {}
     cpu_h = sum(entry["cpu_s"] for key, entry in recorded_runs(study).items() if key not in reused) / 3600
     data = {"method": method, "rows": list(ROWS), "seeds": list(SEEDS), "validation_seeds": VALIDATION.seeds,
             "rule_based_agents_validation_return": rule, "space_name": space,
@@ -922,7 +921,7 @@ def main(argv=None) -> None:
                 total = max(total, done + waiting)  # every queued trial runs, finalists requeued included
             if done < total:
                 args = (ns.method, str(journal), str(runs), rows, seeds, rule, timesteps, total, ns.space,
-                        str(parent_out / "journal.log") if parent is not None else None)
+                        reused)
                 ctx = multiprocessing.get_context("spawn")
                 procs = [ctx.Process(target=_worker, args=(*args, k)) for k in range(max(ns.workers, 1))]
                 for proc in procs:
@@ -931,7 +930,7 @@ def main(argv=None) -> None:
                 for proc in procs:
                     proc.join()
             study = open_study(ns.method, journal, sampler_seed=0, read_only=True)
-        print(report(ns.method, study, out, rule, ns.space, parent))
+        print(report(ns.method, study, out, rule, ns.space, reused))
         if ns.write_config is not None:
             path = Path(ns.write_config) if ns.write_config else settings_file(ns.method)
             try:
