@@ -10,17 +10,16 @@ A whole ``train`` run of ``--samples`` samples is measured first (this process's
 trainer's own functions are run one by one at the run's shape (the same simulations, rollout length,
 minibatches and epochs) and timed apart, each repeated ``--repeats`` times:
 
-* rollout: the vector env's step; the policy's and value's forward with the action sample
-  (Gumbel-max) and the log-probability;
+* rollout: the vector env's step; the policy's step (:func:`~containergym_marl.training.ppo_kernel.act`:
+  the policy's and value's forward, the action sample (Gumbel-max) and its log-probability);
 * GAE over one rollout;
-* update (``fast_ppo.update``'s loop, replayed step by step): the minibatch's rows and the networks'
-  forward, the loss's gradients (:mod:`~containergym_marl.training.ppo_gradients`), the networks'
-  backward, gradient clip, Adam.
+* update: ``fast_ppo.update``, one compiled call for every epoch and minibatch
+  (:func:`~containergym_marl.training.ppo_kernel.ppo_update`).
 
 "Rest" is the whole run less the sum of the phases: the rollout's bookkeeping (copies into the
 buffers, episode returns, the time-limit bootstrap), metrics rows, checkpoints and start-up.
-Below the table, the update's arithmetic floor: its matrix products alone, the same calls on the
-same shapes, timed apart (what the update would cost if everything else in it were free).
+Below the table, the update's arithmetic floor: its matrix products alone, the same BLAS calls on
+the same shapes, timed apart (what the update would cost if everything else in it were free).
 CPU time is ``time.process_time`` (all threads of this process), which leaves out time spent
 waiting for a core; a busy machine still inflates it through shared caches, so compare phases
 within one run of this script.
@@ -36,6 +35,7 @@ import time
 import warnings
 from pathlib import Path
 
+import numba
 import numpy as np
 import torch
 
@@ -43,8 +43,9 @@ from containergym_marl.algorithms import get_algorithm
 from containergym_marl.config import load_config
 from containergym_marl.config.hyperparams import method_settings
 from containergym_marl.training import TrainArgs, train
-from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, new_state
-from containergym_marl.training.ppo_gradients import MLPGradients, ppo_loss_gradients
+from containergym_marl.policies.actor_critic import MASKED_LOGIT
+from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, new_state, update
+from containergym_marl.training.ppo_kernel import act, blas_threads, parameter_layout
 from throughput import _cpu_name, _load  # benchmarks/, this script's folder
 
 
@@ -56,6 +57,27 @@ def _cpu(fn, repeats: int) -> float:
         fn()
         times.append(time.process_time() - t)
     return float(np.median(times))
+
+
+@numba.njit(cache=True)
+def _products(flat, layout, actor_layers, x, steps):
+    """The matrix products of ``steps`` minibatch steps of ppo_update on rows ``x``: per network, each
+    layer's forward product, its weight gradient's and (but the first) its input gradient's."""
+    n_layers = layout.shape[0]
+    for _ in range(steps):
+        for first, last in ((0, actor_layers), (actor_layers, n_layers)):
+            xs = [x]
+            for li in range(first, last):
+                w_off, n_out, n_in = layout[li, 0], layout[li, 2], layout[li, 3]
+                weight = flat[w_off:w_off + n_out * n_in].reshape((n_out, n_in))
+                xs.append(np.dot(xs[-1], weight.T))
+            g = np.ones_like(xs[-1])
+            for li in range(last - 1, first - 1, -1):
+                w_off, n_out, n_in = layout[li, 0], layout[li, 2], layout[li, 3]
+                weight = flat[w_off:w_off + n_out * n_in].reshape((n_out, n_in))
+                np.dot(g.T, xs[li - first])
+                if li > first:
+                    g = np.dot(g, weight)
 
 
 def _env(spec, plant, sims):
@@ -87,78 +109,45 @@ def profile(algo: str, config: str, samples: int, repeats: int) -> dict:
     state = new_state(env, hp, spec.view, 0, {})
     model, optimizer, generator = state.model, state.optimizer, state.generator
     env.seed(0)
-    obs = torch.from_numpy(env.reset())
+    obs = env.reset()
     rng = np.random.default_rng(0)
     per = {}  # phase -> CPU seconds per sample
     actions = rng.integers(0, model.n_actions, size=slots)
     per["env step"] = _cpu(lambda: [env.step(actions) for _ in range(steps)], repeats) / rollout
 
-    nets = MLPGradients(model, optimizer)
+    flat = optimizer.flat_param.numpy()
+    layout, actor_layers = parameter_layout(model, optimizer.flat_param)
     gumbel = torch.zeros((steps, slots, model.n_actions))
+    no_masks = np.zeros((0, model.n_actions), np.bool_)
+    out_actions, out_logp, out_values = np.zeros(slots, np.int64), np.zeros(slots, np.float32), np.zeros(slots, np.float32)
 
-    def policy_forward():  # the rollout's: logits and values in one call, the Gumbel-max sample
-        with torch.inference_mode(), nets.fixed_parameters():
+    def policy_step():  # the rollout's: the Gumbel noise of the rollout, then one call a step
+        with blas_threads(1):
             gumbel.uniform_(generator=generator).log_().neg_().log_()
+            g = gumbel.numpy()
             for t in range(steps):
-                logits, _ = nets.forward(obs, keep=False)
-                a = torch.sub(logits, gumbel[t]).argmax(-1)
-                torch.log_softmax(logits, -1).gather(-1, a[:, None])
+                act(flat, layout, actor_layers, obs, g[t], no_masks, MASKED_LOGIT, out_actions, out_logp, out_values)
 
-    per["policy and value forward + sample"] = _cpu(policy_forward, repeats) / rollout
+    per["policy step (forward, sample, log-probability)"] = _cpu(policy_step, repeats) / rollout
 
     rewards, values, starts = (torch.randn(steps, slots) for _ in range(3))
     last = torch.zeros(slots)
     per["GAE"] = _cpu(lambda: compute_gae(rewards, values, starts, last, last, 0.99, hp.gae_lambda), repeats) / rollout
 
-    flat_obs = obs.repeat(steps, 1)
+    flat_obs = torch.from_numpy(obs).repeat(steps, 1)
     flat_act = torch.from_numpy(rng.integers(0, model.n_actions, size=rollout))
     old_logp, adv, ret = torch.full((rollout,), -0.7), torch.randn(rollout), torch.randn(rollout)
     minibatches = max(1, round(rollout / hp.minibatch_size))
-    parts = {"update: minibatch and forward": 0.0, "update: loss gradients": 0.0, "update: backward": 0.0,
-             "update: gradient clip": 0.0, "update: Adam": 0.0}
+    per["update (one compiled call)"] = _cpu(
+        lambda: update(model, optimizer, hp, generator, flat_obs, flat_act, old_logp, adv, ret), repeats) / rollout
 
-    def one_update():  # fast_ppo.update's loop, phase by phase
-        for _ in range(hp.n_epochs):
-            for idx in torch.tensor_split(torch.randperm(rollout, generator=generator), minibatches):
-                t0 = time.process_time()
-                logits, values = nets.forward(flat_obs.index_select(0, idx))
-                a = adv.index_select(0, idx)
-                t1 = time.process_time()
-                g_logits, g_values, _ = ppo_loss_gradients(
-                    logits, values, flat_act.index_select(0, idx), old_logp.index_select(0, idx),
-                    (a - a.mean()) / (a.std() + 1e-8), ret.index_select(0, idx), hp.clip_range, hp.vf_coef, hp.ent_coef)
-                t2 = time.process_time()
-                nets.backward(g_logits, g_values)
-                t3 = time.process_time()
-                nets.clip_grad_norm_(hp.max_grad_norm)
-                t4 = time.process_time()
-                optimizer.step()
-                t5 = time.process_time()
-                for name, dt in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)):
-                    parts[name] += dt
-
-    for _ in range(repeats):
-        one_update()
-    per.update({name: total / repeats / rollout for name, total in parts.items()})
-
-    # The update's arithmetic floor: its matrix products alone, the same calls on the same shapes as
-    # MLPGradients' forward and backward (dW of every layer, dx of all but the first), nothing else.
-    layers = [[(m.weight.detach(), m.bias.detach()) for m in net if isinstance(m, torch.nn.Linear)]
-              for net in (model.net.actor, model.net.critic)]
-    batch = flat_obs[: -(-rollout // minibatches)]
+    # The update's arithmetic floor: its matrix products alone, the same BLAS calls on the same shapes as
+    # ppo_update's forward and backward (dW of every layer, dx of all but the first), nothing else.
+    batch = np.ascontiguousarray(flat_obs[: -(-rollout // minibatches)].numpy())
 
     def products_only():
-        for _ in range(hp.n_epochs * minibatches):
-            for net in layers:
-                xs = [batch]
-                for weight, bias in net:
-                    xs.append(torch.addmm(bias, xs[-1], weight.t()))
-                g = torch.ones_like(xs[-1])
-                for i in reversed(range(len(net))):
-                    weight, x = net[i][0], xs[i]
-                    x.t().mm(g) if x.shape[1] < g.shape[1] else g.t().mm(x)
-                    if i > 0:
-                        g = g.mm(weight)
+        with blas_threads(1):
+            _products(flat, layout, actor_layers, batch, hp.n_epochs * minibatches)
 
     floor = _cpu(products_only, repeats) / rollout
     whole_per = whole / trained
@@ -192,11 +181,11 @@ def main(argv=None) -> dict:
     for name, us in result["us_per_sample"].items():
         lines.append(f"| {name} | {us:.2f} | {us / whole:.0%} |")
     lines.append(f"| **whole run** | **{whole:.2f}** | 100% |")
-    update = sum(us for name, us in result["us_per_sample"].items() if name.startswith("update"))
+    update_us = sum(us for name, us in result["us_per_sample"].items() if name.startswith("update"))
     floor = result["update_products_us_per_sample"]
     lines += ["", f"The update's matrix products alone (the same products on the same shapes, nothing else): "
-              f"{floor:.2f} µs per sample, {floor / update:.0%} of the update's {update:.2f}; the rest of the "
-              f"update is elementwise passes (the tanh and its derivative, the loss) and per-call overhead."]
+              f"{floor:.2f} µs per sample, {floor / update_us:.0%} of the update's {update_us:.2f}; the rest of the "
+              f"update is its fused loops (the tanh and its derivative, the loss, the clip and Adam)."]
     print("\n".join(lines))
     if ns.md:
         Path(ns.md).parent.mkdir(parents=True, exist_ok=True)

@@ -1,19 +1,20 @@
-"""Do the native PPO's written-out gradients train like autograd's? Seeds trained both ways, side by
-side, compared on validation episodes.
+"""Does the native PPO's compiled update train like autograd's? Seeds trained both ways, side by side,
+compared on validation episodes.
 
     python studies/update_equivalence.py                         # n5_m2_dt60, seeds 101-105, 1M samples
+    python studies/update_equivalence.py --row n5_m5_dt60 --hp '{"minibatch_size": 64}'   # other settings
     python studies/update_equivalence.py --smoke                 # seconds; numbers meaningless
 
-The trainer's update (:func:`containergym_marl.training.fast_ppo.update`) computes the clipped
-loss's gradients in closed form and the networks' backward layer by layer
-(:mod:`containergym_marl.training.ppo_gradients`); the tests check one step against autograd's to
-float rounding. Rounding still changes, and over a run a last-bit difference grows into another
-trajectory, so the same seed does not give the same model. This script trains every seed twice,
-``written``: the trainer as it is, and ``autograd``: the same trainer with the update taken
-through autograd and torch's fused Adam (:func:`autograd_update`, :func:`autograd_optimizer`: the
-update as it was written before), scores
-each run's best model on the validation episodes (20000-20029), and reports both methods' returns
-and a two-sided Welch t-test and a permutation test of the difference in means. Each run is
+The trainer's update (:func:`containergym_marl.training.fast_ppo.update`) is one compiled call
+(:mod:`containergym_marl.training.ppo_kernel`): the clipped loss's gradients in closed form, the
+networks' backward layer by layer, its own tanh and BLAS; the tests check one update against
+autograd's and SB3's to float rounding. Rounding still changes, and over a run a last-bit
+difference grows into another trajectory, so the same seed does not give the same model. This
+script trains every seed twice, ``compiled``: the trainer as it is, and ``autograd``: the same
+trainer with the update taken through autograd and torch's fused Adam (:func:`autograd_update`,
+:func:`autograd_optimizer`), at the method's settings file's settings (``--hp``: some replaced),
+scores each run's best model on the validation episodes (20000-20029), and reports both methods'
+returns and a two-sided Welch t-test and a permutation test of the difference in means. Each run is
 trained in its own process, one torch thread; runs already in ``--out`` are reused.
 """
 
@@ -35,8 +36,8 @@ from containergym_marl.files import atomic_write_text
 from containergym_marl.training import fast_ppo
 
 #: the trainer's own update and optimiser
-WRITTEN = (fast_ppo.update, fast_ppo._optimizer)
-VARIANTS = ("written", "autograd")
+COMPILED = (fast_ppo.update, fast_ppo._optimizer)
+VARIANTS = ("compiled", "autograd")
 
 
 def autograd_update(model, optimizer, hp, generator, obs, actions, old_logp, advantages, returns, masks=None,
@@ -84,12 +85,12 @@ def autograd_optimizer(model, hp):
 def use_update(variant: str):
     """Make ``fast_ppo.learn`` use ``variant``'s update and optimiser in this process (a worker trains
     one run after another: each run sets its own); returns the update."""
-    fast_ppo.update, fast_ppo._optimizer = (autograd_update, autograd_optimizer) if variant == "autograd" else WRITTEN
+    fast_ppo.update, fast_ppo._optimizer = (autograd_update, autograd_optimizer) if variant == "autograd" else COMPILED
     return fast_ppo.update
 
 
-def train_and_score(job: tuple[str, str, int, int, str, int]) -> dict:
-    variant, row, seed, samples, out, episodes = job
+def train_and_score(job: tuple[str, str, int, int, str, int, dict]) -> dict:
+    variant, row, seed, samples, out, episodes, hyperparams = job
     from containergym_marl.evaluation import evaluate
     from containergym_marl.evaluation.protocol import VALIDATION, EvalProtocol
     from containergym_marl.evaluation.run_policies import policy_from_run
@@ -107,11 +108,12 @@ def train_and_score(job: tuple[str, str, int, int, str, int]) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         train(TrainArgs(algo="fast_shared_ppo", config=row, seed=seed, out=str(run), timesteps=samples,
-                        progress_bar=False, resume=run.is_dir()))
+                        progress_bar=False, resume=run.is_dir(), hyperparams=hyperparams))
     cpu = time.process_time() - start
     protocol = EvalProtocol(episodes=episodes, first_seed=VALIDATION.first_seed)
     result = evaluate(policy_from_run(run), row, protocol, keep_records=False)
-    entry = {"variant": variant, "row": row, "seed": seed, "samples": samples, "cpu_s": round(cpu, 1),
+    entry = {"variant": variant, "row": row, "seed": seed, "samples": samples, "hyperparams": hyperparams,
+             "cpu_s": round(cpu, 1),
              "validation_return": float(result.returns.mean()),
              "overflowing_episodes": int(sum(e.overflow for e in result.episodes))}
     atomic_write_text(cached, json.dumps(entry) + "\n")
@@ -141,21 +143,30 @@ def main(argv=None) -> dict:
     p.add_argument("--episodes", type=int, default=30, help="validation episodes (seeds 20000...)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", default="runs/update_equivalence")
+    p.add_argument("--hp", type=json.loads, default={},
+                   help="settings replacing the settings file's, as JSON, the same for both variants")
     p.add_argument("--smoke", action="store_true", help="two seeds, 8192 samples, 2 episodes")
     ns = p.parse_args(argv)
+    if not isinstance(ns.hp, dict):
+        p.error(f"--hp: a JSON object of settings expected, got {ns.hp!r}")
     if ns.smoke:
         ns.seeds, ns.samples, ns.episodes = ns.seeds[:2], 8192, 2
-    jobs = [(v, ns.row, s, ns.samples, ns.out, ns.episodes) for s in ns.seeds for v in VARIANTS]
+    jobs = [(v, ns.row, s, ns.samples, ns.out, ns.episodes, ns.hp) for s in ns.seeds for v in VARIANTS]
     with ProcessPoolExecutor(ns.workers) as pool:
         entries = list(pool.map(train_and_score, jobs))
     returns = {v: np.array([e["validation_return"] for e in entries if e["variant"] == v]) for v in VARIANTS}
     cpu = {v: sum(e["cpu_s"] for e in entries if e["variant"] == v) for v in VARIANTS}
-    report = {"row": ns.row, "seeds": ns.seeds, "samples": ns.samples, "episodes": ns.episodes, "entries": entries,
+    report = {"row": ns.row, "seeds": ns.seeds, "samples": ns.samples, "episodes": ns.episodes, "hyperparams": ns.hp,
+              "entries": entries,
               "welch_p": welch_p(*returns.values()) if len(ns.seeds) > 1 else math.nan,
               "permutation_p": permutation_p(*returns.values())}
-    lines = [f"# Written-out gradients against autograd: fast_shared_ppo on {ns.row}", "",
-             f"{len(ns.seeds)} seeds ({', '.join(map(str, ns.seeds))}) x {ns.samples:,} samples each way; each run's "
-             f"best model on {ns.episodes} validation episodes (seeds 20000...).", "",
+    settings = (f"the settings file's settings with {json.dumps(ns.hp, sort_keys=True)}" if ns.hp
+                else "the settings file's settings")
+    lines = [f"# The compiled update against autograd's: fast_shared_ppo on {ns.row}", "",
+             f"`python studies/update_equivalence.py --row {ns.row}"
+             + (f" --hp '{json.dumps(ns.hp, sort_keys=True)}'" if ns.hp else "") + f"`. {len(ns.seeds)} seeds "
+             f"({', '.join(map(str, ns.seeds))}) x {ns.samples:,} samples each way at {settings}; each run's best "
+             f"model on {ns.episodes} validation episodes (seeds 20000...).", "",
              "| seed | " + " | ".join(VARIANTS) + " |", "|---|" + "---|" * len(VARIANTS)]
     for s in ns.seeds:
         cells = [next(f"{e['validation_return']:.2f} ({e['overflowing_episodes']} overflow)" for e in entries
@@ -163,7 +174,7 @@ def main(argv=None) -> dict:
         lines.append(f"| {s} | " + " | ".join(cells) + " |")
     lines += ["| mean | " + " | ".join(f"{returns[v].mean():.2f}" for v in VARIANTS) + " |",
               "| training CPU-s | " + " | ".join(f"{cpu[v]:.0f}" for v in VARIANTS) + " |", "",
-              f"Difference in means {returns['written'].mean() - returns['autograd'].mean():+.2f}; Welch's t-test "
+              f"Difference in means {returns['compiled'].mean() - returns['autograd'].mean():+.2f}; Welch's t-test "
               f"p = {report['welch_p']:.2f}, exact permutation test p = {report['permutation_p']:.2f}."]
     print("\n".join(lines))
     out = Path(ns.out)

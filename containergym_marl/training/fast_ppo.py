@@ -24,9 +24,9 @@ updates than SB3's on the same budget, and its policy collapsed before it had le
 (``studies/fast_ppo_validation.py paper-shape`` runs it). ``studies/native_ppo_tuning.py``
 searches the settings on validation episodes (``results/ppo_tuning/``).
 
-The gradients are written out (:mod:`~containergym_marl.training.ppo_gradients`: the loss's closed
-form, the networks' backward layer by layer into one flat buffer), the same as autograd's to float
-rounding, at about half its CPU time; the rollout calls the networks without module calls.
+The update is one compiled call (:mod:`~containergym_marl.training.ppo_kernel`: the loss's gradient
+in closed form, the networks' backward layer by layer into one flat buffer, the clip and Adam), the
+same as autograd's to float rounding; the rollout's policy step is another.
 
 After every update, the run's metrics.csv row carries the update's diagnostics, as SB3 logs them:
 entropy, approx-KL, clip fraction, the critic's explained variance, and the share of the last 100
@@ -74,7 +74,7 @@ from containergym_marl.policies.safety import OWN_CHECK_LEAD_STEPS, OWN_CHECK_RI
 from containergym_marl.rundir import UPDATE_FIELDS, append_metrics
 from containergym_marl.training.checkpoints import SegmentClock, TrainingProgress, save_checkpoint
 from containergym_marl.training.native import MemoryShapes
-from containergym_marl.training.ppo_gradients import FlatAdam, MLPGradients, ppo_loss_gradients
+from containergym_marl.training.ppo_kernel import FlatAdam, act, blas_threads, parameter_layout, run_update
 
 CHECKPOINT_FORMAT = "containergym-marl ppo checkpoint"
 CHECKPOINT_VERSION = 2  # 1: the optimiser's state was torch.optim.Adam's (still read)
@@ -234,7 +234,7 @@ def state_from_model(model: ActorCritic, hp: PPOArgs, generator: torch.Generator
 
 
 def _optimizer(model: ActorCritic, hp: PPOArgs) -> FlatAdam:
-    # SB3's update rule (Adam, eps 1e-5) on one flat buffer of the parameters (ppo_gradients.FlatAdam)
+    # SB3's update rule (Adam, eps 1e-5) on one flat buffer of the parameters (ppo_kernel.FlatAdam)
     return FlatAdam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps)
 
 
@@ -282,8 +282,14 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
     # log(-log(u)) of the rollout's uniforms, drawn in one call: the numbers a draw per step would give
     gumbel_buf = torch.zeros((n_steps, slots, n_actions))
 
-    nets = MLPGradients(model, optimizer)  # the networks without module calls, and their gradients
-    obs = torch.from_numpy(env.reset())
+    # the rollout's policy: one compiled call a step on the parameters' flat buffer (ppo_kernel.act)
+    flat_param = optimizer.flat_param.numpy()
+    layout, actor_layers = parameter_layout(model, optimizer.flat_param)
+    no_masks = np.zeros((0, n_actions), np.bool_)
+    obs_np, act_np, logp_np, val_np = obs_buf.numpy(), act_buf.numpy(), logp_buf.numpy(), val_buf.numpy()
+    gumbel_np, last_value = gumbel_buf.numpy(), torch.zeros(slots)
+    spare_actions, spare_logp = np.zeros(slots, np.int64), np.zeros(slots, np.float32)
+    obs = env.reset()
     episode_start = torch.ones(slots)
     num_sims = env.num_sims
     episode_return, episode_length = np.zeros(num_sims), np.zeros(num_sims, dtype=np.int64)
@@ -292,26 +298,20 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
     best_file = run / "best_model.pt"
 
     while state.num_timesteps < budget:
-        # ---- rollout: n_steps steps of every slot with the current policy (inference mode: no
-        # autograd bookkeeping on the rollout's small tensors; the buffers are ordinary tensors)
-        with torch.inference_mode(), nets.fixed_parameters():
+        # ---- rollout: n_steps steps of every slot with the current policy
+        with torch.inference_mode(), blas_threads(torch.get_num_threads()):
             gumbel_buf.uniform_(generator=generator).log_().neg_().log_()
             for t in range(n_steps):
-                masks = torch.from_numpy(env.action_masks()) if mask_buf is not None else None
-                logits, values = nets.forward(obs, keep=False)
-                if masks is not None:
-                    logits = logits.masked_fill(~masks, MASKED_LOGIT)
-                actions = torch.sub(logits, gumbel_buf[t]).argmax(-1)  # Gumbel-max: a sample
-                obs_buf[t] = obs
-                act_buf[t] = actions
-                torch.gather(torch.log_softmax(logits, -1), -1, actions[:, None], out=logp_buf[t, :, None])
-                val_buf[t] = values
+                masks = env.action_masks() if mask_buf is not None else no_masks
+                obs_np[t] = obs
+                act(flat_param, layout, actor_layers, obs_np[t], gumbel_np[t], masks, MASKED_LOGIT, act_np[t],
+                    logp_np[t], val_np[t])
                 start_buf[t] = episode_start
-                if masks is not None:
-                    mask_buf[t] = masks
-                executed = actions.numpy()
+                if mask_buf is not None:
+                    mask_buf[t] = torch.from_numpy(masks)
+                executed = act_np[t]
                 if model.own_check is not None:  # the agents' own check: the environment the policy learns in
-                    executed = np.where(own_deadline_due(obs.numpy(), **model.own_check), 1, executed)
+                    executed = np.where(own_deadline_due(obs, **model.own_check), 1, executed)
                 next_obs, rewards, dones, infos = env.step(executed)
                 rewards = torch.from_numpy(rewards)
                 if dones.any():
@@ -323,7 +323,7 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
                         rewards[cut] += gamma * model.value(last)
                 rew_buf[t] = rewards
                 episode_start = torch.from_numpy(dones.astype(np.float32))
-                obs = torch.from_numpy(next_obs)
+                obs = next_obs
                 state.num_timesteps += slots
                 # the plant's return of every training episode (the best-model criterion)
                 plant_reward, sim_done = env.last_plant_step()
@@ -334,7 +334,8 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
                     for b in np.flatnonzero(sim_done).tolist():
                         progress.add_episode(float(episode_return[b]), int(episode_length[b]), bool(truncated[b]))
                         episode_return[b], episode_length[b] = 0.0, 0
-            last_value = nets.forward(obs, keep=False)[1]
+            act(flat_param, layout, actor_layers, np.ascontiguousarray(obs, np.float32), gumbel_np[0],
+                no_masks, MASKED_LOGIT, spare_actions, spare_logp, last_value.numpy())
 
             compute_gae(rew_buf, val_buf, start_buf, last_value, episode_start, gamma, hp.gae_lambda, out=adv_buf)
             ret_buf = adv_buf + val_buf
@@ -347,7 +348,7 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
                 group["lr"] = hp.learning_rate * max(1.0 - (steps - slots * n_steps) / budget, 0.0)
         diagnostics = update(model, optimizer, hp, generator, obs_buf.view(-1, obs_size), act_buf.view(-1),
                              logp_buf.view(-1), adv_buf.view(-1), ret_buf.view(-1),
-                             mask_buf.view(-1, n_actions) if mask_buf is not None else None, nets=nets, bc=bc,
+                             mask_buf.view(-1, n_actions) if mask_buf is not None else None, bc=bc,
                              bc_weight=0.0 if bc is None else bc.weight_at(steps - slots * n_steps))
         diagnostics["explained_variance"] = explained_variance(val_buf.view(-1), ret_buf.view(-1))
         log_rollout(run, progress, steps, clock.wall(), saved_best, diagnostics)
@@ -403,63 +404,26 @@ class BehaviourCloning:
         return self.coef * 0.5 ** (max(timesteps - self.start_timesteps, 0) / self.half_life)
 
 
-def behaviour_cloning_gradients(logits: torch.Tensor, labels: torch.Tensor, weight: float) -> torch.Tensor:
-    """d/dz of ``weight`` × mean cross-entropy(z, labels) over the B rows of ``logits`` z [B, A]:
-    weight / B × (softmax(z) − onehot(labels))."""
-    g = torch.softmax(logits, -1).mul_(weight / logits.shape[0])
-    g.scatter_add_(-1, labels[:, None], torch.full((logits.shape[0], 1), -weight / logits.shape[0]))
-    return g
-
-
-def update(model: ActorCritic, optimizer, hp: PPOArgs, generator, obs, actions, old_logp, advantages, returns,
-           masks=None, nets: MLPGradients | None = None, bc: BehaviourCloning | None = None,
-           bc_weight: float = 0.0) -> dict[str, float]:
+def update(model: ActorCritic, optimizer: FlatAdam, hp: PPOArgs, generator, obs, actions, old_logp, advantages,
+           returns, masks=None, bc: BehaviourCloning | None = None, bc_weight: float = 0.0) -> dict[str, float]:
     """``hp.n_epochs`` passes over one rollout's samples (flattened) in shuffled minibatches of about
     ``hp.minibatch_size`` (the rollout split into equal parts): SB3's clipped surrogate + ``vf_coef`` ×
     value MSE − ``ent_coef`` × entropy, advantages normalised per minibatch, gradient norm clipped, one
-    Adam step per minibatch.
+    Adam step per minibatch of ``optimizer`` (the :class:`FlatAdam` over the model's parameters).
 
     With ``bc`` and a ``bc_weight`` > 0, each minibatch's step also descends ``bc_weight`` × the
-    cross-entropy on as many of ``bc``'s samples (one forward and backward of both together; the value
+    cross-entropy on as many of ``bc``'s samples (drawn with replacement from ``generator``; the value
     network gets no gradient from them); the gradient clip covers the sum.
 
-    Returns the update's diagnostics, as SB3 logs them (means over its minibatches): the policy's
-    ``entropy`` (nats), ``approx_kl`` (the estimator E[(r - 1) - log r] of the ratio r) and the
-    ``clip_fraction`` (share of samples whose ratio left the clip range)."""
-    total = obs.shape[0]
+    The whole update is one compiled call (:func:`~containergym_marl.training.ppo_kernel.ppo_update`).
+    Returns the update's diagnostics,
+    as SB3 logs them (means over its minibatches): the policy's ``entropy`` (nats), ``approx_kl`` (the
+    estimator E[(r - 1) - log r] of the ratio r) and the ``clip_fraction`` (share of samples whose
+    ratio left the clip range)."""
     # equal minibatches of about minibatch_size: a rollout of 4160 samples is 4 of 1040, not 4 of 1024
     # and a last one of 64 whose normalised advantages and Adam step would rest on a handful of samples
-    minibatches = max(1, round(total / hp.minibatch_size))
-    nets = nets or MLPGradients(model, optimizer)  # the gradients written out (ppo_gradients.py)
-    sums = torch.zeros(3)  # entropy, approx_kl, clip_fraction, summed over minibatches
-    count = 0
-    for _ in range(hp.n_epochs):
-        order = torch.randperm(total, generator=generator)
-        for idx in torch.tensor_split(order, minibatches):
-            batch = obs.index_select(0, idx)
-            if bc_weight > 0:
-                cloned = torch.randint(bc.labels.shape[0], (len(idx),), generator=generator)
-                logits, values = nets.forward(torch.cat([batch, bc.obs.index_select(0, cloned)]))
-                bc_logits, logits, values = logits[len(idx):], logits[:len(idx)], values[:len(idx)]
-            else:
-                logits, values = nets.forward(batch)
-            adv = advantages.index_select(0, idx)
-            if hp.normalize_advantage and len(idx) > 1:
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-            g_logits, g_values, diagnostics = ppo_loss_gradients(
-                logits, values, actions.index_select(0, idx), old_logp.index_select(0, idx), adv,
-                returns.index_select(0, idx), hp.clip_range, hp.vf_coef, hp.ent_coef,
-                None if masks is None else masks.index_select(0, idx))
-            if bc_weight > 0:
-                g_bc = behaviour_cloning_gradients(bc_logits, bc.labels.index_select(0, cloned), bc_weight)
-                g_logits, g_values = torch.cat([g_logits, g_bc]), torch.cat([g_values, g_values.new_zeros(len(idx))])
-            nets.backward(g_logits, g_values)
-            nets.clip_grad_norm_(hp.max_grad_norm)
-            optimizer.step()
-            sums += torch.stack(list(diagnostics.values()))
-            count += 1
-    entropy, approx_kl, clip_fraction = (sums / count).tolist()
-    return {"entropy": entropy, "approx_kl": approx_kl, "clip_fraction": clip_fraction}
+    return run_update(model, optimizer, hp, generator, obs, actions, old_logp, advantages, returns, masks,
+                      bc=bc, bc_weight=bc_weight)
 
 
 def save_if_best(best_file: Path, model: ActorCritic, progress: TrainingProgress, steps: int) -> bool:
@@ -556,5 +520,5 @@ OWN_CHECK_SETTINGS = {"own_check_risk": OWN_CHECK_RISK, "own_check_lead_steps": 
 CHECKED_TRAINER = PPOTrainer(defaults=OWN_CHECK_SETTINGS)
 
 __all__ = ["BehaviourCloning", "CHECKED_TRAINER", "OWN_CHECK_SETTINGS", "PPOArgs", "PPOTrainer", "TRAINER", "TrainingState", "batch_memory",
-           "behaviour_cloning_gradients", "coerce_setting", "compute_gae", "explained_variance", "learn",
+           "coerce_setting", "compute_gae", "explained_variance", "learn",
            "load_checkpoint", "log_rollout", "new_state", "save_final", "save_if_best", "state_from_model", "update"]

@@ -165,7 +165,7 @@ def test_trainer_profile_smoke_accounts_for_the_whole_run(tmp_path):
     assert result["minibatches"] == max(1, round(samples / settings.get("minibatch_size", 1024)))
     assert result["run_samples"] == samples  # the whole run: one rollout of the same shape
     phases = result["us_per_sample"]
-    assert {"env step", "GAE", "update: backward", "update: Adam"} <= set(phases)
+    assert {"env step", "policy step (forward, sample, log-probability)", "GAE", "update (one compiled call)"} <= set(phases)
     assert sum(phases.values()) == pytest.approx(result["whole_us_per_sample"])
     assert "| **whole run** |" in proc.stdout
     assert out_md.read_text().strip() in proc.stdout and "load average before" in out_md.read_text()

@@ -18,6 +18,7 @@ from containergym_marl.evaluation import EvalProtocol
 from containergym_marl.evaluation.run_policies import evaluate_run, policy_from_run
 from containergym_marl.policies.actor_critic import ActorCritic
 from containergym_marl.training import TrainArgs, train
+from containergym_marl.training.ppo_kernel import FlatAdam
 from containergym_marl.training.fast_ppo import PPOArgs, compute_gae, explained_variance, learn, load_checkpoint, update
 from containergym_marl.rundir import UPDATE_FIELDS, checkpoints, read_metrics, read_run_summary, run_args
 from containergym_marl.training.checkpoints import read_progress
@@ -76,7 +77,7 @@ def test_gae_and_one_update_equal_sb3_ppo(view, tmp_path):
     np.testing.assert_allclose(advantages.numpy(), per_step(buf.advantages), rtol=1e-5, atol=1e-5)
 
     hp = PPOArgs(minibatch_size=total, n_epochs=1)
-    optimizer = torch.optim.Adam(ours.net.parameters(), lr=3e-4, eps=1e-5)
+    optimizer = FlatAdam(ours.net.parameters(), lr=3e-4, eps=1e-5)  # torch's Adam rule, as SB3's
     diagnostics = update(ours, optimizer, hp, torch.Generator().manual_seed(0), t(buf.observations).reshape(total, -1),
                          torch.as_tensor(buf.actions.reshape(-1), dtype=torch.long), t(buf.log_probs).reshape(-1),
                          t(buf.advantages).reshape(-1), t(buf.returns).reshape(-1))
@@ -145,12 +146,12 @@ def test_update_diagnostics_by_hand():
     old_logp = before.gather(-1, actions[:, None]).squeeze(-1)
     advantages = torch.linspace(-1, 1, 8)
     hp = PPOArgs(minibatch_size=8, n_epochs=2, learning_rate=0.05, clip_range=0.01)
-    optimizer = torch.optim.Adam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps)
+    optimizer = FlatAdam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps)
     snapshot = ActorCritic.from_dict(model.to_dict(), "test")
     got = update(model, optimizer, hp, torch.Generator().manual_seed(0), obs, actions, old_logp, advantages,
                  torch.zeros(8))
     # replay: the second pass's policy is the one after the first Adam step, found by stepping a copy
-    replay_opt = torch.optim.Adam(snapshot.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps)
+    replay_opt = FlatAdam(snapshot.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps)
     update(snapshot, replay_opt, PPOArgs(minibatch_size=8, n_epochs=1, learning_rate=0.05, clip_range=0.01),
            torch.Generator().manual_seed(0), obs, actions, old_logp, advantages, torch.zeros(8))
     with torch.no_grad():
@@ -226,9 +227,10 @@ def test_time_limit_share_counts_overflows_apart():
     assert TrainingProgress.from_json(p.to_json()).truncated == p.truncated
 
 
-def test_annealed_step_size_falls_linearly_to_zero(tmp_path):
+def test_annealed_step_size_falls_linearly_to_zero(tmp_path, monkeypatch):
     """With anneal_lr the update after k rollouts of S samples steps with lr x (1 - k S / budget)."""
     from containergym_marl.envs.vector import ContainerAgentsVecEnv
+    from containergym_marl.training import fast_ppo
     from containergym_marl.training.checkpoints import TrainingProgress
     from containergym_marl.training.fast_ppo import new_state
 
@@ -237,8 +239,9 @@ def test_annealed_step_size_falls_linearly_to_zero(tmp_path):
     state = new_state(env, hp, "decentralised", 0, {})
     budget = 400  # four rollouts of 100 samples
     seen = []
-    step = state.optimizer.step
-    state.optimizer.step = lambda *a, **k: (seen.append(state.optimizer.param_groups[0]["lr"]), step(*a, **k))[1]
+    run_update = fast_ppo.run_update  # the step size each update's Adam steps take
+    monkeypatch.setattr(fast_ppo, "run_update", lambda model, optimizer, *a, **k: (
+        seen.append(optimizer.param_groups[0]["lr"]), run_update(model, optimizer, *a, **k))[1])
     learn(tmp_path, state, env, budget, 0.99, hp, TrainingProgress(), interval=10**9)
     assert sorted(set(seen), reverse=True) == pytest.approx([1e-3, 0.75e-3, 0.5e-3, 0.25e-3])
 
@@ -454,21 +457,22 @@ def test_the_same_model_makes_the_same_safetensors_bytes(tmp_path):
     assert all(torch.equal(plain[k], v) for k, v in model.net.state_dict().items())
 
 
-def test_a_rollout_is_split_into_equal_minibatches(monkeypatch):
+def test_a_rollout_is_split_into_equal_minibatches():
     """4160 samples with minibatches of about 1024: four Adam steps on 1040 samples each per epoch
-    (SB3's slicing would take four of 1024 and a fifth of 64)."""
-    from containergym_marl.training.ppo_gradients import MLPGradients
+    (SB3's slicing would take four of 1024 and a fifth of 64); the cuts are torch.tensor_split's."""
+    from containergym_marl.training.ppo_kernel import split_bounds
 
+    assert split_bounds(4160, 4).tolist() == [0, 1040, 2080, 3120, 4160]
+    for total, parts in ((4160, 4), (2112, 2), (6144, 96), (37, 5), (5, 5)):
+        sizes = [len(part) for part in torch.tensor_split(torch.arange(total), parts)]
+        assert np.diff(split_bounds(total, parts)).tolist() == sizes
     model = ActorCritic("decentralised", 3, 2, generator=torch.Generator().manual_seed(1))
-    sizes = []
-    forward = MLPGradients.forward
-    monkeypatch.setattr(MLPGradients, "forward", lambda self, obs: (sizes.append(obs.shape[0]), forward(self, obs))[1])
-    optimizer = torch.optim.Adam(model.net.parameters(), lr=1e-4)
+    optimizer = FlatAdam(model.net.parameters(), lr=1e-4, eps=1e-5)
     total = 4160
     update(model, optimizer, PPOArgs(minibatch_size=1024, n_epochs=2), torch.Generator().manual_seed(0),
            torch.randn(total, 3), torch.randint(0, 2, (total,)), torch.full((total,), -0.69), torch.randn(total),
            torch.zeros(total))
-    assert sizes == [1040] * 8
+    assert optimizer.steps == 8
 
 
 def test_a_version_1_checkpoint_resumes_its_torch_adam_state_on_the_flat_adam(tmp_path):
