@@ -34,19 +34,37 @@ import torch
 
 from containergym_marl.files import atomic_write_text
 from containergym_marl.training import fast_ppo
+from containergym_marl.training.ppo_kernel import FlatAdam
 
 #: the trainer's own update and optimiser
 COMPILED = (fast_ppo.update, fast_ppo._optimizer)
 VARIANTS = ("compiled", "autograd")
 
 
-def autograd_update(model, optimizer, hp, generator, obs, actions, old_logp, advantages, returns, masks=None,
-                    nets=None, bc=None, bc_weight: float = 0.0) -> dict[str, float]:
+class AutogradAdam(FlatAdam):
+    """torch's fused Adam over the parameters, which stay views of one flat buffer as the trainer's own
+    optimiser leaves them (the rollout's compiled policy step reads them there); its state is torch's."""
+
+    def __init__(self, params, lr: float, eps: float):
+        super().__init__(params, lr=lr, eps=eps)
+        self.adam = torch.optim.Adam(self.params, lr=lr, eps=eps, fused=True)
+
+    def state_dict(self):
+        return self.adam.state_dict()
+
+    def load_state_dict(self, state) -> None:
+        self.adam.load_state_dict(state)
+
+
+def autograd_update(model, optimizer: AutogradAdam, hp, generator, obs, actions, old_logp, advantages, returns,
+                    masks=None, bc=None, bc_weight: float = 0.0) -> dict[str, float]:
     """``fast_ppo.update`` through autograd: the loss built from the networks' modules, ``backward``,
-    ``clip_grad_norm_``; the same minibatches and epochs from the same generator. PPO alone: the
-    behaviour-cloning term of a DAgger fine-tuning (``bc_weight`` > 0) is not part of the comparison."""
+    ``clip_grad_norm_`` and torch's Adam at the trainer's step size; the same minibatches and epochs
+    from the same generator. PPO alone: the behaviour-cloning term of a DAgger fine-tuning
+    (``bc_weight`` > 0) is not part of the comparison."""
     if bc_weight > 0:
         raise ValueError("autograd_update: the reference update has no behaviour-cloning term")
+    optimizer.adam.param_groups[0]["lr"] = optimizer.param_groups[0]["lr"]  # the trainer's schedule
     total = obs.shape[0]
     minibatches = max(1, round(total / hp.minibatch_size))
     params = list(model.net.parameters())
@@ -68,7 +86,7 @@ def autograd_update(model, optimizer, hp, generator, obs, actions, old_logp, adv
                 p.grad = None
             loss.backward()
             torch.nn.utils.clip_grad_norm_(params, hp.max_grad_norm)
-            optimizer.step()
+            optimizer.adam.step()
             with torch.no_grad():
                 sums += torch.stack([entropy, ((ratio - 1) - log_ratio).mean(),
                                      ((ratio - 1).abs() > hp.clip_range).float().mean()])
@@ -77,9 +95,9 @@ def autograd_update(model, optimizer, hp, generator, obs, actions, old_logp, adv
     return {"entropy": entropy, "approx_kl": approx_kl, "clip_fraction": clip_fraction}
 
 
-def autograd_optimizer(model, hp):
-    """The optimiser the trainer used before its flat Adam: torch's fused Adam over the parameters."""
-    return torch.optim.Adam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps, fused=True)
+def autograd_optimizer(model, hp) -> AutogradAdam:
+    """torch's fused Adam over the parameters (:class:`AutogradAdam`)."""
+    return AutogradAdam(model.net.parameters(), lr=hp.learning_rate, eps=hp.adam_eps)
 
 
 def use_update(variant: str):
