@@ -104,6 +104,25 @@ def _backward(flat, grad, layout, first, last, acts, g):
 
 
 @nb.njit(cache=True, error_model="numpy")
+def _log_softmax(z, masks, row, masked_logit, out):
+    """``out`` = log softmax of the logits ``z`` (set to ``masked_logit`` in place where ``masks[row]``
+    is False; ``masks`` [0, A] for none)."""
+    if masks.shape[0] > 0:
+        for j in range(z.shape[0]):
+            if not masks[row, j]:
+                z[j] = masked_logit
+    top = z[0]
+    for j in range(1, z.shape[0]):
+        top = max(top, z[j])
+    total = np.float32(0.0)
+    for j in range(z.shape[0]):
+        total += np.exp(z[j] - top)
+    log_total = np.log(total)
+    for j in range(z.shape[0]):
+        out[j] = z[j] - top - log_total
+
+
+@nb.njit(cache=True, error_model="numpy")
 def act(flat, layout, actor_layers, obs, gumbel, masks, masked_logit, actions, log_probs, values):
     """The rollout's step of the policy on ``obs`` [S, F]: the actor's logits (``masks`` [S, A] False
     set to ``masked_logit``; [0, A] for none), the action of highest logit + Gumbel noise (``gumbel``
@@ -114,23 +133,16 @@ def act(flat, layout, actor_layers, obs, gumbel, masks, masked_logit, actions, l
     acts_critic = [np.empty((0, 0), np.float32) for _ in range(n_layers - actor_layers)]
     logits = _forward(flat, layout, 0, actor_layers, obs, acts_actor)
     critic = _forward(flat, layout, actor_layers, n_layers, obs, acts_critic)
-    has_masks = masks.shape[0] > 0
+    logp = np.empty(logits.shape[1], np.float32)
     for r in range(obs.shape[0]):
         z = logits[r]
-        if has_masks:
-            for j in range(z.shape[0]):
-                if not masks[r, j]:
-                    z[j] = masked_logit
-        best, top = 0, z[0]
+        _log_softmax(z, masks, r, masked_logit, logp)
+        best = 0
         for j in range(1, z.shape[0]):
-            top = max(top, z[j])
             if z[j] - gumbel[r, j] > z[best] - gumbel[r, best]:
                 best = j
-        total = np.float32(0.0)
-        for j in range(z.shape[0]):
-            total += np.exp(z[j] - top)
         actions[r] = best
-        log_probs[r] = z[best] - top - np.log(total)
+        log_probs[r] = logp[best]
         values[r] = critic[r, 0]
 
 
@@ -152,7 +164,7 @@ def ppo_update(flat, grad, exp_avg, exp_avg_sq, layout, actor_layers, obs, actio
     sums = np.zeros(3)
     acts_actor = [np.empty((0, 0), np.float32) for _ in range(actor_layers)]
     acts_critic = [np.empty((0, 0), np.float32) for _ in range(n_layers - actor_layers)]
-    has_masks = masks.shape[0] > 0
+    no_masks = masks[:0]  # the demonstrations' logits are not masked
     for e in range(orders.shape[0]):
         for k in range(bounds.shape[0] - 1):
             lo, hi = bounds[k], bounds[k + 1]
@@ -189,20 +201,7 @@ def ppo_update(flat, grad, exp_avg, exp_avg_sq, layout, actor_layers, obs, actio
             logp = np.empty(n_actions, np.float32)
             for r in range(b):
                 row = orders[e, lo + r]
-                z = logits[r]
-                if has_masks:
-                    for j in range(n_actions):
-                        if not masks[row, j]:
-                            z[j] = masked_logit
-                top = z[0]
-                for j in range(1, n_actions):
-                    top = max(top, z[j])
-                total = np.float32(0.0)
-                for j in range(n_actions):
-                    total += np.exp(z[j] - top)
-                log_total = np.log(total)
-                for j in range(n_actions):
-                    logp[j] = z[j] - top - log_total
+                _log_softmax(logits[r], masks, row, masked_logit, logp)
                 a = actions[row]
                 log_ratio = logp[a] - old_logp[row]
                 ratio = np.exp(log_ratio)
@@ -231,15 +230,9 @@ def ppo_update(flat, grad, exp_avg, exp_avg_sq, layout, actor_layers, obs, actio
             if cloned:  # d/dz of bc_weight × mean cross-entropy: bc_weight / rows × (softmax(z) - onehot)
                 w = np.float32(bc_weight / nb_rows)
                 for r in range(b, b + nb_rows):
-                    z = logits[r]
-                    top = z[0]
-                    for j in range(1, n_actions):
-                        top = max(top, z[j])
-                    total = np.float32(0.0)
+                    _log_softmax(logits[r], no_masks, 0, masked_logit, logp)
                     for j in range(n_actions):
-                        total += np.exp(z[j] - top)
-                    for j in range(n_actions):
-                        g_logits[r, j] = np.exp(z[j] - top) / total * w
+                        g_logits[r, j] = np.exp(logp[j]) * w
                     g_logits[r, bc_labels[bc_rows[e, lo + r - b]]] -= w
 
             _backward(flat, grad, layout, 0, actor_layers, acts_actor, g_logits)
