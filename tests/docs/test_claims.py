@@ -110,8 +110,11 @@ def native_team_below():
                   == method_settings(method, load_config(c).n_containers)
                   for method in ("fast_shared_ppo", "fast_shared_ppo_team") for c in configs
                   for run in PUBLISHED.glob(f"runs/{method}_{c}_s*"))
-    return at_file and all(rows()[(c, "fast_shared_ppo_team")][k] < rows()[(c, "fast_shared_ppo")][k]
-                           for c in configs for k in ("iqm", "fresh_iqm"))
+    close = "n5_m2_dt60"
+    return at_file and all(
+        abs(rows()[(c, "fast_shared_ppo_team")][k] - rows()[(c, "fast_shared_ppo")][k]) < 0.5 if c == close
+        else rows()[(c, "fast_shared_ppo_team")][k] < rows()[(c, "fast_shared_ppo")][k]
+        for c in configs for k in ("iqm", "fresh_iqm"))
 
 
 def checked_policy():
@@ -181,7 +184,8 @@ FINDINGS = {
     "rewards; it lies below on `n5_m5_dt120`, `n11_m11_dt120` and `n16_m2_dt120`, and the two overlap on "
     "the other rows.": team_no_better,
     "The package's own shared PPO, each at its settings file, scores a lower IQM with the team reward than with "
-    "individual rewards on every row, on the test and on the fresh episodes.": native_team_below,
+    "individual rewards on every row but `n5_m2_dt60`, on the test and on the fresh episodes; there the two are "
+    "within half a point.": native_team_below,
     "SB3's PPO with the paper's settings has its median seed (ranked on the test episodes, as the paper ranks its "
     "seeds) within 5 points of the paper's median PPO seed on the four δ = 120 s paper rows (3–5 seeds here, 15 "
     "in the paper). The rollout planner scores above every learned method's IQM on every row.": paper_ppo_and_planner,
