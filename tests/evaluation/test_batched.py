@@ -25,9 +25,10 @@ EPISODES = EvalProtocol(episodes=12, first_seed=30_000)
 
 # (run, its first fresh episodes compared, whether they include an overflow as well as time-limit ends):
 # enough episodes for both ends where the policy overflows early in the range, four where it never does
+# (published runs: a republished method may need another seed here, one whose first episodes still have both ends)
 COMPARED = [("fast_shared_ppo_n11_m2_dt120_s3", 4, False), ("fast_ppo_n11_m2_dt120_s2", 6, True),
             ("ppo_n11_m2_dt120_s1", 6, True), ("shared_ppo_n11_m2_dt120_s2", 4, False),
-            ("mappo_n11_m2_dt120_s2", 6, True), ("fast_shared_ppo_team_n5_m2_dt60_s3", 4, True)]
+            ("mappo_n11_m2_dt120_s2", 6, True), ("fast_shared_ppo_team_n5_m2_dt60_s2", 4, True)]
 
 
 @pytest.mark.parametrize("run, episodes, overflows", COMPARED)
@@ -53,7 +54,7 @@ def test_batched_evaluation_equals_the_one_environment_evaluation(run, episodes,
 
 def test_some_of_those_episodes_overflow_and_some_do_not():
     """The comparison above covers both ends of an episode: an overflow and the time limit."""
-    result = evaluate_batched(policy_from_run(RUNS / "fast_shared_ppo_team_n5_m2_dt60_s3"), "n5_m2_dt60", EPISODES)
+    result = evaluate_batched(policy_from_run(RUNS / "fast_shared_ppo_team_n5_m2_dt60_s2"), "n5_m2_dt60", EPISODES)
     ends = {e.overflow for e in result.episodes}
     assert ends == {True, False}, [e.steps for e in result.episodes]
 
