@@ -416,12 +416,9 @@ def update(model: ActorCritic, optimizer: FlatAdam, hp: PPOArgs, generator, obs,
     network gets no gradient from them); the gradient clip covers the sum.
 
     The whole update is one compiled call (:func:`~containergym_marl.training.ppo_kernel.ppo_update`).
-    Returns the update's diagnostics,
-    as SB3 logs them (means over its minibatches): the policy's ``entropy`` (nats), ``approx_kl`` (the
-    estimator E[(r - 1) - log r] of the ratio r) and the ``clip_fraction`` (share of samples whose
-    ratio left the clip range)."""
-    # equal minibatches of about minibatch_size: a rollout of 4160 samples is 4 of 1040, not 4 of 1024
-    # and a last one of 64 whose normalised advantages and Adam step would rest on a handful of samples
+    Returns the update's diagnostics, as SB3 logs them (means over its minibatches): the policy's
+    ``entropy`` (nats), ``approx_kl`` (the estimator E[(r - 1) - log r] of the ratio r) and the
+    ``clip_fraction`` (share of samples whose ratio left the clip range)."""
     return run_update(model, optimizer, hp, generator, obs, actions, old_logp, advantages, returns, masks,
                       bc=bc, bc_weight=bc_weight)
 

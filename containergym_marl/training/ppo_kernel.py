@@ -375,6 +375,8 @@ def run_update(model, optimizer, hp, generator: torch.Generator, obs, actions, o
         raise TypeError(f"update: the optimiser must be a FlatAdam over the model's parameters, "
                         f"got {type(optimizer).__name__}")
     total = obs.shape[0]
+    # equal minibatches of about minibatch_size: a rollout of 4160 samples is 4 of 1040, not 4 of 1024
+    # and a last one of 64 whose normalised advantages and Adam step would rest on a handful of samples
     minibatches = max(1, round(total / hp.minibatch_size))
     bounds = split_bounds(total, minibatches)
     cloned = bc_weight > 0
