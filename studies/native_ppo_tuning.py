@@ -25,9 +25,11 @@ A setting the sampler proposes again after a trial judged it takes that trial's 
 ``(= trial N)`` in the table) without training; each setting counts once in the median. A pruned
 setting may have been stopped by noise when close to the median: ``--finalists K`` queues the K
 settings (judged on at least the first four runs) that beat the default by most on the runs both did
-again as *finalists*, which are never pruned and so are judged on every run, their earlier runs reused. A new search can start
-from another's results: ``--start-from fast_shared_ppo:3`` queues that search's three best
-settings after the default (``fast_shared_ppo_team`` and ``fast_ppo`` need not search from scratch).
+again as *finalists*, which are never pruned and so are judged on every run, their earlier runs reused. A search can start
+from another method's results in the same space: ``--start-from fast_shared_ppo:3`` queues that search's three best
+settings (``fast_shared_ppo_team`` and ``fast_ppo`` need not search from scratch); with ``--space wide`` it reads
+that method's wide search. On a search under way it queues only settings none of its trials has, so the same
+command run again queues nothing more.
 
 **What is recorded.** Every trial, its settings, state, each run's validation return, overflowing
 validation episodes, the validation return of the checkpoint nearest half the budget, and its
@@ -171,6 +173,12 @@ def suggest(trial, space: dict[str, Any] = SPACE) -> dict[str, Any]:
 def settings_key(hp: dict[str, Any]) -> str:
     """A short name for a setting (its runs' folder): the same setting always gets the same one."""
     return hashlib.sha256(json.dumps(hp, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def trial_settings(trial) -> dict[str, Any]:
+    """A trial's setting: its parameters, or Optuna's fixed parameters while it is queued (or was killed
+    before its first suggestion)."""
+    return dict(trial.params or trial.system_attrs.get("fixed_params", {}))
 
 
 def rule_returns(rows, cache: Path) -> dict[str, float]:
@@ -339,14 +347,13 @@ def enqueue_finalists(study, count: int, min_runs: int) -> list[int]:
     new finalists come from."""
     optuna = require_optuna()
     alive = (optuna.trial.TrialState.WAITING, optuna.trial.TrialState.RUNNING, optuna.trial.TrialState.COMPLETE)
-    count -= len({settings_key(t.params or t.system_attrs.get("fixed_params", {}))
+    count -= len({settings_key(trial_settings(t))
                   for t in study.get_trials(deepcopy=False) if t.user_attrs.get("finalist") and t.state in alive})
     if count <= 0:
         return []
     complete = {settings_key(t.params) for t in study.get_trials(deepcopy=False)
                 if t.state == optuna.trial.TrialState.COMPLETE}
-    # a queued trial's setting is in its fixed params until a worker takes it
-    queued = {settings_key(t.params or t.system_attrs.get("fixed_params", {}))
+    queued = {settings_key(trial_settings(t))
               for t in study.get_trials(deepcopy=False)
               if t.state in (optuna.trial.TrialState.WAITING, optuna.trial.TrialState.RUNNING)}
     best: dict[str, Any] = {}
@@ -400,8 +407,7 @@ def requeue_interrupted(study) -> int:
         attrs = {"requeued_from": t.number,
                  **{k: t.user_attrs[k] for k in ("default", "finalist", "finalist_of", "in_full", "start_from")
                     if k in t.user_attrs}}
-        # a trial killed before its first suggestion has its settings only in the fixed parameters
-        study.enqueue_trial(t.params or t.system_attrs.get("fixed_params", {}), user_attrs=attrs)
+        study.enqueue_trial(trial_settings(t), user_attrs=attrs)
     return len(stale)
 
 
@@ -413,8 +419,7 @@ def trial_rows(study) -> list[dict[str, Any]]:
         runs = [v for k, v in sorted(t.user_attrs.items()) if k.startswith("run_")]
         out.append({"number": t.number, "state": t.state.name, "duplicate_of": t.user_attrs.get("duplicate_of"),
                     "finalist_of": t.user_attrs.get("finalist_of"), "start_from": t.user_attrs.get("start_from"),
-                    # a queued trial's settings are Optuna's fixed parameters until a worker takes it
-                    "params": t.params or dict(t.system_attrs.get("fixed_params", {})), "value": t.value,
+                    "params": trial_settings(t), "value": t.value,
                     "runs": runs, "mean_score": float(np.mean([r["score"] for r in runs])) if runs else None,
                     "overflowing_episodes": sum(r["overflowing_episodes"] for r in runs),
                     "half_budget_score": _nanmean([r["half_budget_score"] for r in runs]),
@@ -821,8 +826,8 @@ def main(argv=None) -> None:
                    help="first queue the K settings not yet judged on every run that beat the default by most on "
                         "the runs both did (at least the first 4) as finalists, which the pruner never stops")
     p.add_argument("--start-from", default=None, metavar="METHOD:K",
-                   help="a new search's first trials after the default: the K best settings of METHOD's search "
-                        "(its journal under --out), e.g. fast_shared_ppo:3 for fast_shared_ppo_team")
+                   help="queue the K best settings of METHOD's search in the same space (its journal under --out) "
+                        "that this search has not tried, e.g. fast_shared_ppo:3 for fast_shared_ppo_team")
     p.add_argument("--guards", action="store_true",
                    help="train nothing new for the search: train and validate the default and the best finished "
                         f"trial's setting on the regression guards ({', '.join(GUARD_ROWS)}) with the same seeds")
@@ -852,12 +857,15 @@ def main(argv=None) -> None:
     # whose runs it reuses; the runs of both share one folder per setting
     parent_out = out if ns.space != "default" else None
     if parent_out is not None:
-        if ns.start_from:
-            p.error(f"--start-from: a search in the {ns.space} space starts from this method's first search")
         if not (parent_out / "journal.log").is_file() and not ns.smoke:
             p.error(f"--space {ns.space}: starts from the first search's journal, {parent_out / 'journal.log'} "
                     "is missing")
         out = out / ns.space
+    if ns.start_from:  # another method's search in the same space: its settings are points of this one
+        other, _, count = ns.start_from.partition(":")
+        source_journal = Path(ns.out) / other / ("" if parent_out is None else ns.space) / "journal.log"
+        if other == ns.method or not source_journal.is_file():
+            p.error(f"--start-from: no other search {other!r} in the {ns.space} space ({source_journal})")
     out.mkdir(parents=True, exist_ok=True)
     rows, seeds, timesteps, total = ROWS, SEEDS, None, ns.trials or 40
     if ns.smoke:  # two rollouts of about 4096 samples: a checkpoint after the first, at half the budget
@@ -904,14 +912,13 @@ def main(argv=None) -> None:
                                                                       "in_full": True})
                     study.enqueue_trial(SB3_SHAPE_TRIAL, user_attrs={"start_from": "SB3's update shape",
                                                                      "in_full": True})
-                if ns.start_from:
-                    other, _, count = ns.start_from.partition(":")
-                    if other == ns.method or not (out.parent / other / "journal.log").is_file():
-                        p.error(f"--start-from: no other search {other!r} under {out.parent}")
-                    source = open_study(other, out.parent / other / "journal.log", 0, read_only=True)
-                    for number, params in best_settings(source, int(count or 3), min_runs=len(rows)):
-                        if params != DEFAULT_TRIAL:
-                            study.enqueue_trial(params, user_attrs={"start_from": f"{other} trial {number}"})
+            if ns.start_from:  # queued once: a setting some trial of this search has is not queued again
+                source = open_study(other, source_journal, 0, read_only=True)
+                present = {settings_key(trial_settings(t))
+                           for t in study.get_trials(deepcopy=False)}
+                for number, params in best_settings(source, int(count or 3), min_runs=len(rows)):
+                    if settings_key(params) not in present:
+                        study.enqueue_trial(params, user_attrs={"start_from": f"{other} trial {number}"})
             done = sum(t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
                        for t in study.get_trials(deepcopy=False))
             if ns.finalists:

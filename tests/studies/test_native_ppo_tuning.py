@@ -223,16 +223,12 @@ def test_the_wide_space_holds_every_setting_of_the_first_and_sb3s_update_shape()
     assert script.suggest(study.ask(), script.WIDE_SPACE) == script.SB3_SHAPE_TRIAL
 
 
-@pytest.mark.parametrize("extra,match", [
-    ([], "starts from the first search's journal"),
-    (["--start-from", "fast_shared_ppo:2"], "--start-from: a search in the wide space"),
-])
-def test_a_wide_search_without_its_first_search_is_refused_before_anything_is_written(tmp_path, capsys, extra, match):
+def test_a_wide_search_without_its_first_search_is_refused_before_anything_is_written(tmp_path, capsys):
     script = _load_script()
     with pytest.raises(SystemExit):
         script.main(["--method", "fast_shared_ppo", "--space", "wide", "--out", str(tmp_path / "out"),
-                     "--runs", str(tmp_path / "runs"), *extra])
-    assert match in capsys.readouterr().err
+                     "--runs", str(tmp_path / "runs")])
+    assert "starts from the first search's journal" in capsys.readouterr().err
     assert not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
 
 
@@ -395,6 +391,53 @@ def test_a_search_starts_from_another_searchs_best_distinct_settings():
     lower = trial(4, [0.7] * 7, pruned)
     assert script.best_settings(study, 5, min_runs=5) == [(finished.number, {"x": 1}), (near.number, {"x": 2}),
                                                          (lower.number, {"x": 4})]
+
+
+def test_a_wide_search_under_way_starts_from_another_methods_wide_search_once(tmp_path, capsys):
+    """--start-from in the wide space reads the other method's wide search (its settings are points of
+    this space) and, on a search that has trials already, queues the best settings no trial of it has,
+    once: the same command again queues nothing more."""
+    script = _load_script()
+    out, runs = tmp_path / "out", tmp_path / "runs"
+    (out / "fast_shared_ppo").mkdir(parents=True)
+    script.open_study("fast_shared_ppo", out / "fast_shared_ppo" / "journal.log", 0)  # the first search
+    wide = out / "fast_shared_ppo" / "wide"
+    argv = ["--method", "fast_shared_ppo", "--space", "wide", "--trials", "2", "--start-from",
+            "fast_shared_ppo_team:3", "--out", str(out), "--runs", str(runs)]
+    with pytest.raises(SystemExit):  # the other method's first search is not its wide search
+        (out / "fast_shared_ppo_team").mkdir()
+        script.open_study("fast_shared_ppo_team", out / "fast_shared_ppo_team" / "journal.log", 0)
+        script.main(argv)
+    assert "--start-from: no other search 'fast_shared_ppo_team' in the wide space" in capsys.readouterr().err
+    assert not wide.exists() and not runs.exists()
+    wide.mkdir()
+
+    def finished(method: str, params: dict, value: float):
+        study = script.open_study(method, out / method / "wide" / "journal.log", 0)
+        study.enqueue_trial(params)
+        trial = study.ask()
+        script.suggest(trial, script.WIDE_SPACE)
+        trial.set_user_attr("run_00", {**_recorded_run("n5_m2_dt120", 50.0), "score": value,
+                                       "half_budget_score": value})
+        study.tell(trial, value)
+
+    (out / "fast_shared_ppo_team" / "wide").mkdir(parents=True)
+    team_best = {**DEFAULT_TRIAL, "rollout_samples": 16384, "n_steps": 128, "minibatch_size": 256, "n_epochs": 5}
+    team_second = {**DEFAULT_TRIAL, "n_epochs": 5}
+    finished("fast_shared_ppo_team", team_best, 0.97)
+    finished("fast_shared_ppo_team", team_second, 0.9)
+    finished("fast_shared_ppo_team", DEFAULT_TRIAL, 0.8)
+    finished("fast_shared_ppo", DEFAULT_TRIAL, 0.85)
+    finished("fast_shared_ppo", team_second, 0.7)  # this search judged it already: not queued again
+    rule = {row: 50.0 for row in script.ROWS}
+    (wide / "rule_based_agents_validation.json").write_text(json.dumps(rule))
+    for _ in range(2):
+        script.main(argv)
+        study = script.open_study("fast_shared_ppo", wide / "journal.log", 0, read_only=True)
+        waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
+        assert [(script.trial_settings(t), t.user_attrs["start_from"]) for t in waiting] == [
+            (team_best, "fast_shared_ppo_team trial 0")]
+    assert not runs.exists()  # nothing trained: the search has its two finished trials
 
 
 def test_a_comparison_reuses_the_runs_its_own_file_records_where_their_folders_are_gone(tmp_path, monkeypatch):
