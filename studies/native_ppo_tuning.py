@@ -792,19 +792,27 @@ def write_config_by_size(method: str, study, out: Path, path: Path) -> dict[str,
                              f"on every guard row and seed in {guards_file}: run --guards first")
     rows = {"small": [r for r in ROWS if plant_size(r) < LARGE_PLANTS],
             "large": [r for r in ROWS if plant_size(r) >= LARGE_PLANTS] + list(guards["rows"])}
-    chosen = {}
-    for size in ("small", "large"):
-        best = max(ranked, key=lambda t: (scores[t.number][size], -t.number))
-        which = "the trainer's default setting" if best.params == DEFAULT_TRIAL else "a searched setting"
-        where = (f"fewer than {LARGE_PLANTS} containers" if size == "small" else f"at least {LARGE_PLANTS} containers")
-        chosen[size] = (best, f"studies/native_ppo_tuning.py: trial {best.number} ({which}), of {_count(ranked)} "
-                              f"judged on every run the best on the plants of {where}: IQM share of rule_based_agents "
-                              f"{scores[best.number][size]:.3f} over its runs on {', '.join(rows[size])} with seeds "
-                              f"{SEEDS[0]}-{SEEDS[-1]}, validation episodes ({_shown(out / 'trials.md')})")
-    (small, small_source), (large, large_source) = chosen["small"], chosen["large"]
-    by_size = [] if small.params == large.params else [(LARGE_PLANTS, dict(large.params), large_source)]
-    write_settings(path, dict(small.params), small_source, by_size=by_size)
-    return {"settings": dict(small.params), **({"by_size": {LARGE_PLANTS: dict(large.params)}} if by_size else {})}
+    best = {size: max(ranked, key=lambda t: (scores[t.number][size], -t.number)) for size in ("small", "large")}
+    wheres = {"small": f"fewer than {LARGE_PLANTS} containers", "large": f"at least {LARGE_PLANTS} containers"}
+
+    def source(*sizes: str) -> str:
+        trial = best[sizes[0]]
+        which = "the trainer's default setting" if trial.params == DEFAULT_TRIAL else "a searched setting"
+        where = " and on those of ".join(wheres[size] for size in sizes)
+        shares = "; ".join(f"{scores[trial.number][size]:.3f} over its runs on {', '.join(rows[size])}"
+                           for size in sizes)
+        return (f"studies/native_ppo_tuning.py: trial {trial.number} ({which}), of {_count(ranked)} judged on every "
+                f"run the best on the plants of {where}: IQM share of rule_based_agents {shares}, with seeds "
+                f"{SEEDS[0]}-{SEEDS[-1]}, validation episodes ({_shown(out / 'trials.md')})")
+
+    small, large = best["small"], best["large"]
+    if small.params == large.params:
+        write_settings(path, dict(small.params), source("small", "large"))
+    else:
+        write_settings(path, dict(small.params), source("small"), by_size=[(LARGE_PLANTS, dict(large.params),
+                                                                            source("large"))])
+    return {"settings": dict(small.params),
+            **({} if small.params == large.params else {"by_size": {LARGE_PLANTS: dict(large.params)}})}
 
 
 def main(argv=None) -> None:

@@ -573,6 +573,9 @@ def test_settings_by_plant_size_are_chosen_on_each_sizes_runs(tmp_path):
     (out / "guards.json").write_text(json.dumps(guards))
     assert script.write_config_by_size("fast_shared_ppo_team", study, out, path) == {"settings": a}
     assert read_settings(path, 16)[0] == a
+    source = read_settings(path, 16)[1]  # the one source names both sizes' runs and shares
+    assert "fewer than 11 containers and on those of at least 11 containers" in source
+    assert "n5_m2_dt120" in source and "n11_m11_dt60, n11_m2_dt120, n16_m2_dt120" in source
 
 
 def test_a_comparison_reuses_another_comparisons_runs_also_from_a_file_that_names_no_gamma(tmp_path, monkeypatch):
