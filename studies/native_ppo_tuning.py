@@ -28,8 +28,10 @@ settings (judged on at least the first four runs) that beat the default by most 
 again as *finalists*, which are never pruned and so are judged on every run, their earlier runs reused. A search can start
 from another method's results in the same space: ``--start-from fast_shared_ppo:3`` queues that search's three best
 settings (``fast_shared_ppo_team`` and ``fast_ppo`` need not search from scratch); with ``--space wide`` it reads
-that method's wide search. On a search under way it queues only settings none of its trials has, so the same
-command run again queues nothing more.
+that method's wide search. They are judged on every run, never pruned (chosen on another method's results,
+a setting is not stopped on this method's first four runs), their runs so far reused; on a search under way
+it queues only settings no trial has judged in full or waits to, so the same command run again queues nothing
+more.
 
 **What is recorded.** Every trial, its settings, state, each run's validation return, overflowing
 validation episodes, the validation return of the checkpoint nearest half the budget, and its
@@ -265,7 +267,7 @@ class Objective:
         finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
         twin = next((t for t in trial.study.get_trials(deepcopy=False, states=finished) if t.params == trial.params),
                     None)
-        if twin is not None and not trial.user_attrs.get("finalist"):
+        if twin is not None and not (trial.user_attrs.get("finalist") or trial.user_attrs.get("in_full")):
             trial.set_user_attr("duplicate_of", twin.number)
             if twin.state == optuna.trial.TrialState.PRUNED:
                 raise optuna.TrialPruned()
@@ -920,13 +922,19 @@ def main(argv=None) -> None:
                                                                       "in_full": True})
                     study.enqueue_trial(SB3_SHAPE_TRIAL, user_attrs={"start_from": "SB3's update shape",
                                                                      "in_full": True})
-            if ns.start_from:  # queued once: a setting some trial of this search has is not queued again
+            if ns.start_from:
+                # judged on every run, as the first search's settings are in a wide search: chosen for another
+                # method's results, a setting is not to be stopped on this method's first four runs. Queued
+                # once: not where a trial of this search judged it in full or waits to
                 source = open_study(other, source_journal, 0, read_only=True)
-                present = {settings_key(trial_settings(t))
-                           for t in study.get_trials(deepcopy=False)}
+                alive = (optuna.trial.TrialState.WAITING, optuna.trial.TrialState.RUNNING)
+                present = {settings_key(trial_settings(t)) for t in study.get_trials(deepcopy=False)
+                           if t.state == optuna.trial.TrialState.COMPLETE
+                           or (t.state in alive and t.user_attrs.get("in_full"))}
                 for number, params in best_settings(source, int(count or 3), min_runs=len(rows)):
                     if settings_key(params) not in present:
-                        study.enqueue_trial(params, user_attrs={"start_from": f"{other} trial {number}"})
+                        study.enqueue_trial(params, user_attrs={"start_from": f"{other} trial {number}",
+                                                                "in_full": True})
             done = sum(t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
                        for t in study.get_trials(deepcopy=False))
             if ns.finalists:

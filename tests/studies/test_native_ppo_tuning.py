@@ -341,7 +341,7 @@ def test_finalists_are_the_settings_that_beat_the_default_most_on_the_same_runs(
     assert script.enqueue_finalists(study, 4, min_runs=4) == [lowest.number]  # one more in all
 
 
-def test_a_setting_proposed_again_takes_the_earlier_verdict_without_training(tmp_path):
+def test_a_setting_proposed_again_takes_the_earlier_verdict_without_training(tmp_path, monkeypatch):
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("native_ppo_tuning", SCRIPT)
@@ -367,6 +367,15 @@ def test_a_setting_proposed_again_takes_the_earlier_verdict_without_training(tmp
     assert not runs.exists()  # nothing trained
     rows = {r["number"]: r for r in script.trial_rows(study)}
     assert rows[again[0].number]["duplicate_of"] == complete.number
+    # a setting queued to be judged in full (from another search) is judged, not given the pruned verdict
+    trained = []
+    monkeypatch.setattr(script, "train_and_validate", lambda *a: trained.append(a[1]) or {
+        "validation_return": 40.0, "half_budget_return": 30.0, "overflowing_episodes": 0})
+    study.enqueue_trial(judged, user_attrs={"in_full": True})
+    study.optimize(objective, n_trials=1)
+    last = study.get_trials()[-1]
+    assert trained == ["n5_m2_dt120"] and "duplicate_of" not in last.user_attrs
+    assert (last.state, last.value) == (optuna.trial.TrialState.COMPLETE, pytest.approx(0.8))
 
 
 def test_a_search_starts_from_another_searchs_best_distinct_settings():
@@ -402,7 +411,7 @@ def test_a_wide_search_under_way_starts_from_another_methods_wide_search_once(tm
     (out / "fast_shared_ppo").mkdir(parents=True)
     script.open_study("fast_shared_ppo", out / "fast_shared_ppo" / "journal.log", 0)  # the first search
     wide = out / "fast_shared_ppo" / "wide"
-    argv = ["--method", "fast_shared_ppo", "--space", "wide", "--trials", "2", "--start-from",
+    argv = ["--method", "fast_shared_ppo", "--space", "wide", "--trials", "3", "--start-from",
             "fast_shared_ppo_team:3", "--out", str(out), "--runs", str(runs)]
     with pytest.raises(SystemExit):  # the other method's first search is not its wide search
         (out / "fast_shared_ppo_team").mkdir()
@@ -428,16 +437,21 @@ def test_a_wide_search_under_way_starts_from_another_methods_wide_search_once(tm
     finished("fast_shared_ppo_team", team_second, 0.9)
     finished("fast_shared_ppo_team", DEFAULT_TRIAL, 0.8)
     finished("fast_shared_ppo", DEFAULT_TRIAL, 0.85)
-    finished("fast_shared_ppo", team_second, 0.7)  # this search judged it already: not queued again
+    finished("fast_shared_ppo", team_second, 0.7)  # this search judged it in full already: not queued again
+    study = script.open_study("fast_shared_ppo", wide / "journal.log", 0)
+    study.enqueue_trial(team_best)  # stopped by the pruner at its first runs: queued again, in full
+    trial = study.ask()
+    script.suggest(trial, script.WIDE_SPACE)
+    study.tell(trial, state=optuna.trial.TrialState.PRUNED)
     rule = {row: 50.0 for row in script.ROWS}
     (wide / "rule_based_agents_validation.json").write_text(json.dumps(rule))
     for _ in range(2):
         script.main(argv)
         study = script.open_study("fast_shared_ppo", wide / "journal.log", 0, read_only=True)
         waiting = study.get_trials(states=(optuna.trial.TrialState.WAITING,))
-        assert [(script.trial_settings(t), t.user_attrs["start_from"]) for t in waiting] == [
-            (team_best, "fast_shared_ppo_team trial 0")]
-    assert not runs.exists()  # nothing trained: the search has its two finished trials
+        assert [(script.trial_settings(t), t.user_attrs["start_from"], t.user_attrs["in_full"]) for t in waiting] == [
+            (team_best, "fast_shared_ppo_team trial 0", True)]
+    assert not runs.exists()  # nothing trained: the search has its three finished trials
 
 
 def test_a_comparison_reuses_the_runs_its_own_file_records_where_their_folders_are_gone(tmp_path, monkeypatch):
