@@ -183,6 +183,11 @@ def trial_settings(trial) -> dict[str, Any]:
     return dict(trial.params or trial.system_attrs.get("fixed_params", {}))
 
 
+def never_pruned(trial) -> bool:
+    """The default, finalists and settings queued to be judged in full: judged on every run."""
+    return any(trial.user_attrs.get(k) for k in ("default", "finalist", "in_full"))
+
+
 def rule_returns(rows, cache: Path) -> dict[str, float]:
     """``rule_based_agents``' mean validation return per row (the scores' unit), cached in ``cache``."""
     known = json.loads(cache.read_text()) if cache.is_file() else {}
@@ -298,8 +303,7 @@ def pruner():
 
         def prune(self, study, trial) -> bool:
             step = trial.last_step
-            if (step is None or step + 1 < WARMUP_RUNS or trial.user_attrs.get("default")
-                    or trial.user_attrs.get("finalist") or trial.user_attrs.get("in_full")):
+            if step is None or step + 1 < WARMUP_RUNS or never_pruned(trial):
                 return False
             # one value per other setting: a setting tried again (queued after a kill, a finalist)
             # reuses its runs, and counting each of its trials would make it the median
@@ -930,7 +934,7 @@ def main(argv=None) -> None:
                 alive = (optuna.trial.TrialState.WAITING, optuna.trial.TrialState.RUNNING)
                 present = {settings_key(trial_settings(t)) for t in study.get_trials(deepcopy=False)
                            if t.state == optuna.trial.TrialState.COMPLETE
-                           or (t.state in alive and t.user_attrs.get("in_full"))}
+                           or (t.state in alive and never_pruned(t))}
                 for number, params in best_settings(source, int(count or 3), min_runs=len(rows)):
                     if settings_key(params) not in present:
                         study.enqueue_trial(params, user_attrs={"start_from": f"{other} trial {number}",
