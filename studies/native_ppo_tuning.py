@@ -87,6 +87,7 @@ import hashlib
 import json
 import math
 import multiprocessing
+import signal
 import time
 import warnings
 from pathlib import Path
@@ -313,6 +314,27 @@ def pruner():
             return bool(others) and trial.intermediate_values[step] < float(np.median(list(others.values())))
 
     return MedianOfOthersPruner()
+
+
+def run_workers(procs) -> None:
+    """Start the search's processes and wait for them; however this ends (a SIGTERM, see :func:`main`), the
+    ones still running are stopped first. The search's lock is held until then, so a search started again
+    never runs beside a killed one's processes (they would fail the trials it queued again)."""
+    try:
+        for proc in procs:
+            proc.start()
+            time.sleep(1)  # the first takes the queued trial before the next asks
+        for proc in procs:
+            proc.join()
+    finally:
+        for proc in procs:
+            if proc.pid is not None and proc.is_alive():
+                proc.terminate()
+                proc.join()
+
+
+def _exit_on_sigterm(signum, frame):
+    raise SystemExit(128 + signum)  # as Ctrl-C: the finally clauses stop the processes and free the lock
 
 
 def open_study(method: str, journal: Path, sampler_seed: int, read_only: bool = False):
@@ -950,12 +972,7 @@ def main(argv=None) -> None:
                 args = (ns.method, str(journal), str(runs), rows, seeds, rule, timesteps, total, ns.space,
                         reused)
                 ctx = multiprocessing.get_context("spawn")
-                procs = [ctx.Process(target=_worker, args=(*args, k)) for k in range(max(ns.workers, 1))]
-                for proc in procs:
-                    proc.start()
-                    time.sleep(1)  # the first takes the queued trial before the next asks
-                for proc in procs:
-                    proc.join()
+                run_workers([ctx.Process(target=_worker, args=(*args, k)) for k in range(max(ns.workers, 1))])
             study = open_study(ns.method, journal, sampler_seed=0, read_only=True)
         print(report(ns.method, study, out, rule, ns.space, reused))
         if ns.write_config is not None:
@@ -968,4 +985,5 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     main()
