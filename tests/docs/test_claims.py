@@ -727,6 +727,70 @@ PERFORMANCE_CLAIMS = {
 }
 
 
+@cache
+def transfer() -> dict[str, dict]:
+    """Per plant of results/transfer/table.json: its n and each policy's cell."""
+    report = json.loads((ROOT / "results" / "transfer" / "table.json").read_text())
+    return {e["plant"]: {"n": e["n"], **e["cells"]} for e in report["entries"]}
+
+
+TRANSFER_TARGETS = ("n32_m4_dt120", "n64_m8_dt120", "n128_m16_dt120", "n32_m3_dt120", "n64_m6_dt120", "n128_m12_dt120")
+SCARCE = ("n32_m3_dt120", "n64_m6_dt120", "n128_m12_dt120")
+
+
+def _zero_shot(plant: str, source: str) -> dict:
+    cell = transfer()[plant][f"fast_shared_ppo from {source}"]
+    assert cell["seeds"] == 5
+    return cell
+
+
+def zero_shot_beats_rule():
+    def beats(plant, source):
+        return _zero_shot(plant, source)["return_per_container"] > transfer()[plant]["rule_based_agents"][
+            "return_per_container"]
+
+    assert set(transfer()) >= set(TRANSFER_TARGETS)
+    return (all(beats(p, "n16_m2_dt120") for p in TRANSFER_TARGETS)
+            and [p for p in TRANSFER_TARGETS if not beats(p, "n11_m2_dt120")] == ["n128_m12_dt120"])
+
+
+def zero_shot_overflows_where_scarce():
+    return all(_zero_shot(p, source)["overflow_share"] > transfer()[p]["rule_based_agents"]["overflow_share"]
+               for p in SCARCE for source in ("n11_m2_dt120", "n16_m2_dt120"))
+
+
+def planner_leads_at_scale():
+    def lead(plant):
+        cells = transfer()[plant]
+        learned = max(c["return_per_container"] for label, c in cells.items() if label.startswith("fast_shared_ppo"))
+        return cells["planner_agents"]["return_per_container"] - learned
+
+    learned_below = all(c["return_per_container"] < cells["planner_agents"]["return_per_container"]
+                        for cells in transfer().values() for label, c in cells.items() if label.startswith("fast_"))
+    pairs = [("n32_m4_dt120", "n32_m3_dt120"), ("n64_m8_dt120", "n64_m6_dt120"), ("n128_m16_dt120", "n128_m12_dt120")]
+    return learned_below and all(lead(scarce) > lead(proportional) for proportional, scarce in pairs)
+
+
+def decisions_at_128():
+    plants = [cells for cells in transfer().values() if cells["n"] == 128]
+    assert len(plants) == 2
+    return all(max(c["decision_ms_median"] for label, c in cells.items() if label.startswith("fast_shared_ppo")) < 0.2
+               and cells["planner_agents"]["decision_ms_median"] < 50 for cells in plants)
+
+
+TRANSFER_CLAIMS = {
+    "Trained on the 16-container plant alone, the shared policy beats the rule-based agents on every larger plant, "
+    "zero-shot": zero_shot_beats_rule,
+    "Trained on `n11_m2_dt120` it does so on every larger plant but `n128_m12_dt120`.": zero_shot_beats_rule,
+    "On `n32_m3_dt120`, `n64_m6_dt120` and `n128_m12_dt120` the zero-shot policies from both source plants overflow "
+    "in a larger share of episodes than `rule_based_agents`.": zero_shot_overflows_where_scarce,
+    "No learned policy reaches the planner on any plant**, and at each plant size the planner's lead over the best "
+    "of them is larger where PUs are scarce.": planner_leads_at_scale,
+    "At 128 containers the shared policy decides for every agent in under 0.2 ms per plant step, the planner in "
+    "under 50 ms.": decisions_at_128,
+}
+
+
 def _flat(text: str) -> str:
     return re.sub(r"\s+", " ", text)
 
@@ -736,6 +800,7 @@ PAGES = {
     "docs/results.md": {**FINDINGS, **READINGS},
     "docs/planner.md": PLANNER_CLAIMS,
     "docs/performance.md": PERFORMANCE_CLAIMS,
+    "docs/scale.md": TRANSFER_CLAIMS,
 }
 
 
