@@ -317,8 +317,8 @@ def pruner():
 
 
 def run_workers(procs) -> None:
-    """Start the search's processes and wait for them; however this ends (a SIGTERM, see :func:`main`), the
-    ones still running are stopped first. The search's lock is held until then, so a search started again
+    """Start the search's processes and wait for them; however this ends (run as a script, a SIGTERM exits as
+    Ctrl-C does), the ones still running are stopped first. The search's lock is held until then, so a search started again
     never runs beside a killed one's processes (they would fail the trials it queued again)."""
     try:
         for proc in procs:
@@ -862,8 +862,9 @@ def main(argv=None) -> None:
                    help="first queue the K settings not yet judged on every run that beat the default by most on "
                         "the runs both did (at least the first 4) as finalists, which the pruner never stops")
     p.add_argument("--start-from", default=None, metavar="METHOD:K",
-                   help="queue the K best settings of METHOD's search in the same space (its journal under --out) "
-                        "that this search has not tried, e.g. fast_shared_ppo:3 for fast_shared_ppo_team")
+                   help="queue the K best settings of METHOD's search in the same space (its journal under --out), "
+                        "each judged on every run, unless this search judged it in full already, e.g. "
+                        "fast_shared_ppo:3 for fast_shared_ppo_team")
     p.add_argument("--guards", action="store_true",
                    help="train nothing new for the search: train and validate the default and the best finished "
                         f"trial's setting on the regression guards ({', '.join(GUARD_ROWS)}) with the same seeds")
