@@ -826,6 +826,8 @@ def write_config_by_size(method: str, study, out: Path, path: Path) -> dict[str,
     def source(*sizes: str) -> str:
         trial = best[sizes[0]]
         which = "the trainer's default setting" if trial.params == DEFAULT_TRIAL else "a searched setting"
+        if trial.user_attrs.get("start_from"):  # where a queued trial came from: "first search trial 39"
+            which += f", {trial.user_attrs['start_from']}"
         where = " and on those of ".join(wheres[size] for size in sizes)
         shares = "; ".join(f"{scores[trial.number][size]:.3f} over its runs on {', '.join(rows[size])}"
                            for size in sizes)
