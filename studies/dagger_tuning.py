@@ -18,6 +18,7 @@ resumes from its newest checkpoint (``train --resume``). ``--deadline-s`` stops 
 processes at that many seconds after the start (their checkpoints stay); a run stopped before its
 budget has no final model, and its best model so far is evaluated, with the samples it trained
 recorded (``trained_samples``, from its metrics.csv), so a bounded machine still returns a comparison.
+Once such a run has been resumed to its end, that evaluation is dropped and the finished run evaluated.
 
 Each variant (:data:`VARIANTS`) names its method, its ``--hp`` settings of
 :class:`containergym_marl.training.dagger.DAggerArgs` (the others stay at their defaults) and, for
@@ -145,6 +146,12 @@ def evaluate_one(job: tuple[str, str, int, str, str, int]) -> dict:
             "overflowing_episodes": int(sum(e.overflow for e in result.episodes)), "returns": returns.tolist()}
 
 
+def without_stale(entries: list[dict], runs: Path) -> list[dict]:
+    """The evaluations still standing: one made before its run finished (its best model so far, after a
+    deadline or a kill) is dropped once the run has finished, so that the finished run is evaluated."""
+    return [e for e in entries if e.get("finished", True) or not finished(run_dir(runs, e["variant"], e["row"], e["seed"]))]
+
+
 def finished(run: Path) -> bool:
     return run_status(run) == "finished"
 
@@ -223,7 +230,8 @@ def main(argv=None) -> None:
             print(f"train {variant} {row} s{seed}: exit {code}", flush=True)
     path = out / "tuning.json"
     saved = json.loads(path.read_text()) if path.is_file() else {}
-    entries, note = saved.get("evaluations", []), ns.note if ns.note is not None else saved.get("note", "")
+    entries = without_stale(saved.get("evaluations", []), runs)
+    note = ns.note if ns.note is not None else saved.get("note", "")
     done = {(e["variant"], e["row"], e["seed"], e["model"], e["episodes"]) for e in entries}
     evals = [(v, r, s, str(runs), w, ns.episodes) for v in ns.variants for r in ns.rows for s in ns.seeds
              for w in ("best", "final") if evaluable(run_dir(runs, v, r, s), w) and (v, r, s, w, ns.episodes) not in done]

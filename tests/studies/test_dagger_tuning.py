@@ -67,3 +67,25 @@ def test_a_fine_tuning_variant_trains_its_method_with_its_reward_mode(tmp_path):
     assert (run / "imitation.json").is_file() and (run / "final_model.pt").is_file()
     md = (out / "tuning.md").read_text()
     assert "| ppo_team_share_0.5 | dagger_ppo_agents --reward-mode team imitation_share=0.5 | n5_m2_dt120 | 1 |" in md
+
+
+def test_an_evaluation_made_before_its_run_finished_is_dropped_once_it_has(tmp_path, monkeypatch):
+    """A run stopped early (a deadline, a kill) is evaluated by its best model so far; once it has been
+    resumed to its end, that evaluation no longer stands for it and the finished run is evaluated."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("dagger_tuning", SCRIPT)
+    script = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, script)  # its dataclasses look their module up there
+    spec.loader.exec_module(script)
+    runs = tmp_path / "runs"
+    entries = [{"variant": "greedy", "row": row, "seed": 1, "model": "best", "finished": done}
+               for row, done in (("n11_m2_dt60", False), ("n11_m2_dt120", False), ("n16_m2_dt120", True))]
+    assert script.without_stale(entries, runs) == entries  # no run folder here: every evaluation stands
+    for row in ("n11_m2_dt60", "n16_m2_dt120"):  # these two runs have finished since
+        run = script.run_dir(runs, "greedy", row, 1)
+        run.mkdir(parents=True)
+        (run / "args.json").write_text(json.dumps({"algo": "dagger_agents"}))
+        (run / "final_model.pt").write_bytes(b"")
+    assert script.finished(script.run_dir(runs, "greedy", "n11_m2_dt60", 1))
+    assert script.without_stale(entries, runs) == entries[1:]
