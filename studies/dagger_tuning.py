@@ -31,6 +31,7 @@ import argparse
 import dataclasses
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -108,23 +109,44 @@ def run_dir(runs: Path, variant: str, row: str, seed: int) -> Path:
     return runs / variant / run_name(VARIANTS[variant].method, row, seed)
 
 
-def train_one(job: tuple[str, str, int, str, int | None, float | None]) -> tuple[str, str, int, int]:
-    """``containergym-marl train`` of one run in a child process (killed at the deadline); its exit code."""
-    variant, row, seed, runs, timesteps, deadline = job
-    out = run_dir(Path(runs), variant, row, seed)
-    cmd = [sys.executable, "-m", "containergym_marl.cli", "train", *VARIANTS[variant].train_args(), "--config", row,
-           "--seed", str(seed), "--out", str(out), "--no-progress", "--torch-threads", "1"]
-    if timesteps is not None:
-        cmd += ["--timesteps", str(timesteps)]
-    if out.exists():
-        cmd.append("--resume")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    timeout = None if deadline is None else max(1.0, deadline - time.time())
-    with open(out.parent / f"{out.name}.log", "a") as log:
-        try:
-            return variant, row, seed, subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, timeout=timeout).returncode
-        except subprocess.TimeoutExpired:
-            return variant, row, seed, -9
+def train_all(jobs, workers: int):
+    """``containergym-marl train`` of each job (variant, row, seed, runs, timesteps, deadline) in a child
+    process, ``workers`` at a time, killed at the deadline; yields (variant, row, seed, exit code) as each
+    ends. However this ends (run as a script, a SIGTERM exits as Ctrl-C does), the children still running
+    are stopped first (SIGTERM: their checkpoints stay, ``--resume`` continues them): none outlives the
+    study to hold its run folder's lock when the study runs again."""
+    pending, running = list(jobs), {}
+    try:
+        while pending or running:
+            while pending and len(running) < max(workers, 1):
+                variant, row, seed, runs, timesteps, deadline = job = pending.pop(0)
+                out = run_dir(Path(runs), variant, row, seed)
+                cmd = [sys.executable, "-m", "containergym_marl.cli", "train", *VARIANTS[variant].train_args(),
+                       "--config", row, "--seed", str(seed), "--out", str(out), "--no-progress", "--torch-threads", "1"]
+                if timesteps is not None:
+                    cmd += ["--timesteps", str(timesteps)]
+                if out.exists():
+                    cmd.append("--resume")
+                out.parent.mkdir(parents=True, exist_ok=True)
+                log = open(out.parent / f"{out.name}.log", "a")
+                running[job] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT), log)
+            time.sleep(0.2)
+            for job, (proc, log) in list(running.items()):
+                code = proc.poll()
+                if code is None and job[5] is not None and time.time() > job[5]:
+                    proc.kill()
+                    proc.wait()
+                    code = -9
+                if code is not None:
+                    log.close()
+                    del running[job]
+                    yield (*job[:3], code)
+    finally:
+        for proc, _ in running.values():
+            proc.terminate()
+        for proc, log in running.values():
+            proc.wait()
+            log.close()
 
 
 def evaluate_one(job: tuple[str, str, int, str, str, int]) -> dict:
@@ -225,9 +247,8 @@ def main(argv=None) -> None:
     deadline = None if ns.deadline_s is None else time.time() + ns.deadline_s
     jobs = [(v, r, s, str(runs), ns.timesteps, deadline) for v in ns.variants for r in ns.rows for s in ns.seeds
             if not ns.no_train and not finished(run_dir(runs, v, r, s))]
-    with ProcessPoolExecutor(ns.workers) as pool:
-        for variant, row, seed, code in pool.map(train_one, jobs):
-            print(f"train {variant} {row} s{seed}: exit {code}", flush=True)
+    for variant, row, seed, code in train_all(jobs, ns.workers):
+        print(f"train {variant} {row} s{seed}: exit {code}", flush=True)
     path = out / "tuning.json"
     saved = json.loads(path.read_text()) if path.is_file() else {}
     entries = without_stale(saved.get("evaluations", []), runs)
@@ -256,5 +277,10 @@ def save(path: Path, variants: list[str], entries: list[dict], note: str) -> Non
                                         "evaluations": entries}, indent=1) + "\n")
 
 
+def _exit_on_sigterm(signum, frame):
+    raise SystemExit(128 + signum)  # as Ctrl-C: the finally clauses stop the training processes
+
+
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     main()
