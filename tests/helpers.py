@@ -65,3 +65,31 @@ def train_until_killed(train_argv: list[str], run: Path, checkpoints_wanted: int
     proc.wait()
     proc.stderr.close()
 
+
+
+def sigterm_leaves_no_child(argv: list[str], is_child, count: int, timeout_s: float = 120) -> None:
+    """Run the script ``argv`` (``python`` + argv), wait until it has ``count`` descendants for which
+    ``is_child(cmdline)`` holds, send it SIGTERM, and check that it exits as on Ctrl-C (128 + 15) with
+    none of them left running. Whatever fails, no process is left behind."""
+    import signal
+    import subprocess
+    import time
+
+    import psutil
+
+    proc = subprocess.Popen([sys.executable, *argv], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    main, children, deadline = psutil.Process(proc.pid), [], time.monotonic() + timeout_s
+    try:
+        while len(children) < count and time.monotonic() < deadline and proc.poll() is None:
+            children = [c for c in main.children(recursive=True) if is_child(" ".join(c.cmdline()))]
+            time.sleep(0.2)
+        assert len(children) == count, f"the script did not start its {count} processes"
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 128 + signal.SIGTERM
+        _, alive = psutil.wait_procs(children, timeout=5)
+        assert not alive, f"processes outlived the script: {[p.pid for p in alive]}"
+    finally:
+        for child in children:
+            if child.is_running():
+                child.kill()
+        proc.kill()

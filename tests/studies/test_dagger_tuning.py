@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers import sigterm_leaves_no_child
+
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = str(REPO / "studies" / "dagger_tuning.py")
 
@@ -95,26 +97,7 @@ def test_an_evaluation_made_before_its_run_finished_is_dropped_once_it_has(tmp_p
 def test_a_sigterm_to_the_study_stops_its_training_processes_before_it_exits(tmp_path):
     """A killed study's `train` processes must not outlive it: run again, the study would find their
     run folders locked (and, before the fix, evaluate their best models so far as the runs' results)."""
-    import signal
-    import time
-
-    psutil = pytest.importorskip("psutil")
-    proc = subprocess.Popen([sys.executable, SCRIPT, "--variants", "greedy", "--rows", "n5_m2_dt120", "--seeds", "1",
-                             "2", "--workers", "2", "--episodes", "2", "--out", str(tmp_path / "out"), "--runs",
-                             str(tmp_path / "runs")], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    study = psutil.Process(proc.pid)
-    deadline, children = time.monotonic() + 120, []
-    try:
-        while len(children) < 2 and time.monotonic() < deadline and proc.poll() is None:
-            children = [c for c in study.children(recursive=True) if "train" in c.cmdline()]
-            time.sleep(0.2)
-        assert len(children) == 2, "the study did not start its two training processes"
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=60) == 128 + signal.SIGTERM
-        gone, alive = psutil.wait_procs(children, timeout=5)
-        assert not alive, f"training processes outlived the study: {[p.pid for p in alive]}"
-    finally:  # whatever failed, leave no process behind
-        for child in children:
-            if child.is_running():
-                child.kill()
-        proc.kill()
+    pytest.importorskip("psutil")
+    sigterm_leaves_no_child([SCRIPT, "--variants", "greedy", "--rows", "n5_m2_dt120", "--seeds", "1", "2",
+                             "--workers", "2", "--episodes", "2", "--out", str(tmp_path / "out"), "--runs",
+                             str(tmp_path / "runs")], lambda cmd: " train " in f"{cmd} ", count=2)

@@ -16,6 +16,7 @@ optuna = pytest.importorskip("optuna")
 
 from containergym_marl.policies.actor_critic import ActorCritic  # noqa: E402
 from containergym_marl.rundir import run_name  # noqa: E402
+from tests.helpers import sigterm_leaves_no_child  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = str(REPO / "studies" / "native_ppo_tuning.py")
@@ -211,25 +212,10 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
 def test_a_sigterm_to_the_search_stops_its_worker_processes_before_it_exits(tmp_path):
     """A killed search's workers must not outlive it: a search started again (its lock free) would run
     beside them, and they would fail the trials it queued again."""
-    import signal
-    import time
-
-    psutil = pytest.importorskip("psutil")
-    proc = subprocess.Popen([sys.executable, SCRIPT, "--method", "fast_shared_ppo", "--smoke", "--workers", "2",
-                             "--out", str(tmp_path / "out"), "--runs", str(tmp_path / "runs")],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    main = psutil.Process(proc.pid)
-    deadline = time.monotonic() + 120
-    workers = []
-    while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
-        workers = [c for c in main.children() if "spawn_main" in " ".join(c.cmdline())
-                   and "resource_tracker" not in " ".join(c.cmdline())]
-        time.sleep(0.2)
-    assert len(workers) == 2, "the search did not start its two workers"
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(timeout=60) == 128 + signal.SIGTERM
-    gone, alive = psutil.wait_procs(workers, timeout=5)
-    assert not alive, f"worker processes outlived the search: {[p.pid for p in alive]}"
+    pytest.importorskip("psutil")
+    sigterm_leaves_no_child([SCRIPT, "--method", "fast_shared_ppo", "--smoke", "--workers", "2", "--out",
+                             str(tmp_path / "out"), "--runs", str(tmp_path / "runs")],
+                            lambda cmd: "spawn_main" in cmd and "resource_tracker" not in cmd, count=2)
 
 
 def test_the_wide_space_holds_every_setting_of_the_first_and_sb3s_update_shape():
