@@ -275,7 +275,9 @@ def test_run_directory_holds_tensor_only_models_that_evaluate(tmp_path):
         torch.load(path, weights_only=True)  # plain containers and tensors only
     summary = read_run_summary(run)
     assert summary["best_model"] == "best_model.pt" and summary["timesteps"] >= 2000
-    assert 0 < read_progress(run, steps[0]).cpu_time_s < summary["cpu_time_s"]  # the training's CPU seconds
+    # the training's CPU seconds, at the checkpoint and at the end (both to 0.01 s: the few samples after
+    # the checkpoint can take less than that, so the two may be equal)
+    assert 0 < read_progress(run, steps[0]).cpu_time_s <= summary["cpu_time_s"]
     model = ActorCritic.load(run / "final_model.pt")
     assert model.view == "decentralised" and model.meta["algo"] == "fast_shared_ppo"
     result = evaluate_run(run, protocol=SHORT, write=False)
