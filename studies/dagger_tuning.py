@@ -31,7 +31,6 @@ import argparse
 import dataclasses
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -129,11 +128,11 @@ def train_all(jobs, workers: int):
                     cmd.append("--resume")
                 out.parent.mkdir(parents=True, exist_ok=True)
                 log = open(out.parent / f"{out.name}.log", "a")
-                running[job] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT), log)
+                running[job] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT), log, deadline)
             time.sleep(0.2)
-            for job, (proc, log) in list(running.items()):
+            for job, (proc, log, deadline) in list(running.items()):
                 code = proc.poll()
-                if code is None and job[5] is not None and time.time() > job[5]:
+                if code is None and deadline is not None and time.time() > deadline:
                     proc.kill()
                     proc.wait()
                     code = -9
@@ -142,9 +141,9 @@ def train_all(jobs, workers: int):
                     del running[job]
                     yield (*job[:3], code)
     finally:
-        for proc, _ in running.values():
+        for proc, _, _ in running.values():
             proc.terminate()
-        for proc, log in running.values():
+        for proc, log, _ in running.values():
             proc.wait()
             log.close()
 
@@ -277,10 +276,9 @@ def save(path: Path, variants: list[str], entries: list[dict], note: str) -> Non
                                         "evaluations": entries}, indent=1) + "\n")
 
 
-def _exit_on_sigterm(signum, frame):
-    raise SystemExit(128 + signum)  # as Ctrl-C: the finally clauses stop the training processes
-
 
 if __name__ == "__main__":
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    from containergym_marl.orchestration.stopping import exit_on_sigterm
+
+    exit_on_sigterm()  # stopped by SIGTERM, the finally clauses stop the child processes first
     main()

@@ -87,7 +87,6 @@ import hashlib
 import json
 import math
 import multiprocessing
-import signal
 import time
 import warnings
 from pathlib import Path
@@ -185,7 +184,8 @@ def trial_settings(trial) -> dict[str, Any]:
 
 
 def never_pruned(trial) -> bool:
-    """The default, finalists and settings queued to be judged in full: judged on every run."""
+    """The default, finalists and settings queued to be judged in full: judged on every run (never
+    pruned, nor given an earlier trial's verdict)."""
     return any(trial.user_attrs.get(k) for k in ("default", "finalist", "in_full"))
 
 
@@ -273,7 +273,7 @@ class Objective:
         finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
         twin = next((t for t in trial.study.get_trials(deepcopy=False, states=finished) if t.params == trial.params),
                     None)
-        if twin is not None and not (trial.user_attrs.get("finalist") or trial.user_attrs.get("in_full")):
+        if twin is not None and not never_pruned(trial):
             trial.set_user_attr("duplicate_of", twin.number)
             if twin.state == optuna.trial.TrialState.PRUNED:
                 raise optuna.TrialPruned()
@@ -317,9 +317,10 @@ def pruner():
 
 
 def run_workers(procs) -> None:
-    """Start the search's processes and wait for them; however this ends (run as a script, a SIGTERM exits as
-    Ctrl-C does), the ones still running are stopped first. The search's lock is held until then, so a search started again
-    never runs beside a killed one's processes (they would fail the trials it queued again)."""
+    """Start the search's processes and wait for them; however this ends (run as a script, a SIGTERM exits
+    as Ctrl-C does: :mod:`containergym_marl.orchestration.stopping`), the ones still running are stopped
+    first. The search's lock is held until then, so a search started again never runs beside a killed
+    one's processes (they would fail the trials it queued again)."""
     try:
         for proc in procs:
             proc.start()
@@ -332,9 +333,6 @@ def run_workers(procs) -> None:
                 proc.terminate()
                 proc.join()
 
-
-def _exit_on_sigterm(signum, frame):
-    raise SystemExit(128 + signum)  # as Ctrl-C: the finally clauses stop the processes and free the lock
 
 
 def open_study(method: str, journal: Path, sampler_seed: int, read_only: bool = False):
@@ -988,5 +986,7 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    from containergym_marl.orchestration.stopping import exit_on_sigterm
+
+    exit_on_sigterm()  # stopped by SIGTERM, the finally clauses stop the child processes first
     main()

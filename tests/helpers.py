@@ -66,7 +66,6 @@ def train_until_killed(train_argv: list[str], run: Path, checkpoints_wanted: int
     proc.stderr.close()
 
 
-
 def sigterm_leaves_no_child(argv: list[str], is_child, count: int, timeout_s: float = 120) -> None:
     """Run the script ``argv`` (``python`` + argv), wait until it has ``count`` descendants for which
     ``is_child(cmdline)`` holds, send it SIGTERM, and check that it exits as on Ctrl-C (128 + 15) with

@@ -6,7 +6,8 @@ sweep under it, above training and evaluation.
 * :mod:`.sweep` — executing a plan on Ray (:mod:`.tasks`, :mod:`.cluster`, :mod:`.progress`,
   :mod:`.ray_reaper`);
 * :mod:`.compare` — plan, execute, report (tables, figures: :mod:`.figures`);
-* :mod:`.publish` — publishing a sweep's runs and evaluations, and bringing them back.
+* :mod:`.publish` — publishing a sweep's runs and evaluations, and bringing them back;
+* :mod:`.stopping` — a study script stopped by SIGTERM stops its child processes first.
 """
 
 from containergym_marl.orchestration.compare import compare
