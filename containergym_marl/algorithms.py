@@ -258,6 +258,12 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       "the states where more containers are due than PUs are free",
                       native="containergym_marl.training.dagger:CONTENDED_IMITATION",
                       **{**_NATIVE, "default_n_envs": 64}),
+        AlgorithmSpec("dagger_checked_agents", None, SharedActorCriticPolicy,
+                      "dagger_agents on the labels of planner_agents_shielded (the reference), with the agents' "
+                      "own check, a rule in the policy: an agent's request is made wherever its own observation "
+                      "says its container may overflow within two fills",
+                      native="containergym_marl.training.dagger:CHECKED_IMITATION",
+                      **{**_NATIVE, "default_n_envs": 64}),
         # the fine-tuning's default reward is the plant's, the objective the planner it imitates plans for
         AlgorithmSpec("dagger_ppo_agents", None, SharedActorCriticPolicy,
                       "dagger_agents for half the budget, then fast_shared_ppo from the imitated policy, "

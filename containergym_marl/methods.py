@@ -113,6 +113,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     _learned("dagger_response_agents", counterpart="planner", teacher="planner_agents"),
     _learned("dagger_contended_agents", counterpart="planner", teacher="planner_agents"),
     _learned("dagger_dapg_agents", "team", counterpart="planner", teacher="planner_agents"),
+    # the imitation of the reference, with the agents' own check beside its network
+    _learned("dagger_checked_agents", counterpart="planner_shielded", teacher="planner_agents_shielded",
+             shield="the agents' own check"),
     _learned("mappo", "team", counterpart="ppo"),  # trained by baselines/train_mappo.py; compare reads its files
 )}
 #: The controllers (rules and planners) by name: what ``containergym-marl evaluate NAME`` builds.

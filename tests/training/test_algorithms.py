@@ -20,7 +20,7 @@ def test_registry_entries_load_their_classes_and_views():
 
     classes = {"ppo": PPO, "trpo": TRPO, "dqn": DQN, "maskable_ppo": MaskablePPO, "shared_ppo": PPO}
     native = ("fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked", "dagger_agents", "dagger_ppo_agents", "dagger_response_agents",
-              "dagger_contended_agents", "dagger_dapg_agents")
+              "dagger_contended_agents", "dagger_dapg_agents", "dagger_checked_agents")
     assert set(ALGORITHMS) == set(classes) | set(native)
     for name, cls in classes.items():
         assert get_algorithm(name).load_class() is cls
@@ -35,14 +35,19 @@ def test_registry_entries_load_their_classes_and_views():
     trainers = [get_algorithm(a).trainer() for a in native]
     assert trainers == [fast_ppo.TRAINER, fast_ppo.TRAINER, fast_ppo.CHECKED_TRAINER, dagger.IMITATION,
                         dagger.IMITATION_THEN_PPO, dagger.RESPONSE_IMITATION, dagger.CONTENDED_IMITATION,
-                        dagger.IMITATION_THEN_DAPG]
+                        dagger.IMITATION_THEN_DAPG, dagger.CHECKED_IMITATION]
     assert fast_ppo.TRAINER.settings({}).own_check() is None  # the plain PPO has no check unless told
     assert fast_ppo.CHECKED_TRAINER.settings({}).own_check() == {"risk": 1e-4, "lead_steps": 1}
     assert fast_ppo.CHECKED_TRAINER.settings({"own_check_risk": 1e-3}).own_check()["risk"] == 1e-3  # --hp wins
     imitations = trainers[3:]
     assert not dagger.IMITATION.fine_tune and dagger.IMITATION_THEN_PPO.fine_tune
-    assert [t.settings({}).labels for t in imitations] == ["planner", "planner", "response", "planner", "planner"]
-    assert [t.settings({}).contended_share for t in imitations] == [0.0, 0.0, 0.0, dagger.CONTENDED_SHARE, 0.0]
+    assert [t.settings({}).labels for t in imitations] == ["planner"] * 2 + ["response"] + ["planner"] * 3
+    assert [t.settings({}).contended_share for t in imitations] == [0.0, 0.0, 0.0, dagger.CONTENDED_SHARE, 0.0, 0.0]
+    # the imitation of the reference: the shielded planner's labels (ε = 1e-6) and the agents' own check
+    # (ε = 1e-4, a lead of one fill), which only it of the imitations carries unless told
+    assert [(t.settings({}).safety_risk, t.settings({}).own_check()) for t in imitations] == (
+        [(0.0, None)] * 5 + [(1e-6, {"risk": 1e-4, "lead_steps": 1})])
+    assert not dagger.CHECKED_IMITATION.fine_tune and dagger.CHECKED_IMITATION.settings({}).greedy
     assert [t.settings({}).bc_coef for t in imitations[1::3]] == [0.0, dagger.DAPG_SETTINGS["bc_coef"]]
     assert dagger.IMITATION_THEN_DAPG.fine_tune and dagger.IMITATION_THEN_DAPG.settings({}).ppo is not None
     assert dagger.CONTENDED_IMITATION.settings({"contended_share": 0.25}).contended_share == 0.25  # --hp wins
