@@ -59,7 +59,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -69,6 +69,7 @@ from containergym_marl.core.observations import OBSERVATIONS
 from containergym_marl.evaluation.table import evaluation_key
 from containergym_marl.files import atomic_write_text
 from containergym_marl.orchestration.compare_args import PAPER_ROWS, CompareArgs
+from containergym_marl.orchestration.stopping import exit_on_sigterm, worker_pool
 
 #: The students' observations: what each sees besides the default (``portable`` is for transfer between
 #: plants, studies/transfer.py, and sees less rather than more).
@@ -167,7 +168,7 @@ def execute(args: Args, plans: dict) -> list[str]:
           f"{sum(len(p.to_evaluate) for p in plans.values())} evaluation(s) to run", flush=True)
     failed: list[str] = []
     compare_args = args.plans()
-    with ProcessPoolExecutor(args.workers) as pool:
+    with worker_pool(args.workers) as pool:
         trainings = {pool.submit(train_run, spec): spec for spec in to_train}
         for future in as_completed(trainings):
             spec = trainings[future]
@@ -238,7 +239,7 @@ def decision_times(args: Args, plans: dict) -> dict:
                 run = Path(args.plans()[name].runs).resolve() / run_name(STUDENT, row, args.seeds[0])
                 jobs.append((f"{name}/{row}", row, str(run), evaluation["compare"]["model_sha256"]))
     jobs = [j for j in jobs if j[0] not in known or known[j[0]]["model_sha256"] != j[3]]
-    with ProcessPoolExecutor(args.workers) as pool:
+    with worker_pool(args.workers) as pool:
         for key, sha, timing in pool.map(_timed, jobs):
             known[key] = {"model_sha256": sha, **timing}
             atomic_write_text(path, json.dumps(known, indent=1, sort_keys=True) + "\n")
@@ -363,4 +364,5 @@ def parse(argv=None) -> Args:
 
 
 if __name__ == "__main__":
+    exit_on_sigterm()  # stopped by SIGTERM, the study's workers stop with it
     main(parse())

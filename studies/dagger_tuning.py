@@ -34,14 +34,15 @@ import os
 import subprocess
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from containergym_marl.files import atomic_write_text
+from containergym_marl.orchestration.stopping import exit_on_sigterm, worker_pool
 from containergym_marl.rundir import read_metrics, run_name, run_status
+
 
 @dataclass(frozen=True)
 class Variant:
@@ -255,7 +256,7 @@ def main(argv=None) -> None:
     done = {(e["variant"], e["row"], e["seed"], e["model"], e["episodes"]) for e in entries}
     evals = [(v, r, s, str(runs), w, ns.episodes) for v in ns.variants for r in ns.rows for s in ns.seeds
              for w in ("best", "final") if evaluable(run_dir(runs, v, r, s), w) and (v, r, s, w, ns.episodes) not in done]
-    with ProcessPoolExecutor(ns.workers) as pool:
+    with worker_pool(ns.workers) as pool:
         for entry in pool.map(evaluate_one, evals):
             entries.append(entry)
             print(f"{entry['variant']:22s} {entry['row']:13s} s{entry['seed']} {entry['model']:5s} "
@@ -278,7 +279,5 @@ def save(path: Path, variants: list[str], entries: list[dict], note: str) -> Non
 
 
 if __name__ == "__main__":
-    from containergym_marl.orchestration.stopping import exit_on_sigterm
-
     exit_on_sigterm()  # stopped by SIGTERM, the finally clauses stop the child processes first
     main()

@@ -17,11 +17,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.files import atomic_write_text
+from containergym_marl.orchestration.stopping import exit_on_sigterm, worker_pool
 
 CAUSES = ("denied", "not_requested", "no_free_pu")
 
@@ -81,7 +81,7 @@ def main(argv=None) -> None:
     missing = [r for r in ns.runs if not (Path(r) / "best_model.pt").is_file()]
     if missing:
         raise SystemExit(f"no best_model.pt in: {', '.join(missing)}")
-    with ProcessPoolExecutor(ns.workers) as pool:
+    with worker_pool(ns.workers) as pool:
         entries = list(pool.map(run_causes, [(r, ns.episodes) for r in ns.runs]))
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -91,4 +91,5 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
+    exit_on_sigterm()  # stopped by SIGTERM, the study's workers stop with it
     main()

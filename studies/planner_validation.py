@@ -47,13 +47,13 @@ import argparse
 import json
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from containergym_marl.evaluation.protocol import FRESH
 from containergym_marl.files import atomic_write_text
+from containergym_marl.orchestration.stopping import exit_on_sigterm, worker_pool
 from containergym_marl.policies.planner import SHIELD
 from containergym_marl.policies.safety import CHECK_VERSION, DECISIONS_CHANGED
 
@@ -302,7 +302,7 @@ def main(argv=None) -> None:
     parts = [part for part in ns.parts if part != "replay"]
     todo = [] if ns.report else [j for j in jobs_for(parts, episodes, ns.safety_first_seed) if key(*j) not in done]
     print(f"{len(todo)} block(s) to run, {len(done)} reused", flush=True)
-    with ProcessPoolExecutor(ns.workers) as pool:
+    with worker_pool(ns.workers) as pool:
         for block in pool.map(run_block, todo):
             blocks.append(block)
             atomic_write_text(path, json.dumps({"defaults": DEFAULTS, "note": note, "blocks": blocks}) + "\n")
@@ -319,4 +319,5 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
+    exit_on_sigterm()  # stopped by SIGTERM, the study's workers stop with it
     main()

@@ -49,7 +49,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -58,6 +58,7 @@ import numpy as np
 from containergym_marl.evaluation.table import evaluation_key
 from containergym_marl.files import atomic_write_text
 from containergym_marl.orchestration.compare_args import CompareArgs
+from containergym_marl.orchestration.stopping import exit_on_sigterm, worker_pool
 
 #: The shared policies that transfer: the native shared PPO and the imitation of the planner.
 METHODS = ("fast_shared_ppo", "dagger_agents")
@@ -222,7 +223,7 @@ def execute(args: Args) -> list[str]:
     to_train = [spec for plan in plans.values() for spec in plan.to_train]
     print(f"transfer: {len(to_train)} run(s) to train", flush=True)
     failed: list[str] = []
-    with ProcessPoolExecutor(args.workers) as pool:
+    with worker_pool(args.workers) as pool:
         trainings = {pool.submit(train_run, spec): spec for spec in to_train}
         for future in as_completed(trainings):
             spec = trainings[future]
@@ -304,7 +305,7 @@ def decision_times(args: Args, plans: dict) -> dict:
     jobs = [j for j in timing_jobs(args, plans)
             if j[0] not in known or (known[j[0]]["model_sha256"], known[j[0]]["steps"]) != (j[3], j[5])]
     print(f"transfer: {len(jobs)} decision time(s) to measure", flush=True)
-    with ProcessPoolExecutor(args.workers) as pool:
+    with worker_pool(args.workers) as pool:
         for key, sha, timing in pool.map(_timed, jobs):
             known[key] = {"model_sha256": sha, **timing}
             atomic_write_text(path, json.dumps(known, indent=1, sort_keys=True) + "\n")
@@ -537,4 +538,5 @@ def parse(argv=None) -> Args:
 
 
 if __name__ == "__main__":
+    exit_on_sigterm()  # stopped by SIGTERM, the study's workers stop with it
     main(parse())

@@ -26,13 +26,13 @@ import json
 import math
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from containergym_marl.files import atomic_write_text
+from containergym_marl.orchestration.stopping import exit_on_sigterm, worker_pool
 from containergym_marl.training import fast_ppo
 from containergym_marl.training.ppo_kernel import FlatAdam
 
@@ -112,9 +112,8 @@ def train_and_score(job: tuple[str, str, int, int, str, int, dict]) -> dict:
     from containergym_marl.evaluation import evaluate
     from containergym_marl.evaluation.protocol import VALIDATION, EvalProtocol
     from containergym_marl.evaluation.run_policies import policy_from_run
-    from containergym_marl.training import TrainArgs, train
-
     from containergym_marl.rundir import run_name
+    from containergym_marl.training import TrainArgs, train
 
     run = Path(out) / variant / run_name("fast_shared_ppo", row, seed)
     cached = run / "score.json"
@@ -170,7 +169,7 @@ def main(argv=None) -> dict:
     if ns.smoke:
         ns.seeds, ns.samples, ns.episodes = ns.seeds[:2], 8192, 2
     jobs = [(v, ns.row, s, ns.samples, ns.out, ns.episodes, ns.hp) for s in ns.seeds for v in VARIANTS]
-    with ProcessPoolExecutor(ns.workers) as pool:
+    with worker_pool(ns.workers) as pool:
         entries = list(pool.map(train_and_score, jobs))
     returns = {v: np.array([e["validation_return"] for e in entries if e["variant"] == v]) for v in VARIANTS}
     cpu = {v: sum(e["cpu_s"] for e in entries if e["variant"] == v) for v in VARIANTS}
@@ -202,4 +201,5 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
+    exit_on_sigterm()  # stopped by SIGTERM, the study's workers stop with it
     main()
