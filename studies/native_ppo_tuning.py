@@ -63,6 +63,12 @@ of :class:`~containergym_marl.training.fast_ppo.PPOArgs`) on the search's rows a
 the same seeds, beside the same setting's runs without it (the search's and the guards', reused)
 (``own_check.json``, a table in trials.md). A labelled variant: the settings file does not take it.
 
+**A heavier overflow in training.** ``--overflow-scale`` trains the best finished trial's setting with the
+learner's reward at an overflow 10 × the plant's r_min (``overflow_reward_scale`` of
+:class:`~containergym_marl.training.fast_ppo.PPOArgs`: reward shaping; the plant, the best-model criterion
+and every validation keep r_min) on the search's rows and the guard rows with the same seeds, beside the
+same setting's runs without it (``overflow_scale.json``, a table in trials.md). A labelled variant.
+
 **A wider space.** ``--space wide`` searches :data:`WIDE_SPACE`: the default space with SB3's minibatch of 64
 and its 6144 samples per update among the choices (a smaller minibatch costs more CPU per sample, which
 the default space kept down). It is a study of its own (``--out``/<method>/wide/: its journal, tables,
@@ -99,6 +105,7 @@ from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import evaluate
 from containergym_marl.evaluation.protocol import VALIDATION
 from containergym_marl.evaluation.stats import iqm
+from containergym_marl.config.bounds import MAX_OVERFLOW_REWARD_SCALE
 from containergym_marl.config.hyperparams import settings_file, write_settings
 from containergym_marl.files import atomic_write_text
 from containergym_marl.methods import get_method
@@ -123,6 +130,8 @@ LARGE_PLANTS = 11
 #: The discount every trial trains with (the paper's, per decision), and the labelled variant for δ = 60 s:
 #: 0.995 per decision of 60 s is about 0.99 per 120 s, the horizon in plant time of the δ = 120 s rows.
 GAMMA, DT60_GAMMA = 0.99, 0.995
+#: --overflow-scale's default: the learner's reward at an overflow 10 × r_min
+OVERFLOW_SCALE = 10.0
 #: Runs before the pruner may stop a trial: every n = 5 row of the first seed.
 WARMUP_RUNS = 4
 #: The searched settings: a list of choices, or (low, high) for a log-uniform float.
@@ -538,6 +547,15 @@ def own_check_settings(study, risk: float) -> list[tuple[str, dict[str, Any], fl
              {**best.params, "own_check_risk": risk, "own_check_lead_steps": OWN_CHECK_LEAD_STEPS}, GAMMA)]
 
 
+def overflow_scale_settings(study, scale: float) -> list[tuple[str, dict[str, Any], float]]:
+    """(label, settings, γ) of the overflow variant: the best finished trial's setting, and the same with
+    the learner's reward at an overflow ``scale`` × r_min."""
+    best = best_trial(study, "--overflow-scale")
+    return [(f"trial {best.number}", dict(best.params), GAMMA),
+            (f"trial {best.number}, overflow reward × {scale:g}", {**best.params, "overflow_reward_scale": scale},
+             GAMMA)]
+
+
 def comparison_folder(hp: dict[str, Any], gamma: float) -> str:
     """The runs' folder of a setting trained with ``gamma`` (the search's own for its γ)."""
     return settings_key(hp if gamma == GAMMA else {**hp, "gamma": gamma})
@@ -614,6 +632,11 @@ COMPARISONS = {
                   "agents' own deadline check (`--own-check`: in training, where the environment executes a request "
                   "wherever an agent's own observation is due, and in every evaluation); its runs without are the "
                   "search's and the guards' own. A variant to cite as such."),
+    "overflow_scale": ("overflow_scale.json", "A heavier overflow in training (a labelled variant)",
+                       "The best finished trial's setting on {rows} with seeds {seeds}, with the plant's reward and "
+                       "with the learner's reward at an overflow a multiple of r_min (`--overflow-scale`: reward "
+                       "shaping in training; the best model is chosen and validated on the plant's reward); its runs "
+                       "with the plant's reward are the search's and the guards' own. A variant to cite as such."),
 }
 
 
@@ -877,6 +900,11 @@ def main(argv=None) -> None:
                         f"agents' own check (ε = RISK, default {OWN_CHECK_RISK}; a lead of {OWN_CHECK_LEAD_STEPS} fill) on "
                         "the search's rows and the guards' with the same seeds, beside its runs without: a labelled "
                         "variant (decentralised methods)")
+    p.add_argument("--overflow-scale", nargs="?", const=OVERFLOW_SCALE, default=None, type=float, metavar="SCALE",
+                   help="train nothing new for the search: train the best finished trial's setting with the "
+                        f"learner's reward at an overflow SCALE x r_min (default {OVERFLOW_SCALE:g}) on the search's "
+                        "rows and the guards' with the same seeds, beside its runs with the plant's reward: a "
+                        "labelled variant")
     p.add_argument("--write-config", nargs="?", const="", default=None, metavar="PATH",
                    help="train nothing: write the best finished trial's settings as the method's settings file "
                         "(default configs/hyperparams/<method>.toml)")
@@ -888,6 +916,8 @@ def main(argv=None) -> None:
     if ns.by_size and ns.write_config is None:
         p.error("--by-size: goes with --write-config")
     ns.report = ns.report or ns.write_config is not None
+    # the options that train a comparison beside the search rather than the search
+    comparison = ns.guards or any(v is not None for v in (ns.discount, ns.own_check, ns.overflow_scale))
     optuna = require_optuna()
     out, runs = Path(ns.out) / ns.method, Path(ns.runs) / ns.method
     # the wide search is a study of its own (Optuna keeps one space per study) beside the first one,
@@ -911,13 +941,12 @@ def main(argv=None) -> None:
     journal = out / "journal.log"
     with RunLock(out):  # one search of a method at a time (an OS lock, released however the search ends)
         study = open_study(ns.method, journal, sampler_seed=0,
-                           read_only=(ns.report or ns.guards or ns.discount is not None or ns.own_check is not None)
-                           and journal.is_file())
+                           read_only=(ns.report or comparison) and journal.is_file())
         parent = (open_study(ns.method, parent_out / "journal.log", 0, read_only=True)
                   if parent_out is not None and (parent_out / "journal.log").is_file() else None)
         # the first search's runs and comparisons, for a wide search: a setting it judged is not trained again
         reused = {**comparison_runs(parent_out), **recorded_runs(parent)} if parent is not None else {}
-        if ns.guards or ns.discount is not None or ns.own_check is not None:
+        if comparison:
             if ns.guards:
                 which, chosen, compared = "guards", guard_settings(study), rows[:1] if ns.smoke else GUARD_ROWS
             elif ns.own_check is not None:
@@ -926,6 +955,12 @@ def main(argv=None) -> None:
                 if not 0 < ns.own_check < 1:
                     p.error(f"--own-check: expected a probability in (0, 1), got {ns.own_check}")
                 which, chosen = "own_check", own_check_settings(study, ns.own_check)
+                compared = rows if ns.smoke else ROWS + GUARD_ROWS
+            elif ns.overflow_scale is not None:
+                if not 1 < ns.overflow_scale <= MAX_OVERFLOW_REWARD_SCALE:
+                    p.error(f"--overflow-scale: expected a multiple of r_min in (1, {MAX_OVERFLOW_REWARD_SCALE:g}], "
+                            f"got {ns.overflow_scale}")
+                which, chosen = "overflow_scale", overflow_scale_settings(study, ns.overflow_scale)
                 compared = rows if ns.smoke else ROWS + GUARD_ROWS
             else:
                 if not 0 < ns.discount <= 1:

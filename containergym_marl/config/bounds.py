@@ -62,6 +62,8 @@ futures, horizon             1 ≤ K ≤ 1024, 1 ≤ H ≤ 1024 (DAgger's labell
                              planner; defaults 16, 8)                             MAX_PLANNER_HORIZON
 own check's lead_steps       0 ≤ L ≤ 1024 fills (a learned container-agent        MAX_OWN_CHECK_LEAD_STEPS
                              policy's own deadline check)
+overflow_reward_scale        0 < scale ≤ 1000 (the native PPO's reward at an      MAX_OVERFLOW_REWARD_SCALE
+                             overflow, × r_min; 1: the plant's own)
 memory of a run              its estimate (``training.train_args.memory_estimate``:     machine_memory()
                              buffers, data set, networks, simulations) ≤ the
                              machine's physical memory
@@ -117,6 +119,7 @@ MAX_REPLAY_BUFFER = 2**24
 MAX_PLANNER_FUTURES = 1024
 MAX_PLANNER_HORIZON = 1024
 MAX_OWN_CHECK_LEAD_STEPS = 1024
+MAX_OVERFLOW_REWARD_SCALE = 1000.0
 #: Largest config file read (the built-in ones are ~3 kB; a 16-container plant ~6 kB).
 MAX_CONFIG_BYTES = 1_000_000
 #: Deepest nesting of lists and tables in a config file, and most parts of a dotted key (ours: 3).

@@ -204,6 +204,11 @@ class _SB3Base(VecEnv):
             raise RuntimeError("last_plant_step: no step has been taken yet")
         return out.plant_reward.copy(), out.terminated | out.truncated
 
+    def overflow_slots(self) -> np.ndarray:
+        """(num_envs,) bool, new: the slots whose reward in the last step is the plant's r_min because a
+        container overflowed (a trainer that weighs overflows its own way rescales those rewards)."""
+        raise NotImplementedError
+
     def seed(self, seed: int | None = None) -> list[int | None]:
         """Simulation b gets ``seed + b`` at the next ``reset()``."""
         base = check_seed(seed, "seed")
@@ -275,6 +280,10 @@ class ContainerGymVecEnv(_SB3Base):
                 infos[b] = {"terminal_observation": final_obs[k], "TimeLimit.truncated": truncated[k]}
         return obs, out.plant_reward.astype(np.float32), dones, infos
 
+    def overflow_slots(self) -> np.ndarray:
+        # the controller's reward is the plant's: r_min in a step that overflows
+        return self._batch.sim.last_outcome.terminated.copy()
+
     def action_masks(self) -> np.ndarray:
         free = self._batch.sim.free_pu_count() > 0
         masks = np.ones((self.num_sims, self._batch.params.n_containers + 1), dtype=bool)
@@ -333,6 +342,13 @@ class ContainerAgentsVecEnv(_SB3Base):
                     infos[b * n + i] = {"terminal_observation": final_obs[k, i],
                                         "TimeLimit.truncated": truncated[k]}
         return obs, rewards, dones, infos
+
+    def overflow_slots(self) -> np.ndarray:
+        # an overflowing container's own reward is r_min; the team reward of its plant's every agent
+        out = self._batch.sim.last_outcome
+        if self.reward_mode == "team":
+            return np.repeat(out.terminated, self.n_agents)
+        return out.overflowed.reshape(-1).copy()
 
     def action_masks(self) -> np.ndarray:
         free = np.repeat(self._batch.sim.free_pu_count() > 0, self.n_agents)

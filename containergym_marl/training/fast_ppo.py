@@ -65,6 +65,7 @@ from containergym_marl.config.bounds import (
     MAX_HIDDEN_WIDTH,
     MAX_MINIBATCH,
     MAX_N_STEPS,
+    MAX_OVERFLOW_REWARD_SCALE,
     MAX_ROLLOUT_SAMPLES,
     check_count,
 )
@@ -113,6 +114,9 @@ class PPOArgs:
     # whatever it sampled (PPO learns from the actions it sampled); 0: no check
     own_check_risk: float = 0.0
     own_check_lead_steps: int = 1
+    # the learner's reward at an overflow, as a multiple of the plant's r_min (reward shaping: 1 is the plant's
+    # own reward); the plant, its returns, the best-model criterion and every evaluation keep r_min
+    overflow_reward_scale: float = 1.0
 
     @classmethod
     def from_hyperparams(cls, hyperparams: dict[str, Any]) -> "PPOArgs":
@@ -151,6 +155,10 @@ class PPOArgs:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"hp: {name} must be a finite number >= 0, got {value}")
+        scale = self.overflow_reward_scale
+        if not (math.isfinite(scale) and 0 < scale <= MAX_OVERFLOW_REWARD_SCALE):
+            raise ValueError(f"hp: overflow_reward_scale must be in (0, {MAX_OVERFLOW_REWARD_SCALE:g}] "
+                             f"(1: the plant's r_min), got {scale}")
         check_hidden(self.hidden)
         check_observation(self.observation, "hp: observation")
         self.own_check()  # its two settings within their ranges
@@ -315,6 +323,8 @@ def learn(run: Path, state: TrainingState, env, budget: int, gamma: float, hp: P
                 next_obs, rewards, dones, infos = env.step(executed)
                 rewards = torch.from_numpy(rewards)
                 if dones.any():
+                    if hp.overflow_reward_scale != 1.0:  # an overflow ends its episode: shaped only there
+                        rewards[torch.from_numpy(env.overflow_slots())] *= hp.overflow_reward_scale
                     # A time-limit cut is not a terminal state: bootstrap with the value of the last
                     # observation (SB3's TimeLimit.truncated handling); an overflow is terminal.
                     cut = [k for k in np.flatnonzero(dones).tolist() if infos[k].get("TimeLimit.truncated")]

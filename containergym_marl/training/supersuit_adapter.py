@@ -93,6 +93,7 @@ class SuperSuitVecEnv(VecEnv):
         self._finalizer = weakref.finalize(self, _close_quietly, self._venv)
         atexit.register(self._finalizer)  # problem 4: close the workers before interpreter exit
         self._last_plant = (np.zeros(self.num_copies), np.zeros(self.num_copies, dtype=bool))
+        self._last_overflow = np.zeros(self.num_envs, dtype=bool)
 
     def _build(self, seed: int | None) -> None:
         from supersuit.vector.constructors import MakeCPUAsyncConstructor
@@ -138,7 +139,17 @@ class SuperSuitVecEnv(VecEnv):
         n = self.n_agents
         plant = np.array([infos[k * n].get("plant_reward", np.nan) for k in range(self.num_copies)])
         self._last_plant = (plant, dones.reshape(self.num_copies, n)[:, 0].copy())
-        return obs, np.asarray(rewards, dtype=np.float32), dones, infos
+        rewards = np.asarray(rewards, dtype=np.float32)
+        # an ended episode's infos are the next one's first: its overflowing agents are those at r_min
+        # (below every other reward, r_pen included); in team mode all of them
+        self._last_overflow = terminations.copy()
+        if self.env_kwargs.get("reward_mode") != "team":
+            self._last_overflow &= rewards == np.float32(self.config.overflow_reward)
+        return obs, rewards, dones, infos
+
+    def overflow_slots(self) -> np.ndarray:
+        """The slots whose last reward is r_min because a container overflowed (ContainerAgentsVecEnv's)."""
+        return self._last_overflow.copy()
 
     def last_plant_step(self) -> tuple[np.ndarray, np.ndarray]:
         """Plant reward and episode end of each copy in the last step (for training monitors)."""

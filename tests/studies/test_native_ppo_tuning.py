@@ -171,6 +171,16 @@ def test_smoke_search_records_every_trial_and_requeues_an_interrupted_one(tmp_pa
     assert "## The container agents' own check (a labelled variant)" in (out / "fast_shared_ppo" / "trials.md").read_text()
     assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
 
+    # the heavier overflow in training: the chosen setting again with 10 x r_min, beside its own search run
+    _search(out, runs, "--overflow-scale")
+    shaped = json.loads((out / "fast_shared_ppo" / "overflow_scale.json").read_text())
+    (plain, heavier) = shaped["settings"].values()
+    assert plain["params"] == best.params and heavier["params"] == {**best.params, "overflow_reward_scale": 10.0}
+    assert plain["runs"][0]["validation_return"] == searched[(script.settings_key(best.params), "n5_m2_dt120", 101)]
+    assert heavier["runs"][0]["samples"] >= 8192
+    assert "## A heavier overflow in training (a labelled variant)" in (out / "fast_shared_ppo" / "trials.md").read_text()
+    assert (out / "fast_shared_ppo" / "journal.log").read_bytes() == journal
+
     # another method's search starts from this one's best settings after its own default, reading this
     # search's journal without writing to it (as --report reads its own)
     journal = (out / "fast_shared_ppo" / "journal.log").read_bytes()

@@ -246,6 +246,47 @@ def test_annealed_step_size_falls_linearly_to_zero(tmp_path, monkeypatch):
     assert sorted(set(seen), reverse=True) == pytest.approx([1e-3, 0.75e-3, 0.5e-3, 0.25e-3])
 
 
+@pytest.mark.parametrize("view, reward_mode", [("centralised", "individual"), ("decentralised", "individual"),
+                                               ("decentralised", "team")])
+def test_overflow_reward_scale_multiplies_the_learners_reward_at_overflows_only(view, reward_mode, tmp_path,
+                                                                               monkeypatch):
+    """overflow_reward_scale=10: the rollout's rewards are the plant's except where a container
+    overflowed, there 10 x r_min (-10) instead of r_min (-1): the overflowing agent's own reward, every
+    agent's team reward, the controller's reward. The training episodes' returns (the best-model
+    criterion) stay the plant's. One rollout from the same seed, so both runs act alike."""
+    from containergym_marl.envs.vector import ContainerAgentsVecEnv, ContainerGymVecEnv
+    from containergym_marl.training import fast_ppo
+    from containergym_marl.training.checkpoints import TrainingProgress
+    from containergym_marl.training.fast_ppo import new_state
+
+    def one_rollout(scale):
+        # 11 containers that start nearly full, 2 PUs: random policies let some overflow
+        plant = {"initial_volume_min": 30.0, "initial_volume_max": 39.0, "episode_length_steps": 50}
+        env = (ContainerAgentsVecEnv("n11_m2_dt120", 4, reward_mode=reward_mode, **plant)
+               if view == "decentralised" else ContainerGymVecEnv("n11_m2_dt120", 4, **plant))
+        env.seed(7)
+        hp = PPOArgs(n_steps=100, minibatch_size=200, overflow_reward_scale=scale)
+        state = new_state(env, hp, view, 0, {})
+        seen = []
+        gae = fast_ppo.compute_gae
+        monkeypatch.setattr(fast_ppo, "compute_gae", lambda rewards, *a, **k: (
+            seen.append(rewards.clone()), gae(rewards, *a, **k))[1])
+        progress = TrainingProgress()
+        learn(tmp_path / f"s{scale}", state, env, 1, 0.99, hp, progress, interval=10**9)
+        return seen[0], list(progress.returns)
+
+    (tmp_path / "s1").mkdir(), (tmp_path / "s10").mkdir()
+    plain, plain_returns = one_rollout(1.0)
+    shaped, shaped_returns = one_rollout(10.0)
+    overflows = plain == -1.0  # r_min; every other reward is at least r_pen = -0.1
+    assert overflows.any() and plain_returns and (plain < 0).any()
+    if reward_mode == "team":  # all of a simulation's agents at once
+        assert overflows.view(100, 4, 11).all(-1).eq(overflows.view(100, 4, 11).any(-1)).all()
+    assert torch.equal(shaped[overflows], torch.full_like(shaped[overflows], -10.0))
+    assert torch.equal(shaped[~overflows], plain[~overflows])
+    assert shaped_returns == plain_returns
+
+
 # ---- runs: determinism, files, resume --------------------------------------------------------------
 def _tensors(path) -> dict:
     return {k: v.clone() for k, v in ActorCritic.load(path).net.state_dict().items()}
@@ -381,7 +422,9 @@ def test_kill_9_then_resume_keeps_metrics_and_episode_window(tmp_path):
                                        ({"action_mask": "maybe"}, "action_mask"),
                                        ({"minibatch_size": 2.5}, "minibatch_size"),
                                        ({"observation": "oracle"}, "observation"),
-                                       ({"observation": "portable"}, "observation")])  # not the controller's
+                                       ({"observation": "portable"}, "observation"),  # not the controller's
+                                       ({"overflow_reward_scale": 0}, "overflow_reward_scale"),
+                                       ({"overflow_reward_scale": "inf"}, "overflow_reward_scale")])
 def test_bad_settings_are_refused_before_anything_is_written(hp, field, tmp_path):
     with pytest.raises(ValueError, match=field):
         train(TrainArgs(algo="fast_ppo", out=str(tmp_path / "r"), timesteps=100, hyperparams=hp, progress_bar=False))

@@ -143,13 +143,14 @@ def test_raw_multiprocess_stack_hangs_at_exit_without_close():
 # ---- the SuperSuit path equals the native vectorised env ----------------------------------------
 @pytest.mark.parametrize("reward_mode", ["individual", "team"])
 def test_adapter_equals_native_agents_vec_env(reward_mode):
-    kwargs = dict(config="n5_m2_dt120", episode_length_steps=30, reward_mode=reward_mode)
+    # containers that start up to nearly full: some overflow under the random requests
+    kwargs = dict(config="n5_m2_dt120", episode_length_steps=30, reward_mode=reward_mode, initial_volume_max=39.0)
     ss = SuperSuitVecEnv(num_copies=3, seed=7, **kwargs)
     native = ContainerAgentsVecEnv(num_sims=3, **kwargs)
     native.seed(7)
     np.testing.assert_array_equal(ss.reset(), native.reset())
     rng = np.random.default_rng(0)
-    ends = 0
+    ends = overflows = 0
     for _ in range(70):  # crosses two automatic resets
         actions = (rng.random(ss.num_envs) < 0.2).astype(np.int64)
         o1, r1, d1, i1 = ss.step(actions)
@@ -157,9 +158,11 @@ def test_adapter_equals_native_agents_vec_env(reward_mode):
         np.testing.assert_array_equal(o1, o2)
         np.testing.assert_array_equal(r1, r2)
         np.testing.assert_array_equal(d1, d2)
+        np.testing.assert_array_equal(ss.overflow_slots(), native.overflow_slots())  # the slots at r_min
+        overflows += int(native.overflow_slots().sum())
         for a, b in zip(i1, i2):
             if "terminal_observation" in b:
                 ends += 1
                 np.testing.assert_array_equal(a["terminal_observation"], b["terminal_observation"])
                 assert a["TimeLimit.truncated"] == b["TimeLimit.truncated"]
-    assert ends > 0
+    assert ends > 0 and overflows > 0
