@@ -257,7 +257,36 @@ def one_pu_each_dt60():
             and shared.min() < seeds(c11, "ppo").min() and abs(shared.max() - rule(c11)) < 1)
 
 
+def _variant_rows(filename: str) -> dict[str, tuple[list[dict], list[dict]]]:
+    """A tuning comparison's runs by row: (the chosen setting's, the variant's)."""
+    data = json.loads((ROOT / "results/ppo_tuning/fast_shared_ppo" / filename).read_text())
+    chosen, variant = data["settings"].values()
+    return {row: ([e for e in chosen["runs"] if e["row"] == row], [e for e in variant["runs"] if e["row"] == row])
+            for row in data["rows"]}
+
+
+def variants_lose_at_dt60() -> bool:
+    """Each variant, on every δ = 60 s row of the search: a lower IQM share over the same 5 seeds and
+    more overflowing validation episodes than the chosen setting."""
+    from containergym_marl.evaluation.stats import iqm
+
+    for filename in ("discount.json", "overflow_scale.json"):
+        dt60 = {row: runs for row, runs in _variant_rows(filename).items()
+                if row in ("n5_m2_dt60", "n5_m5_dt60", "n11_m11_dt60")}
+        if len(dt60) != 3:
+            return False
+        for chosen, variant in dt60.values():
+            if ({e["seed"] for e in chosen} != {e["seed"] for e in variant} or len(variant) < 5
+                    or not iqm([e["score"] for e in variant]) < iqm([e["score"] for e in chosen])
+                    or not sum(e["overflowing_episodes"] for e in variant) > sum(e["overflowing_episodes"] for e in chosen)):
+                return False
+    return True
+
+
 READINGS = {
+    "trained with γ = 0.995 per decision, or with the learner's reward at an overflow 10 × r_min, it scores a "
+    "lower IQM share of `rule_based_agents` on every δ = 60 s search row, with more overflowing validation "
+    "episodes on each.": variants_lose_at_dt60,
     "`fast_shared_ppo_checked` (5 seeds, in the tables below) is the package's shared PPO with the agents' "
     "own deadline check, a rule that makes an agent's request wherever its own observation says its container may "
     "overflow within two fills. None of its fresh episodes overflows on the six rows where PUs are not scarce, and "
