@@ -26,7 +26,7 @@ EPISODES = EvalProtocol(episodes=12, first_seed=30_000)
 # (run, its first fresh episodes compared, whether they include an overflow as well as time-limit ends):
 # enough episodes for both ends where the policy overflows early in the range, four where it never does
 # (published runs: a republished method may need another seed here, one whose first episodes still have both ends)
-COMPARED = [("fast_shared_ppo_n11_m2_dt120_s3", 4, False), ("fast_ppo_n11_m2_dt120_s2", 6, True),
+COMPARED = [("fast_shared_ppo_n11_m2_dt120_s3", 4, False), ("fast_ppo_n11_m2_dt120_s1", 3, True),
             ("ppo_n11_m2_dt120_s1", 6, True), ("shared_ppo_n11_m2_dt120_s2", 4, False),
             ("mappo_n11_m2_dt120_s2", 6, True), ("fast_shared_ppo_team_n5_m2_dt60_s2", 4, True)]
 
