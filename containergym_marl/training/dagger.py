@@ -109,7 +109,7 @@ from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_obser
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.actor_critic import ActorCritic, load_tensors, save_tensors
 from containergym_marl.policies.planner import SHIELD, PlannerAgents
-from containergym_marl.policies.safety import OWN_CHECK_LEAD_STEPS, OWN_CHECK_RISK, own_check_setting, own_deadline_due
+from containergym_marl.policies.safety import own_check_setting, own_deadline_due
 from containergym_marl.rundir import RunError, RunWarning
 from containergym_marl.training import fast_ppo
 from containergym_marl.training.checkpoints import SegmentClock, TrainingProgress, save_checkpoint
@@ -788,8 +788,7 @@ IMITATION_THEN_DAPG = DAggerTrainer(fine_tune=True, defaults=DAPG_SETTINGS)
 #: ``dagger_checked_agents``: DAgger on the reference's labels (planner_agents_shielded's deadline check,
 #: policies.planner.SHIELD) with the student's own deadline check in collection and in the trained policy
 #: (fast_shared_ppo_checked's, policies.safety): dagger_tuning's ``greedy_shielded_own_1``.
-CHECKED_SETTINGS = {"safety_risk": SHIELD["safety_risk"], "own_check_risk": OWN_CHECK_RISK,
-                    "own_check_lead_steps": OWN_CHECK_LEAD_STEPS}
+CHECKED_SETTINGS = {"safety_risk": SHIELD["safety_risk"], **fast_ppo.OWN_CHECK_SETTINGS}
 CHECKED_IMITATION = DAggerTrainer(fine_tune=False, defaults=CHECKED_SETTINGS)
 
 __all__ = ["BC_DATASET", "CHECKED_IMITATION", "CHECKED_SETTINGS", "CONTENDED_IMITATION", "CONTENDED_SHARE", "DAPG_SETTINGS", "DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_DAPG", "IMITATION_THEN_PPO", "LABELS",
