@@ -18,6 +18,7 @@ The file (``torch.save`` of plain containers)::
      "observation_size": F, "n_actions": A, "hidden": [64, 64], "action_mask": bool,
      "observation": "local",              # the container agents' observation variant it was trained on
      "own_check": {"risk": ε, "lead_steps": L},  # only with a container agent's own deadline check
+     "request_threshold": τ,              # only where a greedy container agent requests above τ, not 0.5
      "state_dict": {"actor.0.weight": ..., ..., "critic.4.bias": ...},
      "meta": {...}}                       # where it came from (algorithm, config, seed, samples)
 
@@ -32,11 +33,18 @@ own observation says its container would overflow within ``lead_steps`` + 1 fill
 above ``risk`` asks for a free PU, whatever the network says. It is part of the policy: the policy
 adapters apply it, so every evaluation of the model does.
 
+``request_threshold`` (absent: None) is a decentralised model's greedy decision rule: an agent
+requests a PU where the network's probability of requesting is above τ rather than above 1/2 (its
+most likely action). An imitation whose agents see less than the planner that labels them learns
+the share of similar-looking states in which the planner requests; below 1/2 the most likely
+action is to wait, although a missed request near an overflow costs far more than an early one.
+Greedy acting (``deterministic=True``, every evaluation) applies it; sampling ignores it.
+
 The same model as safetensors (:meth:`ActorCritic.save_safetensors`, ``.safetensors``: a format
 that holds tensors and a string header, never code): the state dict's tensors, and the other fields
 as the header's metadata (``format``, ``version``, ``view``, ``observation_size``, ``n_actions``,
-``hidden``, ``action_mask``, ``observation``, ``own_check``, ``meta``; numbers, lists, ``own_check`` and
-``meta`` as JSON text).
+``hidden``, ``action_mask``, ``observation``, ``own_check``, ``request_threshold``, ``meta``; numbers, lists,
+``own_check`` and ``meta`` as JSON text).
 :meth:`ActorCritic.load` reads either by the file's suffix, with the same checks.
 
 The network is Stable-Baselines3's ``MlpPolicy`` for a discrete action: separate policy and value
@@ -45,7 +53,8 @@ initialisation (gain √2 for the hidden layers, 0.01 for the action head, 1 for
 
 Acting: with ``action_mask`` (a model trained with the free-PU mask) the actions that empty a
 container are masked while no PU is free, as in training; then the mode of the distribution
-(``deterministic=True``, the test protocol) or a sample from it.
+(``deterministic=True``, the test protocol; with ``request_threshold``, a request above τ) or a sample
+from it.
 """
 
 from __future__ import annotations
@@ -70,6 +79,16 @@ VERSION = 1
 VIEWS = ("centralised", "decentralised")
 #: The logit of a masked action (sb3-contrib's MaskablePPO uses the same).
 MASKED_LOGIT = -1e8
+
+
+def check_request_threshold(value, where: str = "request_threshold") -> float | None:
+    """``value`` as a greedy container agent's request threshold τ (a probability in (0, 1)), or None
+    (its most likely action); a ValueError naming ``where`` otherwise."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and 0 < value < 1):
+        raise ValueError(f"{where}: expected None or a probability in (0, 1), got {value!r}")
+    return float(value)
 
 
 def _torch():
@@ -111,12 +130,13 @@ class ActorCritic:
         observation: the container agents' observation variant it acts on
             (:data:`~containergym_marl.core.observations.OBSERVATIONS`; "local" for a centralised model).
         own_check: a decentralised model's own deadline check, ``{"risk": ε, "lead_steps": L}``, or None.
+        request_threshold: a decentralised model's greedy request threshold τ, or None (the most likely action).
     """
 
     def __init__(self, view: str, observation_size: int, n_actions: int, hidden: Sequence[int] = (64, 64),
                  action_mask: bool = False, state_dict: dict[str, Any] | None = None,
                  meta: dict[str, Any] | None = None, generator=None, observation: str = DEFAULT_OBSERVATION,
-                 own_check: dict[str, Any] | None = None):
+                 own_check: dict[str, Any] | None = None, request_threshold: float | None = None):
         torch = _torch()
         if view not in VIEWS:
             raise ValueError(f"view: expected one of {VIEWS}, got {view!r}")
@@ -127,6 +147,10 @@ class ActorCritic:
         self.own_check = check_own_check(own_check)
         if view == "centralised" and self.own_check is not None:
             raise ValueError("own_check: a container agent's own check; a centralised model has no container agents")
+        self.request_threshold = check_request_threshold(request_threshold)
+        if view == "centralised" and self.request_threshold is not None:
+            raise ValueError("request_threshold: a container agent's decision rule; a centralised model has no "
+                             "container agents")
         self.view, self.action_mask = view, bool(action_mask)
         self.observation_size, self.n_actions, self.hidden = check_network(observation_size, n_actions, hidden)
         self.meta = dict(meta or {})
@@ -162,6 +186,14 @@ class ActorCritic:
                 x = tanh_(torch.addmm(layer.bias, x, layer.weight.t()))
             return torch.addmm(layers[-1].bias, x, layers[-1].weight.t())
 
+    def greedy(self, logits):
+        """The greedy actions [B] of decision logits [B, A]: the most likely action, or for a model with a
+        ``request_threshold`` τ, a request (1) where its probability is above τ."""
+        if self.request_threshold is None:
+            return logits.argmax(-1)
+        tau = self.request_threshold
+        return (logits[:, 1] - logits[:, 0] > math.log(tau / (1 - tau))).long()
+
     def value(self, observations):
         """State values [B] of observations [B, F]."""
         return self.net.critic(observations).squeeze(-1)
@@ -174,7 +206,8 @@ class ActorCritic:
                 "state_dict": {k: v.detach().clone() for k, v in self.net.state_dict().items()},
                 "meta": self.meta,
                 # only where there is one: a model without keeps the bytes of a file written before the check
-                **({"own_check": self.own_check} if self.own_check is not None else {})}
+                **({"own_check": self.own_check} if self.own_check is not None else {}),
+                **({"request_threshold": self.request_threshold} if self.request_threshold is not None else {})}
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "model") -> "ActorCritic":
@@ -190,10 +223,13 @@ class ActorCritic:
         observation = check_observation(data.get("observation", DEFAULT_OBSERVATION), f"{source}: observation")
         if data["view"] == "centralised" and observation != DEFAULT_OBSERVATION:
             raise ValueError(f"{source}: a centralised model with the container agents' {observation!r} observation")
+        own_check = check_own_check(data.get("own_check"), f"{source}: own_check")
+        threshold = check_request_threshold(data.get("request_threshold"), f"{source}: request_threshold")
+        if data["view"] == "centralised" and (own_check, threshold) != (None, None):
+            raise ValueError(f"{source}: a centralised model with a container agent's own check or request threshold")
         try:
-            own_check = check_own_check(data.get("own_check"), f"{source}: own_check")
             return cls(data["view"], *sizes, data["action_mask"], data["state_dict"], data.get("meta"),
-                       observation=observation, own_check=own_check)
+                       observation=observation, own_check=own_check, request_threshold=threshold)
         except (TypeError, RuntimeError, ValueError) as exc:
             raise ValueError(f"{source}: its shape and weights do not match ({type(exc).__name__}: {exc})") from exc
 
@@ -211,7 +247,9 @@ class ActorCritic:
                     "observation_size": str(data["observation_size"]), "n_actions": str(data["n_actions"]),
                     "hidden": json.dumps(list(data["hidden"])), "action_mask": json.dumps(bool(data["action_mask"])),
                     "observation": data["observation"], "meta": json.dumps(data["meta"], sort_keys=True),
-                    **({"own_check": json.dumps(data["own_check"])} if "own_check" in data else {})}
+                    **({"own_check": json.dumps(data["own_check"])} if "own_check" in data else {}),
+                    **({"request_threshold": json.dumps(data["request_threshold"])}
+                       if "request_threshold" in data else {})}
         blob = _safetensors_torch().save({k: v.contiguous() for k, v in data["state_dict"].items()}, metadata)
         return atomic_write(path, lambda tmp: tmp.write_bytes(_sorted_header(blob)))
 
@@ -270,6 +308,7 @@ def read_safetensors(path: str | Path) -> dict[str, Any]:
                 "action_mask": json.loads(metadata["action_mask"]), "state_dict": tensors,
                 "observation": metadata.get("observation", DEFAULT_OBSERVATION),
                 "own_check": json.loads(metadata.get("own_check", "null")),
+                "request_threshold": json.loads(metadata.get("request_threshold", "null")),
                 "meta": json.loads(metadata.get("meta", "{}"))}
     except (KeyError, ValueError, TypeError) as exc:
         raise ValueError(f"{source}: its safetensors header lacks or garbles a field of the "
@@ -402,7 +441,7 @@ class _ActorCriticPolicy:
             if masks is not None:
                 logits = logits.masked_fill(~torch.as_tensor(masks), MASKED_LOGIT)
             if self.deterministic:
-                return logits.argmax(-1).tolist()
+                return self.model.greedy(logits).tolist()
             return torch.distributions.Categorical(logits=logits).sample().tolist()
 
     def act_batch(self, observations: np.ndarray, masks: np.ndarray | None) -> np.ndarray:

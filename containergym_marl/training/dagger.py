@@ -33,8 +33,9 @@ every container). The model records it, and its evaluation builds the same obser
 **One iteration** (:func:`learn`):
 
 1. *act*: ``n_steps`` steps of every simulation. The container agents act with the shared policy
-   (its most likely action, as the paper's test protocol and every evaluation act; ``greedy=false``
-   for a sample from it, as PPO's rollouts); in the first
+   (its most likely action, as the paper's test protocol and every evaluation act, or with
+   ``request_threshold`` τ a request wherever its probability is above τ, the model's rule in every
+   evaluation too; ``greedy=false`` for a sample from it, as PPO's rollouts); in the first
    ``expert_iterations`` the planner acts instead: β = 1, then β = 0, the schedule Ross et al. use
    in practice, so the first data set is behaviour cloning on the expert's own states.
 2. *label*: in every visited state ``planner_agents`` (:class:`~containergym_marl.policies.planner.PlannerAgents`
@@ -107,7 +108,7 @@ from containergym_marl.config.bounds import (
 )
 from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation, check_same_observation
 from containergym_marl.files import atomic_write_text
-from containergym_marl.policies.actor_critic import ActorCritic, load_tensors, save_tensors
+from containergym_marl.policies.actor_critic import ActorCritic, check_request_threshold, load_tensors, save_tensors
 from containergym_marl.policies.planner import SHIELD, PlannerAgents
 from containergym_marl.policies.safety import own_check_setting, own_deadline_due
 from containergym_marl.rundir import RunError, RunWarning
@@ -168,6 +169,11 @@ class DAggerArgs:
     # with probability above own_check_risk asks for a free PU; 0 is no check. The imitation alone (no fine-tuning)
     own_check_risk: float = 0.0
     own_check_lead_steps: int = 1
+    # the student's greedy decision rule, part of the trained policy wherever it acts greedily (ActorCritic.greedy):
+    # an agent requests where its probability of requesting is above this, 0.5 being the most likely action. The
+    # labels of similar-looking agent states differ (the planner sees the whole plant), so the network learns the
+    # share in which the planner requests. The imitation alone, acting greedily
+    request_threshold: float = 0.5
     imitation_share: float = 1.0  # share of the budget DAgger trains; dagger_ppo_agents: 0.5, PPO the rest
     # the fine-tuning's behaviour-cloning term (DAPG): bc_coef × the cross-entropy on the imitation's data set beside
     # PPO's loss, its weight halving every bc_half_life of the fine-tuning's samples; 0: PPO alone
@@ -251,6 +257,10 @@ class DAggerArgs:
             raise ValueError(f"hp: safety_risk must be a probability in [0, 1) (0: no deadline check), "
                              f"got {self.safety_risk}")
         self.own_check()  # its two settings within their ranges
+        check_request_threshold(self.request_threshold, "hp: request_threshold")
+        if self.request_threshold != 0.5 and (self.ppo is not None or not self.greedy):
+            raise ValueError("hp: request_threshold is the imitation's greedy decision rule: it takes greedy=true and "
+                             "no fine-tuning (PPO's updates learn from sampled actions)")
         if self.own_check_risk > 0 and self.ppo is not None:
             raise ValueError("hp: own_check_risk applies to the imitation alone: a check that overrides the sampled "
                              "actions would make PPO's fine-tuning learn from actions its policy did not take")
@@ -261,6 +271,10 @@ class DAggerArgs:
     def own_check(self) -> dict[str, Any] | None:
         """The model's own check (:func:`~containergym_marl.policies.safety.check_own_check`), or None."""
         return own_check_setting(self.own_check_risk, self.own_check_lead_steps)
+
+    def model_threshold(self) -> float | None:
+        """The model's request threshold, None where it is 0.5 (the most likely action, as a model without one)."""
+        return None if self.request_threshold == 0.5 else self.request_threshold
 
     def learning_rate_at(self, samples: int, budget: int) -> float:
         """Adam's step size after ``samples`` of an imitation budget of ``budget`` samples."""
@@ -405,7 +419,7 @@ def new_state(env, hp: DAggerArgs, seed: int, meta: dict[str, Any]) -> DAggerSta
     check_same_observation(hp.observation, getattr(env, "observation", DEFAULT_OBSERVATION), "the new DAgger model")
     model = ActorCritic("decentralised", obs_size, int(env.action_space.n), hp.hidden,
                         meta={**meta, "expert": "planner_agents"}, generator=generator, observation=hp.observation,
-                        own_check=hp.own_check())
+                        own_check=hp.own_check(), request_threshold=hp.model_threshold())
     return DAggerState(model, _optimizer(model, hp), generator, Dataset(hp.dataset_size, obs_size),
                        hyperparams=_jsonable(hp))
 
@@ -526,7 +540,7 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
             else:
                 logits = model.logits(obs)
                 if greedy:
-                    actions = logits.argmax(-1)
+                    actions = model.greedy(logits)
                 else:  # Gumbel-max: a sample, from the run's generator
                     actions = (logits - torch.log(-torch.log(torch.rand(logits.shape, generator=generator)))).argmax(-1)
                 if model.own_check is not None:  # the check is part of the policy: it acts as deployed

@@ -1,0 +1,189 @@
+"""Would the imitation's container agents score higher if they requested a PU below even odds?
+
+    python studies/request_threshold.py results/paper_rows/runs/dagger_agents_*   # -> results/request_threshold
+    python studies/request_threshold.py RUN ... --thresholds 0.5 0.3 --episodes 60 --out DIR
+
+**Question.** A student of the planner sees one container; the planner that labels it sees the plant. Where
+similar-looking agent states get different labels, the network learns the share of them in which the planner
+requests, and greedy acting (its most likely action) waits wherever that share is below 1/2, although a
+missed request near an overflow costs far more than an early one. A request threshold τ < 1/2
+(:attr:`~containergym_marl.policies.actor_critic.ActorCritic.request_threshold`) requests wherever the
+probability is above τ.
+
+**Protocol.** Each run's standing model (its validated model, else its best), unchanged but for τ, on the
+same ``--episodes`` validation episodes (δ = 120 s, T = 600, seeds 20100+: none of the 30 the run's curve
+picked its model on, no test or fresh episode), for every ``--thresholds`` τ (0.5: the most likely action,
+the model as trained); the reference, ``planner_agents_shielded``, on the same episodes of every row. Per
+method and row: the mean over runs of each τ's mean return as a share of the reference's, and the
+overflowing episodes summed over runs. The models were trained acting by their most likely action: a student
+trained acting with τ (``--hp request_threshold=τ`` on ``dagger_agents``) collects other states.
+
+Resumable (``<out>/thresholds.json`` keeps every run's numbers by its model's hash, the reference's by row and
+episodes); writes ``thresholds.md``. One torch thread, batched evaluations (the planner's one by one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+FIRST_SEED = 20100  # after the curves' 30 validation episodes (20000-20029)
+THRESHOLDS = (0.5, 0.4, 0.3, 0.2, 0.1)
+REFERENCE = "planner_agents_shielded"
+
+
+def _protocol(episodes: int):
+    from containergym_marl.evaluation import EvalProtocol
+
+    return EvalProtocol(episodes=episodes, first_seed=FIRST_SEED)
+
+
+def evaluate_run(run: Path, thresholds: list[float], episodes: int) -> dict:
+    import torch
+
+    from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
+    from containergym_marl.evaluation.batched import evaluate_batched
+    from containergym_marl.evaluation.run_policies import evaluated_which, policy_from_run
+    from containergym_marl.rundir import run_args
+
+    torch.set_num_threads(1)
+    saved, which = run_args(run), evaluated_which(run)
+    policy = policy_from_run(run, which)
+    from containergym_marl.algorithms import get_algorithm
+
+    entry = {"method": get_algorithm(saved["algo"]).method_name(saved.get("reward_mode")), "row": saved["config"],
+             "seed": saved["seed"], "model": which, "episodes": episodes, "first_seed": FIRST_SEED, "thresholds": {}}
+    for tau in thresholds:
+        policy.model.request_threshold = None if tau == 0.5 else tau
+        result = evaluate_batched(policy, saved["config"], _protocol(episodes),
+                                  arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
+        entry["thresholds"][str(tau)] = {"return_mean": float(result.returns.mean()),
+                                         "overflowing_episodes": int(sum(bool(e.overflow) for e in result.episodes))}
+    return entry
+
+
+def evaluate_reference(row: str, episodes: int) -> dict:
+    import numpy as np
+
+    from containergym_marl.evaluation import evaluate
+    from containergym_marl.methods import get_method
+
+    result = evaluate(get_method(REFERENCE).controller(), row, _protocol(episodes))
+    return {"return_mean": float(np.mean(result.returns)), "episodes": episodes, "first_seed": FIRST_SEED,
+            "overflowing_episodes": int(sum(bool(m.overflow) for m in result.episodes))}
+
+
+def model_hash(run: Path) -> str:
+    from containergym_marl.algorithms import get_algorithm
+    from containergym_marl.evaluation.run_policies import evaluated_which
+    from containergym_marl.rundir import run_args
+
+    spec = get_algorithm(run_args(run)["algo"])
+    return hashlib.sha256((run / spec.model_file(evaluated_which(run))).read_bytes()).hexdigest()
+
+
+def summarise(entries: dict, references: dict) -> list[dict]:
+    """Per (method, row): each threshold's mean return over runs, its share of the reference's, and the
+    overflowing episodes summed over runs."""
+    from containergym_marl.config.loading import config_sort_key
+
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for entry in entries.values():
+        groups.setdefault((entry["method"], entry["row"]), []).append(entry)
+    out = []
+    for method, row in sorted(groups, key=lambda key: (key[0], config_sort_key(key[1]))):
+        runs = groups[method, row]
+        reference = references[row]["return_mean"]
+        cells = {}
+        for tau in sorted({t for r in runs for t in r["thresholds"]}, key=float, reverse=True):
+            values = [r["thresholds"][tau] for r in runs if tau in r["thresholds"]]
+            mean = sum(v["return_mean"] for v in values) / len(values)
+            cells[tau] = {"runs": len(values), "return_mean": mean, "share": mean / reference,
+                          "overflowing_episodes": sum(v["overflowing_episodes"] for v in values)}
+        out.append({"method": method, "row": row, "runs": len(runs), "episodes": runs[0]["episodes"],
+                    "reference": references[row], "thresholds": cells})
+    return out
+
+
+def report(summary: list[dict]) -> str:
+    taus = sorted({t for s in summary for t in s["thresholds"]}, key=float, reverse=True)
+    lines = ["# A request threshold for the imitation's greedy agents", "",
+             f"`python studies/request_threshold.py RUN ...`: each run's standing model on the same validation "
+             f"episodes (seeds {FIRST_SEED}+), requesting wherever its probability of a request is above τ (0.5: its "
+             f"most likely action, as trained). Per method and row: the mean over runs of each τ's mean return as a "
+             f"share of `{REFERENCE}`'s on the same episodes, and the overflowing episodes summed over runs.", "",
+             "| method | row | runs × episodes | reference | " + " | ".join(f"τ = {t}" for t in taus) + " |",
+             "|---|---|---|---|" + "---|" * len(taus)]
+    for s in summary:
+        cells = []
+        for tau in taus:
+            c = s["thresholds"].get(tau)
+            cells.append("–" if c is None else f"{100 * c['share']:.1f} % ({c['overflowing_episodes']})")
+        lines.append(f"| {s['method']} | {s['row']} | {s['runs']} × {s['episodes']} | "
+                     f"{s['reference']['return_mean']:.2f} ({s['reference']['overflowing_episodes']}) | "
+                     + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="finished run directories of shared native-PPO models")
+    parser.add_argument("--thresholds", nargs="+", type=float, default=list(THRESHOLDS))
+    parser.add_argument("--episodes", type=int, default=60)
+    parser.add_argument("--out", type=Path, default=REPO / "results" / "request_threshold")
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes: expected at least 1, got {args.episodes}")
+    from containergym_marl.policies.actor_critic import check_request_threshold
+
+    for tau in args.thresholds:
+        try:
+            check_request_threshold(tau, "--thresholds")
+        except ValueError as exc:
+            parser.error(str(exc))
+    from containergym_marl.algorithms import get_algorithm
+    from containergym_marl.rundir import run_args
+
+    for run in args.runs:  # every refusal before anything is evaluated or written
+        try:
+            spec = get_algorithm(run_args(run)["algo"])
+        except Exception as exc:  # noqa: BLE001 - any unreadable run is named
+            parser.error(f"{str(run)!r} is not a run directory ({exc})")
+        if spec.view != "decentralised" or spec.model_suffix != ".pt":
+            parser.error(f"{str(run)!r}: a {spec.name} run; the threshold is a rule of the package's shared "
+                         f"container-agent models (the native PPO's and the imitations')")
+    from containergym_marl.files import atomic_write_text
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    store = args.out / "thresholds.json"
+    known = json.loads(store.read_text()) if store.is_file() else {}
+    entries, references = known.get("runs", {}), known.get("references", {})
+    wanted = [str(t) for t in args.thresholds]
+    for run in sorted(args.runs):
+        sha, old = model_hash(run), entries.get(run.name)
+        if old is not None and old.get("model_sha256") == sha and old["episodes"] == args.episodes \
+                and set(wanted) <= set(old["thresholds"]):
+            continue
+        entries[run.name] = {**evaluate_run(run, args.thresholds, args.episodes), "model_sha256": sha}
+        atomic_write_text(store, json.dumps({"runs": entries, "references": references}, indent=1, sort_keys=True)
+                          + "\n")
+        print(run.name, entries[run.name]["thresholds"], flush=True)
+    for row in sorted({e["row"] for e in entries.values()}):
+        if references.get(row, {}).get("episodes") != args.episodes:
+            references[row] = evaluate_reference(row, args.episodes)
+            atomic_write_text(store, json.dumps({"runs": entries, "references": references}, indent=1,
+                                                sort_keys=True) + "\n")
+            print(REFERENCE, row, references[row], flush=True)
+    summary = summarise({k: e for k, e in entries.items() if e["episodes"] == args.episodes}, references)
+    atomic_write_text(args.out / "summary.json", json.dumps(summary, indent=1) + "\n")
+    text = report(summary)
+    atomic_write_text(args.out / "thresholds.md", text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
