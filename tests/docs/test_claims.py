@@ -473,6 +473,44 @@ def own_check_clears_n11():
         t[("greedy_shielded_own_1", row)][1:] == (0, 2) for row in TUNING_ROWS)
 
 
+@cache
+def thresholds() -> dict[tuple[str, str], dict[float, tuple[float, int]]]:
+    """results/request_threshold/summary.json by (method, row): each τ's (share of the reference, overflowing
+    episodes over all runs)."""
+    summary = json.loads((ROOT / "results" / "request_threshold" / "summary.json").read_text())
+    return {(s["method"], s["row"]): {float(t): (c["share"], c["overflowing_episodes"]) for t, c in s["thresholds"].items()}
+            for s in summary}
+
+
+CONTENDED_ROWS = ("n11_m2_dt60", "n11_m2_dt120", "n16_m2_dt120")
+IMITATIONS = ("dagger_agents", "dagger_ppo_agents")
+
+
+def threshold_helps_the_imitation_where_contended():
+    t = thresholds()
+    return all(t["dagger_agents", row][0.3][0] > t["dagger_agents", row][0.5][0]
+               and t["dagger_agents", row][0.3][1] < t["dagger_agents", row][0.5][1] for row in CONTENDED_ROWS)
+
+
+def threshold_moves_little_elsewhere():
+    t = thresholds()
+    others = [(m, row) for (m, row) in t if m in IMITATIONS and row not in CONTENDED_ROWS]
+    return len(others) == 12 and all(abs(t[key][tau][0] - t[key][0.5][0]) <= 0.01 for key in others
+                                     for tau in (0.4, 0.3, 0.2))
+
+
+def threshold_leaves_n16_overflows():
+    t = thresholds()
+    return all(overflows > 0 for m in IMITATIONS for _, overflows in t[m, "n16_m2_dt120"].values())
+
+
+def threshold_does_not_fix_ppo():
+    t = thresholds()
+    rows = [row for (m, row), cells in t.items() if m == "fast_shared_ppo" and cells[0.5][1] > 20]
+    return len(rows) >= 5 and all(min(o for _, o in t["fast_shared_ppo", row].values())
+                                  > t["fast_shared_ppo", row][0.5][1] / 2 for row in rows)
+
+
 FINE_TUNING_ROWS = ("n11_m2_dt120", "n16_m2_dt120", "n11_m11_dt60", "n11_m2_dt60")
 FINE_TUNINGS = ("ppo_individual", "ppo_team", "ppo_individual_share_0.5", "ppo_team_share_0.5")
 GENTLER = "ppo_team_share_0.5_lr_1e-4"  # the default with a third of PPO's step size
@@ -724,6 +762,13 @@ PLANNER_CLAIMS = {
     "row.": memory_and_broadcast_move_little,
     "So most of the gap is learning, not information: even the oracle student stays 3–6 % below the planner, which "
     "overflows in none of these episodes.": oracle_below_the_planner,
+    "On the contended rows `n11_m2_dt60`, `n11_m2_dt120` and `n16_m2_dt120`, τ = 0.3 raises `dagger_agents`' mean "
+    "return and lowers its overflowing episodes on each.": threshold_helps_the_imitation_where_contended,
+    "On the six other rows, no τ from 0.4 to 0.2 moves either imitation's share of the reference by more than a "
+    "percentage point.": threshold_moves_little_elsewhere,
+    "On `n16_m2_dt120` no threshold removes the imitations' overflows.": threshold_leaves_n16_overflows,
+    "The native shared PPO's policies are sure of their mistakes: on every row where it overflows in more than 20 of "
+    "its 900 episodes, no threshold removes half of them.": threshold_does_not_fix_ppo,
 }
 
 
