@@ -2,6 +2,7 @@
 
     python studies/request_threshold.py results/paper_rows/runs/dagger_agents_*   # -> results/request_threshold
     python studies/request_threshold.py RUN ... --thresholds 0.5 0.3 --episodes 60 --out DIR
+    python studies/request_threshold.py results/paper_rows/runs/dagger_agents_* --fresh 0.3   # the chosen τ, reported
 
 **Question.** A student of the planner sees one container; the planner that labels it sees the plant. Where
 similar-looking agent states get different labels, the network learns the share of them in which the planner
@@ -17,6 +18,13 @@ the model as trained); the reference, ``planner_agents_shielded``, on the same e
 method and row: the mean over runs of each τ's mean return as a share of the reference's, and the
 overflowing episodes summed over runs. The models were trained acting by their most likely action: a student
 trained acting with τ (``--hp request_threshold=τ`` on ``dagger_agents``) collects other states.
+
+**Reporting** (``--fresh τ``, once τ is chosen on the validation episodes): every run's standing model with τ
+and as trained on the fresh episodes (200, seeds 30000+, used for nothing else; the published results' episodes),
+beside the reference's published fresh return on them (``results/paper_rows/fresh``). Per method and row: the
+IQM over seeds of their mean fresh returns as a share of the reference's and the share of all episodes that
+overflow, the issue's bar being at least 97 % and at most 0.5 % (``studies/reference_shares.py``). Writes
+``<out>/fresh.json`` and ``fresh.md``.
 
 Resumable (``<out>/thresholds.json`` keeps every run's numbers by its model's hash, the reference's by row and
 episodes); writes ``thresholds.md``. One torch thread, batched evaluations (the planner's one by one).
@@ -74,6 +82,67 @@ def evaluate_reference(row: str, episodes: int) -> dict:
     result = evaluate(get_method(REFERENCE).controller(), row, _protocol(episodes))
     return {"return_mean": float(np.mean(result.returns)), "episodes": episodes, "first_seed": FIRST_SEED,
             "overflowing_episodes": int(sum(bool(m.overflow) for m in result.episodes))}
+
+
+def evaluate_fresh(run: Path, tau: float) -> dict:
+    """The run's standing model on the fresh episodes as trained and with ``tau``: each one's per-episode
+    returns' mean and its overflowing episodes."""
+    import torch
+
+    from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
+    from containergym_marl.evaluation.batched import evaluate_batched
+    from containergym_marl.evaluation.protocol import FRESH
+    from containergym_marl.evaluation.run_policies import evaluated_which, policy_from_run
+    from containergym_marl.rundir import run_args
+
+    torch.set_num_threads(1)
+    saved = run_args(run)
+    policy = policy_from_run(run, evaluated_which(run))
+    trained = policy.model.request_threshold
+    from containergym_marl.algorithms import get_algorithm
+
+    entry = {"method": get_algorithm(saved["algo"]).method_name(saved.get("reward_mode")), "row": saved["config"],
+             "seed": saved["seed"], "episodes": FRESH.episodes, "first_seed": FRESH.first_seed}
+    for label, threshold in (("as_trained", trained), ("threshold", None if tau == 0.5 else tau)):
+        policy.model.request_threshold = threshold
+        result = evaluate_batched(policy, saved["config"], FRESH,
+                                  arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
+        entry[label] = {"return_mean": float(result.returns.mean()),
+                        "overflowing_episodes": int(sum(bool(e.overflow) for e in result.episodes))}
+    return entry
+
+
+def fresh_report(entries: dict, tau: float, results: Path) -> tuple[list[dict], str]:
+    """Per (method, row): the IQM share of the reference's fresh mean and the overflow rate, as trained and
+    with ``tau``; and its Markdown table."""
+    from containergym_marl.config.loading import config_sort_key
+    from containergym_marl.evaluation.stats import iqm
+
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for entry in entries.values():
+        groups.setdefault((entry["method"], entry["row"]), []).append(entry)
+    summary = []
+    for method, row in sorted(groups, key=lambda key: (key[0], config_sort_key(key[1]))):
+        runs = groups[method, row]
+        reference = json.loads((results / "fresh" / row / f"{REFERENCE}.json").read_text())["summary"]["return_mean"]
+        cells = {}
+        for label in ("as_trained", "threshold"):
+            share = iqm([r[label]["return_mean"] for r in runs]) / reference
+            rate = sum(r[label]["overflowing_episodes"] for r in runs) / sum(r["episodes"] for r in runs)
+            cells[label] = {"iqm_share": share, "overflow_rate": rate, "meets": share >= 0.97 and rate <= 0.005}
+        summary.append({"method": method, "row": row, "seeds": len(runs), "reference_fresh_mean": reference, **cells})
+    lines = [f"Fresh episodes (200 per seed, seeds 30000–30199). Per method and row: the IQM over seeds of their mean "
+             f"fresh returns as a share of `{REFERENCE}`'s, and the share of all their episodes that overflow, each "
+             f"seed's standing model as trained and with τ = {tau} (chosen on validation episodes). ✓: at least 97 % "
+             "and at most 0.5 % overflowing.", "",
+             "| method | row | seeds | reference | as trained | overflow | τ = " + str(tau) + " | overflow |",
+             "|---|---|---|---|---|---|---|---|"]
+    for s in summary:
+        a, t = s["as_trained"], s["threshold"]
+        lines.append(f"| {s['method']} | {s['row']} | {s['seeds']} | {s['reference_fresh_mean']:.2f} | "
+                     f"{100 * a['iqm_share']:.1f} %{' ✓' if a['meets'] else ''} | {100 * a['overflow_rate']:.1f} % | "
+                     f"{100 * t['iqm_share']:.1f} %{' ✓' if t['meets'] else ''} | {100 * t['overflow_rate']:.1f} % |")
+    return summary, "\n".join(lines) + "\n"
 
 
 def model_hash(run: Path) -> str:
@@ -134,14 +203,18 @@ def main(argv=None) -> int:
     parser.add_argument("--thresholds", nargs="+", type=float, default=list(THRESHOLDS))
     parser.add_argument("--episodes", type=int, default=60)
     parser.add_argument("--out", type=Path, default=REPO / "results" / "request_threshold")
+    parser.add_argument("--fresh", type=float, metavar="TAU",
+                        help="report TAU (chosen on the validation episodes) on the fresh episodes instead")
+    parser.add_argument("--results", type=Path, default=REPO / "results" / "paper_rows",
+                        help="the published results whose fresh/ holds the reference's fresh evaluations")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes: expected at least 1, got {args.episodes}")
     from containergym_marl.policies.actor_critic import check_request_threshold
 
-    for tau in args.thresholds:
+    for tau, name in [(t, "--thresholds") for t in args.thresholds] + [(args.fresh, "--fresh")]:
         try:
-            check_request_threshold(tau, "--thresholds")
+            check_request_threshold(tau, name)
         except ValueError as exc:
             parser.error(str(exc))
     from containergym_marl.algorithms import get_algorithm
@@ -157,7 +230,14 @@ def main(argv=None) -> int:
                          f"container-agent models (the native PPO's and the imitations')")
     from containergym_marl.files import atomic_write_text
 
+    if args.fresh is not None:
+        rows = {run_args(run)["config"] for run in args.runs}
+        missing = [row for row in sorted(rows) if not (args.results / "fresh" / row / f"{REFERENCE}.json").is_file()]
+        if missing:
+            parser.error(f"--results: no fresh evaluation of {REFERENCE} on {missing} under {args.results}")
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.fresh is not None:
+        return report_fresh(args, atomic_write_text)
     store = args.out / "thresholds.json"
     known = json.loads(store.read_text()) if store.is_file() else {}
     entries, references = known.get("runs", {}), known.get("references", {})
@@ -181,6 +261,24 @@ def main(argv=None) -> int:
     atomic_write_text(args.out / "summary.json", json.dumps(summary, indent=1) + "\n")
     text = report(summary)
     atomic_write_text(args.out / "thresholds.md", text)
+    print(text)
+    return 0
+
+
+def report_fresh(args, atomic_write_text) -> int:
+    store = args.out / "fresh.json"
+    known = json.loads(store.read_text()) if store.is_file() else {}
+    entries = known.get("runs", {}) if known.get("tau") == args.fresh else {}
+    for run in sorted(args.runs):
+        sha, old = model_hash(run), entries.get(run.name)
+        if old is not None and old.get("model_sha256") == sha:
+            continue
+        entries[run.name] = {**evaluate_fresh(run, args.fresh), "model_sha256": sha}
+        atomic_write_text(store, json.dumps({"tau": args.fresh, "runs": entries}, indent=1, sort_keys=True) + "\n")
+        print(run.name, entries[run.name]["as_trained"], entries[run.name]["threshold"], flush=True)
+    summary, text = fresh_report(entries, args.fresh, args.results)
+    atomic_write_text(args.out / "fresh_summary.json", json.dumps({"tau": args.fresh, "rows": summary}, indent=1) + "\n")
+    atomic_write_text(args.out / "fresh.md", text)
     print(text)
     return 0
 

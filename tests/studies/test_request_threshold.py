@@ -55,3 +55,27 @@ def test_a_centralised_run_is_refused_before_anything_is_written(tmp_path):
                           timeout=120)
     assert done.returncode == 2 and "fast_ppo run" in done.stderr
     assert not out.exists()
+
+
+def test_the_fresh_report_sets_both_decision_rules_against_the_reference(tmp_path):
+    """``--fresh τ``: the run's model as trained and with τ on the published fresh episodes, as a batched
+    evaluation of each gives, as shares of the reference's fresh mean read from ``--results``; refused
+    before anything is written where that file is missing."""
+    from containergym_marl.evaluation.protocol import FRESH
+
+    run, out, results = _run(tmp_path, "fast_shared_ppo"), tmp_path / "out", tmp_path / "results"
+    command = [sys.executable, SCRIPT, str(run), "--fresh", "0.2", "--out", str(out), "--results", str(results)]
+    refused = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and "planner_agents_shielded" in refused.stderr and not out.exists()
+    reference = results / "fresh" / "n5_m2_dt120" / "planner_agents_shielded.json"
+    reference.parent.mkdir(parents=True)
+    reference.write_text(json.dumps({"summary": {"return_mean": 50.0}}))
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    row = json.loads((out / "fresh_summary.json").read_text())["rows"][0]
+    for label, tau in (("as_trained", None), ("threshold", 0.2)):
+        policy = policy_from_run(run, "best")
+        policy.model.request_threshold = tau
+        expected = evaluate_batched(policy, "n5_m2_dt120", FRESH)
+        assert row[label]["iqm_share"] == pytest.approx(float(expected.returns.mean()) / 50.0)
+        assert row[label]["overflow_rate"] == pytest.approx(sum(e.overflow for e in expected.episodes) / 200)
