@@ -26,6 +26,10 @@ IQM over seeds of their mean fresh returns as a share of the reference's and the
 overflow, the issue's bar being at least 97 % and at most 0.5 % (``studies/reference_shares.py``). Writes
 ``<out>/fresh.json`` and ``fresh.md``.
 
+``--own-check RISK:LEAD`` puts the agents' own deadline check (:func:`~containergym_marl.policies.safety.own_deadline_due`)
+in every policy evaluated with a threshold (a model trained with a check keeps its own otherwise): the two
+decision rules together.
+
 Resumable (``<out>/thresholds.json`` keeps every run's numbers by its model's hash, the reference's by row and
 episodes); writes ``thresholds.md``. One torch thread, batched evaluations (the planner's one by one).
 """
@@ -49,7 +53,7 @@ def _protocol(episodes: int):
     return EvalProtocol(episodes=episodes, first_seed=FIRST_SEED)
 
 
-def evaluate_run(run: Path, thresholds: list[float], episodes: int) -> dict:
+def evaluate_run(run: Path, thresholds: list[float], episodes: int, own_check: dict | None = None) -> dict:
     import torch
 
     from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
@@ -63,7 +67,10 @@ def evaluate_run(run: Path, thresholds: list[float], episodes: int) -> dict:
     from containergym_marl.algorithms import get_algorithm
 
     entry = {"method": get_algorithm(saved["algo"]).method_name(saved.get("reward_mode")), "row": saved["config"],
-             "seed": saved["seed"], "model": which, "episodes": episodes, "first_seed": FIRST_SEED, "thresholds": {}}
+             "seed": saved["seed"], "model": which, "episodes": episodes, "first_seed": FIRST_SEED, "thresholds": {},
+             "own_check": own_check}
+    if own_check is not None:
+        policy.model.own_check = own_check
     for tau in thresholds:
         policy.model.request_threshold = None if tau == 0.5 else tau
         result = evaluate_batched(policy, saved["config"], _protocol(episodes),
@@ -84,9 +91,9 @@ def evaluate_reference(row: str, episodes: int) -> dict:
             "overflowing_episodes": int(sum(bool(m.overflow) for m in result.episodes))}
 
 
-def evaluate_fresh(run: Path, tau: float) -> dict:
-    """The run's standing model on the fresh episodes as trained and with ``tau``: each one's per-episode
-    returns' mean and its overflowing episodes."""
+def evaluate_fresh(run: Path, tau: float, own_check: dict | None = None) -> dict:
+    """The run's standing model on the fresh episodes as trained and with ``tau`` (and ``own_check``, where
+    given): each one's per-episode returns' mean and its overflowing episodes."""
     import torch
 
     from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
@@ -98,13 +105,14 @@ def evaluate_fresh(run: Path, tau: float) -> dict:
     torch.set_num_threads(1)
     saved = run_args(run)
     policy = policy_from_run(run, evaluated_which(run))
-    trained = policy.model.request_threshold
+    trained = (policy.model.request_threshold, policy.model.own_check)
     from containergym_marl.algorithms import get_algorithm
 
     entry = {"method": get_algorithm(saved["algo"]).method_name(saved.get("reward_mode")), "row": saved["config"],
-             "seed": saved["seed"], "episodes": FRESH.episodes, "first_seed": FRESH.first_seed}
-    for label, threshold in (("as_trained", trained), ("threshold", None if tau == 0.5 else tau)):
-        policy.model.request_threshold = threshold
+             "seed": saved["seed"], "episodes": FRESH.episodes, "first_seed": FRESH.first_seed, "own_check": own_check}
+    for label, (threshold, check) in (("as_trained", trained),
+                                      ("threshold", (None if tau == 0.5 else tau, own_check or trained[1]))):
+        policy.model.request_threshold, policy.model.own_check = threshold, check
         result = evaluate_batched(policy, saved["config"], FRESH,
                                   arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
         entry[label] = {"return_mean": float(result.returns.mean()),
@@ -112,7 +120,7 @@ def evaluate_fresh(run: Path, tau: float) -> dict:
     return entry
 
 
-def fresh_report(entries: dict, tau: float, results: Path) -> tuple[list[dict], str]:
+def fresh_report(entries: dict, tau: float, results: Path, own_check: dict | None = None) -> tuple[list[dict], str]:
     """Per (method, row): the IQM share of the reference's fresh mean and the overflow rate, as trained and
     with ``tau``; and its Markdown table."""
     from containergym_marl.config.loading import config_sort_key
@@ -135,7 +143,8 @@ def fresh_report(entries: dict, tau: float, results: Path) -> tuple[list[dict], 
              f"fresh returns as a share of `{REFERENCE}`'s, and the share of all their episodes that overflow, each "
              f"seed's standing model as trained and with τ = {tau} (chosen on validation episodes). ✓: at least 97 % "
              "and at most 0.5 % overflowing.", "",
-             "| method | row | seeds | reference | as trained | overflow | τ = " + str(tau) + " | overflow |",
+             "| method | row | seeds | reference | as trained | overflow | τ = " + str(tau) + _with(own_check)
+             + " | overflow |",
              "|---|---|---|---|---|---|---|---|"]
     for s in summary:
         a, t = s["as_trained"], s["threshold"]
@@ -143,6 +152,22 @@ def fresh_report(entries: dict, tau: float, results: Path) -> tuple[list[dict], 
                      f"{100 * a['iqm_share']:.1f} %{' ✓' if a['meets'] else ''} | {100 * a['overflow_rate']:.1f} % | "
                      f"{100 * t['iqm_share']:.1f} %{' ✓' if t['meets'] else ''} | {100 * t['overflow_rate']:.1f} % |")
     return summary, "\n".join(lines) + "\n"
+
+
+def _with(own_check: dict | None) -> str:
+    return "" if own_check is None else f", own check {own_check['risk']:g}:{own_check['lead_steps']}"
+
+
+def parse_own_check(text: str) -> dict:
+    """``RISK:LEAD`` (e.g. ``1e-4:1``) as an own check (a ValueError naming ``--own-check`` otherwise)."""
+    from containergym_marl.policies.safety import check_own_check
+
+    try:
+        risk, lead = text.split(":")
+        value = {"risk": float(risk), "lead_steps": int(lead)}
+    except ValueError:
+        raise ValueError(f"--own-check: expected RISK:LEAD (e.g. 1e-4:1), got {text!r}") from None
+    return check_own_check(value, "--own-check")
 
 
 def model_hash(run: Path) -> str:
@@ -177,12 +202,14 @@ def summarise(entries: dict, references: dict) -> list[dict]:
     return out
 
 
-def report(summary: list[dict]) -> str:
+def report(summary: list[dict], own_check: dict | None = None) -> str:
     taus = sorted({t for s in summary for t in s["thresholds"]}, key=float, reverse=True)
+    checked = "" if own_check is None else \
+        f"; with the agents' own check {own_check['risk']:g}:{own_check['lead_steps']} in every policy"
     lines = ["# A request threshold for the imitation's greedy agents", "",
              f"`python studies/request_threshold.py RUN ...`: each run's standing model on the same validation "
              f"episodes (seeds {FIRST_SEED}+), requesting wherever its probability of a request is above τ (0.5: its "
-             f"most likely action, as trained). Per method and row: the mean over runs of each τ's mean return as a "
+             f"most likely action, as trained){checked}. Per method and row: the mean over runs of each τ's mean return as a "
              f"share of `{REFERENCE}`'s on the same episodes, and the overflowing episodes summed over runs.", "",
              "| method | row | runs × episodes | reference | " + " | ".join(f"τ = {t}" for t in taus) + " |",
              "|---|---|---|---|" + "---|" * len(taus)]
@@ -205,6 +232,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=REPO / "results" / "request_threshold")
     parser.add_argument("--fresh", type=float, metavar="TAU",
                         help="report TAU (chosen on the validation episodes) on the fresh episodes instead")
+    parser.add_argument("--own-check", metavar="RISK:LEAD",
+                        help="evaluate every threshold with this own deadline check (e.g. 1e-4:1) in the policy")
     parser.add_argument("--results", type=Path, default=REPO / "results" / "paper_rows",
                         help="the published results whose fresh/ holds the reference's fresh evaluations")
     args = parser.parse_args(argv)
@@ -212,6 +241,10 @@ def main(argv=None) -> int:
         parser.error(f"--episodes: expected at least 1, got {args.episodes}")
     from containergym_marl.policies.actor_critic import check_request_threshold
 
+    try:
+        args.own_check = None if args.own_check is None else parse_own_check(args.own_check)
+    except ValueError as exc:
+        parser.error(str(exc))
     for tau, name in [(t, "--thresholds") for t in args.thresholds] + [(args.fresh, "--fresh")]:
         try:
             check_request_threshold(tau, name)
@@ -245,9 +278,9 @@ def main(argv=None) -> int:
     for run in sorted(args.runs):
         sha, old = model_hash(run), entries.get(run.name)
         if old is not None and old.get("model_sha256") == sha and old["episodes"] == args.episodes \
-                and set(wanted) <= set(old["thresholds"]):
+                and set(wanted) <= set(old["thresholds"]) and old.get("own_check") == args.own_check:
             continue
-        entries[run.name] = {**evaluate_run(run, args.thresholds, args.episodes), "model_sha256": sha}
+        entries[run.name] = {**evaluate_run(run, args.thresholds, args.episodes, args.own_check), "model_sha256": sha}
         atomic_write_text(store, json.dumps({"runs": entries, "references": references}, indent=1, sort_keys=True)
                           + "\n")
         print(run.name, entries[run.name]["thresholds"], flush=True)
@@ -259,7 +292,7 @@ def main(argv=None) -> int:
             print(REFERENCE, row, references[row], flush=True)
     summary = summarise({k: e for k, e in entries.items() if e["episodes"] == args.episodes}, references)
     atomic_write_text(args.out / "summary.json", json.dumps(summary, indent=1) + "\n")
-    text = report(summary)
+    text = report(summary, args.own_check)
     atomic_write_text(args.out / "thresholds.md", text)
     print(text)
     return 0
@@ -268,16 +301,19 @@ def main(argv=None) -> int:
 def report_fresh(args, atomic_write_text) -> int:
     store = args.out / "fresh.json"
     known = json.loads(store.read_text()) if store.is_file() else {}
-    entries = known.get("runs", {}) if known.get("tau") == args.fresh else {}
+    same = (known.get("tau"), known.get("own_check")) == (args.fresh, args.own_check)
+    entries = known.get("runs", {}) if same else {}
     for run in sorted(args.runs):
         sha, old = model_hash(run), entries.get(run.name)
         if old is not None and old.get("model_sha256") == sha:
             continue
-        entries[run.name] = {**evaluate_fresh(run, args.fresh), "model_sha256": sha}
-        atomic_write_text(store, json.dumps({"tau": args.fresh, "runs": entries}, indent=1, sort_keys=True) + "\n")
+        entries[run.name] = {**evaluate_fresh(run, args.fresh, args.own_check), "model_sha256": sha}
+        atomic_write_text(store, json.dumps({"tau": args.fresh, "own_check": args.own_check, "runs": entries},
+                                            indent=1, sort_keys=True) + "\n")
         print(run.name, entries[run.name]["as_trained"], entries[run.name]["threshold"], flush=True)
-    summary, text = fresh_report(entries, args.fresh, args.results)
-    atomic_write_text(args.out / "fresh_summary.json", json.dumps({"tau": args.fresh, "rows": summary}, indent=1) + "\n")
+    summary, text = fresh_report(entries, args.fresh, args.results, args.own_check)
+    atomic_write_text(args.out / "fresh_summary.json",
+                      json.dumps({"tau": args.fresh, "own_check": args.own_check, "rows": summary}, indent=1) + "\n")
     atomic_write_text(args.out / "fresh.md", text)
     print(text)
     return 0

@@ -532,6 +532,28 @@ def threshold_on_fresh_episodes():
             and not any(rows[row][label]["meets"] for row in CONTENDED_ROWS for label in ("threshold", "as_trained")))
 
 
+def threshold_and_check():
+    folder = ROOT / "results" / "request_threshold" / "own_check_1e-4_1"
+    check = {"risk": 1e-4, "lead_steps": 1}
+    summary = json.loads((folder / "summary.json").read_text())
+    sums: dict[str, float] = {}
+    for entry in summary:
+        if entry["method"] == "dagger_agents" and entry["row"] in CONTENDED_ROWS:
+            for tau, cell in entry["thresholds"].items():
+                sums[tau] = sums.get(tau, 0.0) + cell["share"]
+    stored = json.loads((folder / "thresholds.json").read_text())["runs"].values()
+    report = json.loads((folder / "fresh_summary.json").read_text())
+    rows = {r["row"]: r["threshold"] for r in report["rows"] if r["method"] == "dagger_agents"}
+    met = sorted(row for row, cell in rows.items() if cell["meets"])
+
+    def rounded(row):
+        return round(100 * rows[row]["iqm_share"], 1), round(100 * rows[row]["overflow_rate"], 1)
+
+    return (all(e["own_check"] == check for e in stored) and (report["tau"], report["own_check"]) == (0.3, check)
+            and max(sums, key=sums.get) == "0.3" and len(rows) == 9 and len(met) == 7 and "n11_m2_dt120" in met
+            and rounded("n11_m2_dt60") == (98.9, 1.8) and rounded("n16_m2_dt120") == (95.7, 5.6))
+
+
 FINE_TUNING_ROWS = ("n11_m2_dt120", "n16_m2_dt120", "n11_m11_dt60", "n11_m2_dt60")
 FINE_TUNINGS = ("ppo_individual", "ppo_team", "ppo_individual_share_0.5", "ppo_team_share_0.5")
 GENTLER = "ppo_team_share_0.5_lr_1e-4"  # the default with a third of PPO's step size
@@ -795,6 +817,12 @@ PLANNER_CLAIMS = {
     "With τ = 0.3 `dagger_agents` reaches at least 97 % of the reference on every row but `n16_m2_dt120` (96.7 %), "
     "and overflows less often on the three contended rows, though still in 2.0–5.3 % of their episodes: it meets "
     "the bar on the six rows it met it on before, and on none of the contended ones.": threshold_on_fresh_episodes,
+    "The two decision rules together (`--own-check 1e-4:1`: the agents' own check in every policy, ε = 10⁻⁴, L = 1, "
+    "with each threshold; `results/request_threshold/own_check_1e-4_1/`) choose τ = 0.3 again on the validation "
+    "episodes.": threshold_and_check,
+    "With τ = 0.3 and the agents' own check, `dagger_agents` meets the bar on `n11_m2_dt120` as well (seven rows of "
+    "nine); on `n11_m2_dt60` it reaches 98.9 % of the reference but overflows in 1.8 % of the episodes, on "
+    "`n16_m2_dt120` 95.7 % with 5.6 %.": threshold_and_check,
 }
 
 

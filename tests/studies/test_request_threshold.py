@@ -79,3 +79,19 @@ def test_the_fresh_report_sets_both_decision_rules_against_the_reference(tmp_pat
         expected = evaluate_batched(policy, "n5_m2_dt120", FRESH)
         assert row[label]["iqm_share"] == pytest.approx(float(expected.returns.mean()) / 50.0)
         assert row[label]["overflow_rate"] == pytest.approx(sum(e.overflow for e in expected.episodes) / 200)
+
+
+def test_the_own_check_goes_into_every_policy_evaluated_and_a_bad_one_is_refused(tmp_path):
+    run, out = _run(tmp_path, "fast_shared_ppo"), tmp_path / "out"
+    base = [sys.executable, SCRIPT, str(run), "--episodes", "2", "--thresholds", "0.3", "--out", str(out)]
+    refused = subprocess.run(base + ["--own-check", "1e-4"], capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and "--own-check" in refused.stderr and not out.exists()
+    done = subprocess.run(base + ["--own-check", "0.2:0"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    entry = json.loads((out / "thresholds.json").read_text())["runs"][run.name]
+    assert entry["own_check"] == {"risk": 0.2, "lead_steps": 0}
+    policy = policy_from_run(run, "best")
+    policy.model.request_threshold, policy.model.own_check = 0.3, {"risk": 0.2, "lead_steps": 0}
+    expected = evaluate_batched(policy, "n5_m2_dt120", EvalProtocol(episodes=2, first_seed=20_100))
+    assert entry["thresholds"]["0.3"]["return_mean"] == pytest.approx(float(expected.returns.mean()))
+    assert "own check 0.2:0 in every policy" in (out / "thresholds.md").read_text()
