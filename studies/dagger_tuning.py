@@ -91,6 +91,8 @@ VARIANTS: dict[str, Variant] = {
     "greedy_threshold_0.3": Variant(("greedy=true", "request_threshold=0.3")),
     "greedy_shielded_own_1_threshold_0.3": Variant(("greedy=true", "safety_risk=1e-6", "own_check_risk=1e-4",
                                                     "own_check_lead_steps=1", "request_threshold=0.3")),
+    "greedy_own_1_threshold_0.3": Variant(("greedy=true", "own_check_risk=1e-4", "own_check_lead_steps=1",
+                                           "request_threshold=0.3")),
     # the contended states (more containers due than free PUs) a quarter or half of every minibatch
     "greedy_contended_0.25": Variant(("greedy=true", "contended_share=0.25"), "dagger_contended_agents"),
     "greedy_contended_0.5": Variant(("greedy=true", "contended_share=0.5"), "dagger_contended_agents"),
