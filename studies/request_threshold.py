@@ -45,6 +45,9 @@ REPO = Path(__file__).resolve().parents[1]
 FIRST_SEED = 20100  # after the curves' 30 validation episodes (20000-20029)
 THRESHOLDS = (0.5, 0.4, 0.3, 0.2, 0.1)
 REFERENCE = "planner_agents_shielded"
+#: The issue's bar for a learned decentralised method (studies/reference_shares.py's): at least this share of the
+#: reference's fresh mean, at most this share of the episodes overflowing.
+BAR_SHARE, BAR_OVERFLOW = 0.97, 0.005
 
 
 def _protocol(episodes: int):
@@ -53,31 +56,43 @@ def _protocol(episodes: int):
     return EvalProtocol(episodes=episodes, first_seed=FIRST_SEED)
 
 
-def evaluate_run(run: Path, thresholds: list[float], episodes: int, own_check: dict | None = None) -> dict:
+def _standing(run: Path, protocol) -> tuple:
+    """The run's args, its standing model's policy (one torch thread) and the entry naming them."""
     import torch
 
-    from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
-    from containergym_marl.evaluation.batched import evaluate_batched
+    from containergym_marl.algorithms import get_algorithm
     from containergym_marl.evaluation.run_policies import evaluated_which, policy_from_run
     from containergym_marl.rundir import run_args
 
     torch.set_num_threads(1)
     saved, which = run_args(run), evaluated_which(run)
-    policy = policy_from_run(run, which)
-    from containergym_marl.algorithms import get_algorithm
-
     entry = {"method": get_algorithm(saved["algo"]).method_name(saved.get("reward_mode")), "row": saved["config"],
-             "seed": saved["seed"], "model": which, "episodes": episodes, "first_seed": FIRST_SEED, "thresholds": {},
-             "own_check": own_check}
+             "seed": saved["seed"], "model": which, "episodes": protocol.episodes, "first_seed": protocol.first_seed}
+    return saved, policy_from_run(run, which), entry
+
+
+def _score(policy, saved: dict, protocol) -> dict:
+    """The policy's batched evaluation on the run's plant: its mean return and overflowing episodes."""
+    from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
+    from containergym_marl.evaluation.batched import evaluate_batched
+
+    result = evaluate_batched(policy, saved["config"], protocol,
+                              arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
+    return {"return_mean": float(result.returns.mean()),
+            "overflowing_episodes": int(sum(bool(e.overflow) for e in result.episodes))}
+
+
+def evaluate_run(run: Path, thresholds: list[float], episodes: int, own_check: dict | None = None) -> dict:
+    """The run's standing model with each threshold (and ``own_check``, where given) on the validation episodes."""
+    protocol = _protocol(episodes)
+    saved, policy, entry = _standing(run, protocol)
     if own_check is not None:
         policy.model.own_check = own_check
+    scores = {}
     for tau in thresholds:
         policy.model.request_threshold = None if tau == 0.5 else tau
-        result = evaluate_batched(policy, saved["config"], _protocol(episodes),
-                                  arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
-        entry["thresholds"][str(tau)] = {"return_mean": float(result.returns.mean()),
-                                         "overflowing_episodes": int(sum(bool(e.overflow) for e in result.episodes))}
-    return entry
+        scores[str(tau)] = _score(policy, saved, protocol)
+    return {**entry, "own_check": own_check, "thresholds": scores}
 
 
 def evaluate_reference(row: str, episodes: int) -> dict:
@@ -93,51 +108,42 @@ def evaluate_reference(row: str, episodes: int) -> dict:
 
 def evaluate_fresh(run: Path, tau: float, own_check: dict | None = None) -> dict:
     """The run's standing model on the fresh episodes as trained and with ``tau`` (and ``own_check``, where
-    given): each one's per-episode returns' mean and its overflowing episodes."""
-    import torch
-
-    from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
-    from containergym_marl.evaluation.batched import evaluate_batched
+    given): each one's mean return and overflowing episodes."""
     from containergym_marl.evaluation.protocol import FRESH
-    from containergym_marl.evaluation.run_policies import evaluated_which, policy_from_run
-    from containergym_marl.rundir import run_args
 
-    torch.set_num_threads(1)
-    saved = run_args(run)
-    policy = policy_from_run(run, evaluated_which(run))
+    saved, policy, entry = _standing(run, FRESH)
     trained = (policy.model.request_threshold, policy.model.own_check)
-    from containergym_marl.algorithms import get_algorithm
-
-    entry = {"method": get_algorithm(saved["algo"]).method_name(saved.get("reward_mode")), "row": saved["config"],
-             "seed": saved["seed"], "episodes": FRESH.episodes, "first_seed": FRESH.first_seed, "own_check": own_check}
+    entry["own_check"] = own_check
     for label, (threshold, check) in (("as_trained", trained),
                                       ("threshold", (None if tau == 0.5 else tau, own_check or trained[1]))):
         policy.model.request_threshold, policy.model.own_check = threshold, check
-        result = evaluate_batched(policy, saved["config"], FRESH,
-                                  arbitration=saved.get("arbitration", DEFAULT_ARBITRATION))
-        entry[label] = {"return_mean": float(result.returns.mean()),
-                        "overflowing_episodes": int(sum(bool(e.overflow) for e in result.episodes))}
+        entry[label] = _score(policy, saved, FRESH)
     return entry
+
+
+def _by_method_row(entries: dict) -> list[tuple[str, str, list[dict]]]:
+    from containergym_marl.config.loading import config_sort_key
+
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for entry in entries.values():
+        groups.setdefault((entry["method"], entry["row"]), []).append(entry)
+    return [(method, row, groups[method, row])
+            for method, row in sorted(groups, key=lambda key: (key[0], config_sort_key(key[1])))]
 
 
 def fresh_report(entries: dict, tau: float, results: Path, own_check: dict | None = None) -> tuple[list[dict], str]:
     """Per (method, row): the IQM share of the reference's fresh mean and the overflow rate, as trained and
     with ``tau``; and its Markdown table."""
-    from containergym_marl.config.loading import config_sort_key
     from containergym_marl.evaluation.stats import iqm
 
-    groups: dict[tuple[str, str], list[dict]] = {}
-    for entry in entries.values():
-        groups.setdefault((entry["method"], entry["row"]), []).append(entry)
     summary = []
-    for method, row in sorted(groups, key=lambda key: (key[0], config_sort_key(key[1]))):
-        runs = groups[method, row]
+    for method, row, runs in _by_method_row(entries):
         reference = json.loads((results / "fresh" / row / f"{REFERENCE}.json").read_text())["summary"]["return_mean"]
         cells = {}
         for label in ("as_trained", "threshold"):
             share = iqm([r[label]["return_mean"] for r in runs]) / reference
             rate = sum(r[label]["overflowing_episodes"] for r in runs) / sum(r["episodes"] for r in runs)
-            cells[label] = {"iqm_share": share, "overflow_rate": rate, "meets": share >= 0.97 and rate <= 0.005}
+            cells[label] = {"iqm_share": share, "overflow_rate": rate, "meets": share >= BAR_SHARE and rate <= BAR_OVERFLOW}
         summary.append({"method": method, "row": row, "seeds": len(runs), "reference_fresh_mean": reference, **cells})
     lines = [f"Fresh episodes (200 per seed, seeds 30000–30199). Per method and row: the IQM over seeds of their mean "
              f"fresh returns as a share of `{REFERENCE}`'s, and the share of all their episodes that overflow, each "
@@ -182,14 +188,8 @@ def model_hash(run: Path) -> str:
 def summarise(entries: dict, references: dict) -> list[dict]:
     """Per (method, row): each threshold's mean return over runs, its share of the reference's, and the
     overflowing episodes summed over runs."""
-    from containergym_marl.config.loading import config_sort_key
-
-    groups: dict[tuple[str, str], list[dict]] = {}
-    for entry in entries.values():
-        groups.setdefault((entry["method"], entry["row"]), []).append(entry)
     out = []
-    for method, row in sorted(groups, key=lambda key: (key[0], config_sort_key(key[1]))):
-        runs = groups[method, row]
+    for method, row, runs in _by_method_row(entries):
         reference = references[row]["return_mean"]
         cells = {}
         for tau in sorted({t for r in runs for t in r["thresholds"]}, key=float, reverse=True):
@@ -291,7 +291,7 @@ def main(argv=None) -> int:
                                                 sort_keys=True) + "\n")
             print(REFERENCE, row, references[row], flush=True)
     summary = summarise({k: e for k, e in entries.items() if e["episodes"] == args.episodes}, references)
-    atomic_write_text(args.out / "summary.json", json.dumps(summary, indent=1) + "\n")
+    atomic_write_text(args.out / "summary.json", json.dumps(summary, indent=1, sort_keys=True) + "\n")
     text = report(summary, args.own_check)
     atomic_write_text(args.out / "thresholds.md", text)
     print(text)
