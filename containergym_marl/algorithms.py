@@ -261,7 +261,7 @@ REGISTRY: dict[str, AlgorithmSpec] = {
         AlgorithmSpec("dagger_checked_agents", None, SharedActorCriticPolicy,
                       "dagger_agents on the labels of planner_agents_shielded (the reference), with the agents' "
                       "own check, a rule in the policy: an agent's request is made wherever its own observation "
-                      "says its container may overflow within two fills",
+                      "says its container may overflow within two fills, or its request probability is above 0.3",
                       native="containergym_marl.training.dagger:CHECKED_IMITATION",
                       **{**_NATIVE, "default_n_envs": 64}),
         # the fine-tuning's default reward is the plant's, the objective the planner it imitates plans for

@@ -800,9 +800,14 @@ CONTENDED_IMITATION = DAggerTrainer(fine_tune=False, defaults={"contended_share"
 DAPG_SETTINGS = {"bc_coef": 0.5, "bc_half_life": 0.2}
 IMITATION_THEN_DAPG = DAggerTrainer(fine_tune=True, defaults=DAPG_SETTINGS)
 #: ``dagger_checked_agents``: DAgger on the reference's labels (planner_agents_shielded's deadline check,
-#: policies.planner.SHIELD) with the student's own deadline check in collection and in the trained policy
-#: (fast_shared_ppo_checked's, policies.safety): dagger_tuning's ``greedy_shielded_own_1``.
-CHECKED_SETTINGS = {"safety_risk": SHIELD["safety_risk"], **fast_ppo.OWN_CHECK_SETTINGS}
+#: policies.planner.SHIELD) with the student's own deadline check and a request threshold of 0.3 in collection
+#: and in the trained policy (fast_shared_ppo_checked's check, policies.safety): dagger_tuning's
+#: ``greedy_shielded_own_1_threshold_0.3``, which on validation episodes overflowed in none of 90 on n16_m2_dt120
+#: where ``greedy_shielded_own_1`` overflowed in 20 of 60 (best models); the threshold by
+#: studies/request_threshold.py (the highest sum of the published imitation's shares over the contended rows).
+CHECKED_REQUEST_THRESHOLD = 0.3
+CHECKED_SETTINGS = {"safety_risk": SHIELD["safety_risk"], **fast_ppo.OWN_CHECK_SETTINGS,
+                    "request_threshold": CHECKED_REQUEST_THRESHOLD}
 CHECKED_IMITATION = DAggerTrainer(fine_tune=False, defaults=CHECKED_SETTINGS)
 
 __all__ = ["BC_DATASET", "CHECKED_IMITATION", "CHECKED_SETTINGS", "CONTENDED_IMITATION", "CONTENDED_SHARE", "DAPG_SETTINGS", "DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_DAPG", "IMITATION_THEN_PPO", "LABELS",

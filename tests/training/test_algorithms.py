@@ -48,6 +48,9 @@ def test_registry_entries_load_their_classes_and_views():
     assert [(t.settings({}).safety_risk, t.settings({}).own_check()) for t in imitations] == (
         [(0.0, None)] * 5 + [(1e-6, {"risk": 1e-4, "lead_steps": 1})])
     assert not dagger.CHECKED_IMITATION.fine_tune and dagger.CHECKED_IMITATION.settings({}).greedy
+    # and its greedy rule: a request above 0.3, which the others make above 0.5 (their most likely action)
+    assert [t.settings({}).model_threshold() for t in imitations if not t.fine_tune] == [None, None, None, 0.3]
+    assert dagger.CHECKED_IMITATION.settings({"request_threshold": 0.5}).model_threshold() is None  # --hp wins
     assert [t.settings({}).bc_coef for t in imitations[1::3]] == [0.0, dagger.DAPG_SETTINGS["bc_coef"]]
     assert dagger.IMITATION_THEN_DAPG.fine_tune and dagger.IMITATION_THEN_DAPG.settings({}).ppo is not None
     assert dagger.CONTENDED_IMITATION.settings({"contended_share": 0.25}).contended_share == 0.25  # --hp wins
