@@ -91,6 +91,18 @@ def check_request_threshold(value, where: str = "request_threshold") -> float | 
     return float(value)
 
 
+def check_agent_rules(view: str, own_check, request_threshold, where: str = "") -> tuple[dict | None, float | None]:
+    """A model's container-agent rules (its own check and its request threshold), each checked, and none on a
+    centralised model, which has no container agents (a ValueError naming the field and ``where``)."""
+    prefix = f"{where}: " if where else ""
+    own_check = check_own_check(own_check, f"{prefix}own_check")
+    request_threshold = check_request_threshold(request_threshold, f"{prefix}request_threshold")
+    for name, value in (("own_check", own_check), ("request_threshold", request_threshold)):
+        if view == "centralised" and value is not None:
+            raise ValueError(f"{prefix}{name}: a container agent's rule; a centralised model has no container agents")
+    return own_check, request_threshold
+
+
 def _torch():
     try:
         import torch
@@ -144,13 +156,7 @@ class ActorCritic:
         if view == "centralised" and observation != DEFAULT_OBSERVATION:
             raise ValueError(f"observation: {observation!r} is a variant of the container agents' observation; "
                              f"a centralised model observes the global state ({DEFAULT_OBSERVATION!r})")
-        self.own_check = check_own_check(own_check)
-        if view == "centralised" and self.own_check is not None:
-            raise ValueError("own_check: a container agent's own check; a centralised model has no container agents")
-        self.request_threshold = check_request_threshold(request_threshold)
-        if view == "centralised" and self.request_threshold is not None:
-            raise ValueError("request_threshold: a container agent's decision rule; a centralised model has no "
-                             "container agents")
+        self.own_check, self.request_threshold = check_agent_rules(view, own_check, request_threshold)
         self.view, self.action_mask = view, bool(action_mask)
         self.observation_size, self.n_actions, self.hidden = check_network(observation_size, n_actions, hidden)
         self.meta = dict(meta or {})
@@ -223,10 +229,8 @@ class ActorCritic:
         observation = check_observation(data.get("observation", DEFAULT_OBSERVATION), f"{source}: observation")
         if data["view"] == "centralised" and observation != DEFAULT_OBSERVATION:
             raise ValueError(f"{source}: a centralised model with the container agents' {observation!r} observation")
-        own_check = check_own_check(data.get("own_check"), f"{source}: own_check")
-        threshold = check_request_threshold(data.get("request_threshold"), f"{source}: request_threshold")
-        if data["view"] == "centralised" and (own_check, threshold) != (None, None):
-            raise ValueError(f"{source}: a centralised model with a container agent's own check or request threshold")
+        own_check, threshold = check_agent_rules(data["view"], data.get("own_check"), data.get("request_threshold"),
+                                                 source)
         try:
             return cls(data["view"], *sizes, data["action_mask"], data["state_dict"], data.get("meta"),
                        observation=observation, own_check=own_check, request_threshold=threshold)
