@@ -26,7 +26,8 @@ takes about 10 ms at n = 128: ``benchmarks/scaling.py``). Each policy's decision
 (all agents at once for the container agents, one torch thread, ``--timing-steps`` steps from the first
 fresh episode on; the first seed's model) is measured once per model (``--out``/decision_time.json). The
 table (``--out``/table.md, table.json): per plant and policy, the mean return per container (mean over
-seeds [min, max]), the share of overflowing episodes and the median decision time.
+seeds [min, max]), the share of overflowing episodes and the median decision time, of every method whose
+evaluations ``--out`` holds (a call for one method keeps the others' cells).
 
 **Plan, execute, report.** The trainings and the source-plant evaluations are compare plans
 (:func:`~containergym_marl.orchestration.plan.training_plan`: run names, budgets, finished runs and
@@ -410,11 +411,21 @@ def _cell(evaluations: list[dict], n: int) -> dict:
             "overflow_share": sum(bool(e["overflow"]) for e in episodes) / len(episodes)}
 
 
+def table_args(args: Args) -> Args:
+    """The settings the table is read with: every method of the study (shared, trained on every plant,
+    and centralised), whatever this call trained, so that a call for one method keeps the others' cells;
+    a cell appears where its files are in ``--out``."""
+    return replace(args, methods=list(METHODS), in_domain=True,
+                   centralised=list(dict.fromkeys([*CENTRALISED, *args.centralised])))
+
+
 def summarise(args: Args, timing: dict | None = None) -> dict:
     """Per plant: each policy's mean return per container (over seeds), overflowing share and median
-    decision time per plant step (``timing``: :func:`decision_times`; None where not measured)."""
+    decision time per plant step (``timing``: :func:`decision_times`; None where not measured), for every
+    method whose evaluations are in ``--out`` (:func:`table_args`)."""
     from containergym_marl.config import load_config
 
+    args = table_args(args)
     plans, timing = args.plans(), timing or {}
     entries = []
     for plant in [*args.sources, *args.targets]:
@@ -440,8 +451,13 @@ def summarise(args: Args, timing: dict | None = None) -> dict:
             if label in cells:
                 cells[label]["cost_to_rule"] = cost_to_rule(args, plans, plant, method)
         entries.append({"plant": plant, "n": n, "cells": cells})
+    labels = {label for e in entries for label in e["cells"]}
+    shown = {"methods": [m for m in METHODS if any(label.startswith(f"{m} ") for label in labels)],
+             "in_domain": [m for m in METHODS if any(f"{m} (trained here)" in e["cells"] for e in entries
+                                                      if e["plant"] in args.targets)],
+             "centralised": [m for m in args.centralised if f"{m} (trained here)" in labels]}
     return {"question": "zero-shot transfer of shared container-agent policies to larger plants (issue 40)",
-            "observation": OBSERVATION, "protocol": "fresh", "args": asdict(args), "entries": entries}
+            "observation": OBSERVATION, "protocol": "fresh", "args": asdict(args), "shown": shown, "entries": entries}
 
 
 def _ms(value: float | None) -> str:
@@ -449,12 +465,15 @@ def _ms(value: float | None) -> str:
 
 
 def markdown(report: dict) -> str:
-    args = report["args"]
+    args, shown = report["args"], report["shown"]
     lines = ["# Shared container-agent policies on plants they were not trained on", "",
-             f"Shared container-agent methods trained with `--hp observation={OBSERVATION}` on "
-             f"{', '.join(args['sources'])}" + (" and on each larger plant (trained here)" if args["in_domain"] else "")
-             + (f"; {', '.join(f'`{m}`' for m in args['centralised'])} (the controller's view, its own observation) "
-                "on every plant" if args["centralised"] else "")
+             f"Shared container-agent methods ({', '.join(f'`{m}`' for m in shown['methods'])}) trained with "
+             f"`--hp observation={OBSERVATION}` on "
+             f"{', '.join(args['sources'])}"
+             + (f" ({', '.join(f'`{m}`' for m in shown['in_domain'])} also on each larger plant: trained here)"
+                if shown["in_domain"] else "")
+             + (f"; {', '.join(f'`{m}`' for m in shown['centralised'])} (the controller's view, its own observation) "
+                "on every plant" if shown["centralised"] else "")
              + f"; seeds {', '.join(map(str, args['seeds']))}, "
              + (f"{args['timesteps']:,} samples per run" if args["timesteps"] else "the paper's budget")
              + f". Each run's validated model (its curve's pick on validation episodes) on {args['episodes']} fresh episodes (δ = 120 s, T = 600, seeds 30000+) "

@@ -111,3 +111,33 @@ def test_training_cost_is_counted_to_the_first_curve_point_at_the_rules_share(tm
     assert (cost["reached"], cost["runs"], cost["rule_validation_return"]) == (2, 3, 200.0)
     assert cost["samples_median"] == 1_750_000 and cost["cpu_s_median"] == 350.0
     assert study.cost_to_rule(args, plans, "n64_m8_dt120", "fast_ppo") is None  # no rule evaluation there
+
+
+def test_a_call_for_one_method_keeps_the_other_methods_cells_in_the_table(tmp_path):
+    """The table is everything ``--out`` holds: a call with ``--methods dagger_agents`` (or ``--report``)
+    reads fast_shared_ppo's evaluations too, instead of writing a table of the one method."""
+    study = load_script("studies/transfer.py")
+    from containergym_marl.evaluation.table import evaluation_key
+
+    out = tmp_path / "out"
+
+    def evaluation(path, returns, overflows):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"episodes": [{"cumulative_reward": r, "overflow": o}
+                                                 for r, o in zip(returns, overflows)]}))
+
+    # fast_shared_ppo trained on a source plant (seed 101), by an earlier call; the imitation zero-shot, by this one
+    evaluation(out / "fast_shared_ppo" / "evaluations" / "n11_m2_dt120" / f"{evaluation_key('fast_shared_ppo', 101)}.json",
+               [110.0, 88.0], [False, True])
+    args = study.Args(out=str(out), runs=str(tmp_path / "runs"), methods=["dagger_agents"], centralised=[],
+                      seeds=[101], in_domain=False, report=True)
+    evaluation(study.zero_shot_path(args, "dagger_agents", "n11_m2_dt120", "n32_m4_dt120", 101), [64.0, 96.0],
+               [False, False])
+    report = study.main(args)
+    cells = {e["plant"]: e["cells"] for e in report["entries"]}
+    mine = cells["n11_m2_dt120"]["fast_shared_ppo (trained here)"]
+    assert mine["return_per_container"] == pytest.approx(99.0 / 11) and mine["overflow_share"] == 0.5
+    assert cells["n32_m4_dt120"]["dagger_agents from n11_m2_dt120"]["return_per_container"] == pytest.approx(80.0 / 32)
+    assert report["shown"] == {"methods": ["fast_shared_ppo", "dagger_agents"], "in_domain": [], "centralised": []}
+    table = (out / "table.md").read_text()
+    assert "(`fast_shared_ppo`, `dagger_agents`)" in table and "| n11_m2_dt120 | 11 | fast_shared_ppo (trained here) |" in table
