@@ -25,6 +25,21 @@ n containers takes the entry of the largest ``min_containers`` <= n, in place of
     [by_size.settings]
     learning_rate = 0.0002
 
+An entry may also name the plant's decision interval ``timestep_s`` or its number of PUs
+``num_processing_units``; it then applies only to plants of that value (rl-baselines3-zoo keeps settings
+per environment: a setting chosen on one row, e.g. how far ahead an agent's own check looks where two PUs
+serve eleven containers at δ = 60 s, need not suit another). A plant takes, of the entries that apply to
+it, the one naming the most of these two, then the one of the largest ``min_containers``::
+
+    [[by_size]]
+    min_containers = 11
+    num_processing_units = 2
+    timestep_s = 60.0
+    source = "studies/own_check_screen.py on n11_m2_dt60"
+
+    [by_size.settings]
+    own_check_lead_steps = 2
+
 A run records the settings it trained with in its ``args.json``; a resumed run takes them from
 there, not from the file as it is now. Methods without a file train at their algorithm's defaults
 (the SB3 methods: the paper's settings).
@@ -37,11 +52,13 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from containergym_marl.config.bounds import MAX_CONFIG_DEPTH, SAFE_NAME
+from containergym_marl.config.bounds import MAX_CONFIG_DEPTH, MAX_TIMESTEP_S, MIN_TIMESTEP_S, SAFE_NAME
 from containergym_marl.config.loading import _nesting_depth, tomllib
 from containergym_marl.files import atomic_write_text, open_file
 
 _MAX_FILE_BYTES = 64 * 1024
+#: the plant fields a [[by_size]] entry may name besides min_containers (the PlantConfig's names)
+PLANT_KEYS = ("timestep_s", "num_processing_units")
 
 
 def hyperparams_dir() -> Path:
@@ -56,16 +73,20 @@ def settings_file(method: str) -> Path:
     return hyperparams_dir() / f"{method}.toml"
 
 
-def read_settings(path: str | Path, n_containers: int | None = None) -> tuple[dict[str, Any], str]:
-    """The settings and source of one file for a plant of ``n_containers`` (its ``[[by_size]]`` entry
-    where one applies; None: the ``[settings]`` table); a ValueError naming the file and the offending
-    key. Every entry is checked, whichever applies."""
-    return _pick(read_settings_file(path), n_containers)
+def read_settings(path: str | Path, n_containers: int | None = None, *, timestep_s: float | None = None,
+                  num_processing_units: int | None = None) -> tuple[dict[str, Any], str]:
+    """The settings and source of one file for a plant of ``n_containers``, ``timestep_s`` and
+    ``num_processing_units`` (its ``[[by_size]]`` entry where one applies; None: the ``[settings]`` table);
+    a ValueError naming the file and the offending key. Every entry is checked, whichever applies."""
+    return _pick(read_settings_file(path), n_containers, {"timestep_s": timestep_s,
+                                                           "num_processing_units": num_processing_units})
 
 
 def read_settings_file(path: str | Path) -> dict[str, Any]:
-    """The whole file: ``{"settings", "source", "by_size": [{"min_containers", "source", "settings"}]}``,
-    ``by_size`` sorted by ``min_containers``; a ValueError naming the file and the offending key."""
+    """The whole file: ``{"settings", "source", "by_size": [{"min_containers", "timestep_s",
+    "num_processing_units", "source", "settings"}]}`` (None where an entry names no timestep_s or
+    num_processing_units), ``by_size`` sorted by ``min_containers``; a ValueError naming the file and the
+    offending key."""
     path = Path(path)
     with open_file(path, "rb") as f:
         raw = f.read(_MAX_FILE_BYTES + 1)
@@ -89,20 +110,29 @@ def read_settings_file(path: str | Path) -> dict[str, Any]:
     by_size = []
     for k, entry in enumerate(entries):
         where = f"by_size[{k}]"
-        unknown = sorted(set(entry) - {"min_containers", "source", "settings"})
+        unknown = sorted(set(entry) - {"min_containers", *PLANT_KEYS, "source", "settings"})
         if unknown:
-            raise ValueError(f"{path}: {where}: unknown key(s) {unknown}; expected 'min_containers', 'source' "
-                             f"and 'settings'")
+            raise ValueError(f"{path}: {where}: unknown key(s) {unknown}; expected 'min_containers', "
+                             f"'timestep_s', 'num_processing_units', 'source' and 'settings'")
         size = entry.get("min_containers")
         if isinstance(size, bool) or not isinstance(size, int) or size < 1:
             raise ValueError(f"{path}: {where}.min_containers must be an integer >= 1, got {size!r}")
         if "settings" not in entry:
             raise ValueError(f"{path}: {where}: no settings table")
+        timestep, pus = entry.get("timestep_s"), entry.get("num_processing_units")
+        if timestep is not None and (isinstance(timestep, bool) or not isinstance(timestep, (int, float))
+                                     or not MIN_TIMESTEP_S <= timestep <= MAX_TIMESTEP_S):
+            raise ValueError(f"{path}: {where}.timestep_s must be a number of seconds in "
+                             f"[{MIN_TIMESTEP_S}, {MAX_TIMESTEP_S}], got {timestep!r}")
+        if pus is not None and (isinstance(pus, bool) or not isinstance(pus, int) or pus < 1):
+            raise ValueError(f"{path}: {where}.num_processing_units must be an integer >= 1, got {pus!r}")
         entry_source, entry_settings = _table(path, entry, f"{where}.")
-        by_size.append({"min_containers": size, "source": entry_source, "settings": entry_settings})
-    sizes = [e["min_containers"] for e in by_size]
-    if len(set(sizes)) != len(sizes):
-        raise ValueError(f"{path}: by_size: min_containers {sorted(sizes)} names a size twice")
+        by_size.append({"min_containers": size, "timestep_s": None if timestep is None else float(timestep),
+                        "num_processing_units": pus, "source": entry_source, "settings": entry_settings})
+    keys = [(e["min_containers"], e["timestep_s"], e["num_processing_units"]) for e in by_size]
+    if len(set(keys)) != len(keys):
+        raise ValueError(f"{path}: by_size: min_containers {sorted(e[0] for e in keys)} names a size twice "
+                         f"(for the same timestep_s and num_processing_units)")
     return {"settings": settings, "source": source, "by_size": sorted(by_size, key=lambda e: e["min_containers"])}
 
 
@@ -121,25 +151,41 @@ def _table(path: Path, data: dict[str, Any], where: str) -> tuple[str, dict[str,
     return source, dict(settings)
 
 
-def _pick(whole: dict[str, Any], n_containers: int | None) -> tuple[dict[str, Any], str]:
-    """(settings, source) for a plant of ``n_containers``: the by_size entry of the largest
-    min_containers <= n, else the [settings] table."""
-    chosen = [e for e in whole["by_size"] if n_containers is not None and e["min_containers"] <= n_containers]
+def _pick(whole: dict[str, Any], n_containers: int | None,
+          plant: dict[str, float | int | None]) -> tuple[dict[str, Any], str]:
+    """(settings, source) for a plant of ``n_containers`` and ``plant``'s PLANT_KEYS values: of the by_size
+    entries of min_containers <= n whose PLANT_KEYS are none or the plant's, the one naming the most of
+    them, then the largest min_containers; else the [settings] table."""
+    def applies(e):
+        same = all(e[k] is None or (plant.get(k) is not None and math.isclose(e[k], plant[k])) for k in PLANT_KEYS)
+        return n_containers is not None and e["min_containers"] <= n_containers and same
+
+    chosen = sorted((e for e in whole["by_size"] if applies(e)),
+                    key=lambda e: (sum(e[k] is not None for k in PLANT_KEYS), e["min_containers"]))
     entry = chosen[-1] if chosen else whole
     return dict(entry["settings"]), entry["source"]
 
 
-def method_settings(method: str, n_containers: int | None = None) -> dict[str, Any]:
-    """``method``'s settings from its file for a plant of ``n_containers`` (None: its [settings] table,
-    for any size); {} when it has none."""
+def method_settings(method: str, n_containers: int | None = None, *, timestep_s: float | None = None,
+                    num_processing_units: int | None = None) -> dict[str, Any]:
+    """``method``'s settings from its file for a plant of ``n_containers``, ``timestep_s`` and
+    ``num_processing_units`` (None: its [settings] table, for any size); {} when it has none."""
     path = settings_file(method)
-    return read_settings(path, n_containers)[0] if path.is_file() else {}
+    return read_settings(path, n_containers, timestep_s=timestep_s,
+                         num_processing_units=num_processing_units)[0] if path.is_file() else {}
+
+
+def plant_settings(method: str, plant) -> dict[str, Any]:
+    """``method``'s settings from its file for the plant ``plant`` (a PlantConfig)."""
+    return method_settings(method, plant.n_containers, timestep_s=plant.timestep_s,
+                           num_processing_units=plant.num_processing_units)
 
 
 def write_settings(path: str | Path, settings: dict[str, Any], source: str,
-                   by_size: list[tuple[int, dict[str, Any], str]] = ()) -> None:
+                   by_size: list[tuple] = ()) -> None:
     """Write a settings file (crash-safe): ``source`` and the ``[settings]`` table, keys sorted, then
-    one ``[[by_size]]`` entry per (min_containers, settings, source) of ``by_size``."""
+    one ``[[by_size]]`` entry per (min_containers, settings, source[, {PLANT_KEYS key: value}]) of
+    ``by_size``."""
     def value(v: Any) -> str:
         if isinstance(v, bool):
             return "true" if v else "false"
@@ -151,13 +197,14 @@ def write_settings(path: str | Path, settings: dict[str, Any], source: str,
 
     lines = [f"source = {value(source)}", "", "[settings]"]
     lines += [f"{key} = {value(settings[key])}" for key in sorted(settings)]
-    for size, entry_settings, entry_source in sorted(by_size, key=lambda e: e[0]):
-        lines += ["", "[[by_size]]", f"min_containers = {int(size)}", f"source = {value(entry_source)}", "",
-                  "[by_size.settings]"]
+    for size, entry_settings, entry_source, *plant in sorted(by_size, key=lambda e: e[0]):
+        lines += ["", "[[by_size]]", f"min_containers = {int(size)}"]
+        lines += [f"{k} = {value(v)}" for k, v in sorted((plant[0] if plant else {}).items())]
+        lines += [f"source = {value(entry_source)}", "", "[by_size.settings]"]
         lines += [f"{key} = {value(entry_settings[key])}" for key in sorted(entry_settings)]
     atomic_write_text(Path(path), "\n".join(lines) + "\n")
     read_settings_file(path)  # what was written reads back
 
 
-__all__ = ["hyperparams_dir", "method_settings", "read_settings", "read_settings_file", "settings_file",
+__all__ = ["PLANT_KEYS", "hyperparams_dir", "method_settings", "plant_settings", "read_settings", "read_settings_file", "settings_file",
            "write_settings"]

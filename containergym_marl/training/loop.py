@@ -35,7 +35,7 @@ from containergym_marl.algorithms import (
 )
 from containergym_marl.config import PlantConfig, load_config
 from containergym_marl.config.bounds import check_memory
-from containergym_marl.config.hyperparams import method_settings
+from containergym_marl.config.hyperparams import plant_settings
 from containergym_marl.files import atomic_write, atomic_write_text
 from containergym_marl.rundir import (
     RunError,
@@ -276,9 +276,9 @@ def run_settings(args: TrainArgs) -> dict[str, Any]:
     its ``args.json`` recorded with ``--hp`` on top (not the file as it is now)."""
     if args.resume and (args.run_dir() / "args.json").is_file():
         base = run_args(args.run_dir()).get("hyperparams") or {}
-    else:  # the file's settings for this plant's size
-        n_containers = load_config(args.config, **args.overrides).n_containers
-        base = method_settings(get_algorithm(args.algo).method_name(args.reward_mode), n_containers)
+    else:  # the file's settings for this plant's size and decision interval
+        base = plant_settings(get_algorithm(args.algo).method_name(args.reward_mode),
+                              load_config(args.config, **args.overrides))
     return {**base, **args.hyperparams}
 
 

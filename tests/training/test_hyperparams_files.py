@@ -7,10 +7,10 @@ import json
 
 import pytest
 
+from containergym_marl.algorithms import get_algorithm
 from containergym_marl.config import hyperparams as files
 from containergym_marl.methods import METHODS
 from containergym_marl.training import TrainArgs, train
-from containergym_marl.training.fast_ppo import PPOArgs
 
 TINY = dict(config="n5_m2_dt120", n_envs=2, progress_bar=False, overrides={"episode_length_steps": 20})
 
@@ -29,13 +29,57 @@ def _settings(run) -> dict:
 
 def test_the_shipped_files_are_the_native_methods_and_valid():
     shipped = sorted(p.stem for p in files.hyperparams_dir().glob("*.toml"))
-    assert shipped == ["fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked", "fast_shared_ppo_team"]
+    assert shipped == ["dagger_checked_agents", "fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked",
+                       "fast_shared_ppo_team"]
     for name in shipped:
-        assert name in METHODS and METHODS[name].algo in ("fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked")
+        assert name in METHODS
+        trainer = get_algorithm(METHODS[name].algo).trainer()
         whole = files.read_settings_file(files.settings_file(name))
         for entry in [whole, *whole["by_size"]]:  # the settings of every plant size
-            assert entry["source"] and entry["settings"]
-            PPOArgs.from_hyperparams(entry["settings"])  # every key a PPOArgs field, every value within bounds
+            # a file's [settings] may be empty (the method's own defaults) only where it has entries
+            assert entry["source"] and (entry["settings"] or (entry is whole and whole["by_size"]))
+            trainer.settings(entry["settings"])  # every key a setting of its trainer, every value within bounds
+
+
+def test_the_checked_imitation_looks_two_steps_ahead_only_where_two_pus_serve_eleven_at_60_s():
+    """dagger_checked_agents' file: L = 2 on n11_m2_dt60 (chosen there on validation episodes), the
+    trainer's defaults (L = 1) on every other row of the table."""
+    from containergym_marl.config import load_config
+    from containergym_marl.training.dagger import CHECKED_SETTINGS
+
+    rows = ["n5_m2_dt60", "n5_m2_dt120", "n5_m5_dt60", "n5_m5_dt120", "n11_m2_dt60", "n11_m2_dt120",
+            "n11_m11_dt60", "n11_m11_dt120", "n16_m2_dt120"]
+    trainer = get_algorithm("dagger_checked_agents").trainer()
+    leads = {row: trainer.settings(files.plant_settings("dagger_checked_agents", load_config(row))).own_check_lead_steps
+             for row in rows}
+    assert CHECKED_SETTINGS["own_check_lead_steps"] == 1
+    assert leads == {row: 2 if row == "n11_m2_dt60" else 1 for row in rows}
+
+
+def test_an_entry_naming_the_plants_interval_or_pus_applies_to_those_plants_only(tmp_path):
+    """by_size entries may name timestep_s and num_processing_units: the entry naming the most of them
+    that applies wins, then the largest min_containers."""
+    path = tmp_path / "m.toml"
+    files.write_settings(path, {"n_steps": 16}, "top", by_size=[
+        (11, {"n_steps": 8}, "from 11"), (1, {"n_steps": 4}, "at 60 s", {"timestep_s": 60.0}),
+        (11, {"n_steps": 2}, "11+, 2 PUs, 60 s", {"timestep_s": 60.0, "num_processing_units": 2})])
+
+    def pick(n, dt, m):
+        return files.read_settings(path, n, timestep_s=dt, num_processing_units=m)[1]
+
+    assert [pick(5, 120.0, 2), pick(5, 60.0, 2), pick(11, 120.0, 2), pick(11, 60.0, 11), pick(11, 60.0, 2),
+            pick(16, 60.0, 2), pick(11, 60.0, None)] == ["top", "at 60 s", "from 11", "at 60 s",
+                                                         "11+, 2 PUs, 60 s", "11+, 2 PUs, 60 s", "at 60 s"]
+    assert files.read_settings(path, 11)[1] == "from 11"  # no interval given: only entries naming none
+
+
+def test_a_run_takes_the_entry_of_its_plants_interval(folder, tmp_path):
+    files.write_settings(folder / "fast_shared_ppo.toml", {"n_steps": 16}, "top",
+                         by_size=[(1, {"n_steps": 8}, "at 60 s", {"timestep_s": 60.0})])
+    at_120 = train(TrainArgs(algo="fast_shared_ppo", timesteps=160, out=str(tmp_path / "a"), **TINY))
+    at_60 = train(TrainArgs(algo="fast_shared_ppo", timesteps=160, out=str(tmp_path / "b"),
+                            **{**TINY, "overrides": {**TINY["overrides"], "timestep_s": 60}}))
+    assert (_settings(at_120), _settings(at_60)) == ({"n_steps": 16}, {"n_steps": 8})
 
 
 def test_the_checked_method_trains_at_the_shared_methods_setting():
@@ -103,6 +147,10 @@ def test_a_plant_takes_the_settings_of_its_size(folder, tmp_path):
     ("[settings]\nn_steps = 8\n" + "[[by_size]]\nmin_containers = 2\n[by_size.settings]\nn_steps = 4\n" * 2,
      "names a size twice"),
     ("by_size = 3\n", "by_size"),
+    ("[settings]\nn_steps = 8\n[[by_size]]\nmin_containers = 2\ntimestep_s = 0\n[by_size.settings]\nn_steps = 4\n",
+     r"by_size\[0\]\.timestep_s"),
+    ("[settings]\nn_steps = 8\n[[by_size]]\nmin_containers = 2\nnum_processing_units = 1.5\n[by_size.settings]\n"
+     "n_steps = 4\n", r"by_size\[0\]\.num_processing_units"),
     ("[settings]\nn_steps = 8\n[[by_size]]\nmin_containers = 5\n[by_size.settings]\nn_epochs = 0\n", "n_epochs"),
     ("[settings]\nn_epochs = 0\n", "n_epochs"),  # out of PPOArgs' bounds
     ("[settings]\nlearning_rte = 0.1\n", "learning_rte"),  # not a setting
