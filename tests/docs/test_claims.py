@@ -984,6 +984,31 @@ def zero_shot_overflows_where_scarce():
                for p in SCARCE for source in ("n11_m2_dt120", "n16_m2_dt120"))
 
 
+def centralised_ppo_fails_at_scale():
+    cells = {p: transfer()[p] for p in TRANSFER_TARGETS}
+    central = [c["fast_ppo (trained here)"] for c in cells.values()]
+    return (all(c["seeds"] == 5 and c["overflow_share"] >= 0.96 and c["return_per_container"] < 0.3 for c in central)
+            and all(c["fast_shared_ppo (trained here)"]["return_per_container"]
+                    > c["rule_based_agents"]["return_per_container"] for c in cells.values()))
+
+
+def imitation_transfers_worse():
+    def rpc(plant, label):
+        return transfer()[plant][label]["return_per_container"]
+
+    sources = ("n11_m2_dt120", "n16_m2_dt120")
+    ahead_at_home = all(rpc(p, "dagger_agents (trained here)") > rpc(p, "fast_shared_ppo (trained here)")
+                        for p in sources)
+    from16 = {p: rpc(p, "dagger_agents from n16_m2_dt120") for p in TRANSFER_TARGETS}
+    below_ppo = [p for p in TRANSFER_TARGETS if from16[p] >= rpc(p, "fast_shared_ppo from n16_m2_dt120")]
+    above_rule = sorted(p for p in TRANSFER_TARGETS if from16[p] > rpc(p, "rule_based_agents"))
+    from11 = {p: transfer()[p]["dagger_agents from n11_m2_dt120"] for p in TRANSFER_TARGETS}
+    assert all(transfer()[p][f"dagger_agents from {s}"]["seeds"] == 5 for p in TRANSFER_TARGETS for s in sources)
+    return (ahead_at_home and below_ppo == ["n32_m3_dt120"] and above_rule == ["n32_m3_dt120", "n32_m4_dt120"]
+            and all(from11[p]["return_per_container"] < from16[p] for p in TRANSFER_TARGETS)
+            and all(from11[p]["overflow_share"] > 0.5 for p in ("n64_m6_dt120", "n128_m12_dt120")))
+
+
 def planner_leads_at_scale():
     def lead(plant):
         cells = transfer()[plant]
@@ -991,7 +1016,8 @@ def planner_leads_at_scale():
         return cells["planner_agents"]["return_per_container"] - learned
 
     learned_below = all(c["return_per_container"] < cells["planner_agents"]["return_per_container"]
-                        for cells in transfer().values() for label, c in cells.items() if label.startswith("fast_"))
+                        for cells in transfer().values() for label, c in cells.items()
+                        if label.startswith(("fast_", "dagger_")))
     pairs = [("n32_m4_dt120", "n32_m3_dt120"), ("n64_m8_dt120", "n64_m6_dt120"), ("n128_m16_dt120", "n128_m12_dt120")]
     return learned_below and all(lead(scarce) > lead(proportional) for proportional, scarce in pairs)
 
@@ -1012,6 +1038,14 @@ TRANSFER_CLAIMS = {
     "all six.": trained_there,
     "On `n32_m3_dt120`, `n64_m6_dt120` and `n128_m12_dt120` the zero-shot policies from both source plants overflow "
     "in a larger share of episodes than `rule_based_agents`.": zero_shot_overflows_where_scarce,
+    "Trained on each larger plant with the same budget, `fast_ppo` (the controller's view) overflows in at least 96 % "
+    "of its episodes on every one of the six and scores below 0.3 per container, where the shared policy trained on "
+    "the same plant beats the rule-based agents.": centralised_ppo_fails_at_scale,
+    "On `n11_m2_dt120` and `n16_m2_dt120` `dagger_agents` scores above the shared PPO trained there. Zero-shot from "
+    "`n16_m2_dt120` it scores below the shared PPO from the same plant on every larger plant but `n32_m3_dt120`, and "
+    "above the rule-based agents only on the two 32-container plants. Trained on `n11_m2_dt120` it is below its "
+    "`n16_m2_dt120` counterpart on all six, and on `n64_m6_dt120` and `n128_m12_dt120` most of its episodes "
+    "overflow.": imitation_transfers_worse,
     "No learned policy reaches the planner on any plant**, and at each plant size the planner's lead over the best "
     "of them is larger where PUs are scarce.": planner_leads_at_scale,
     "At 128 containers the shared policy decides for every agent in under 0.2 ms per plant step, the planner in "
