@@ -567,11 +567,12 @@ def checked_imitation_against_the_reference():
     fewest = all(mine[row]["fresh_overflow_rate"] < c["fresh_overflow_rate"]
                  for row in ("n11_m2_dt60", "n16_m2_dt120") for m, c in cells[row].items()
                  if m != "dagger_checked_agents")
-    times = [round(mine[row]["fresh_overflow_rate"] / report["overflow"]) for row in ("n11_m2_dt60", "n16_m2_dt120")]
     return (len(mine) == 9 and all(c["seeds"] == 5 for c in mine.values()) and len(met) == 7
             and set(mine) - set(met) == {"n11_m2_dt60", "n16_m2_dt120"}
-            and rounded("n11_m2_dt60") == (98.5, 1.5) and rounded("n16_m2_dt120") == (96.9, 2.1)
-            and fewest and times == [3, 4])
+            and rounded("n16_m2_dt120") == (96.9, 2.1)
+            and round(mine["n16_m2_dt120"]["fresh_overflow_rate"] / report["overflow"]) == 4
+            and rounded("n11_m2_dt60") == (96.5, 0.5) and mine["n11_m2_dt60"]["fresh_overflow_rate"] <= report["overflow"]
+            and mine["n11_m2_dt60"]["iqm_share"] < report["share"] and fewest)
 
 
 def checked_imitation_lead_on_n11_m2_dt60():
@@ -887,9 +888,10 @@ PLANNER_CLAIMS = {
     "episodes each), five overflowed in none, and this one scored highest of them. It costs 3.3 points on "
     "`n11_m11_dt60`": checked_imitation_lead_on_n11_m2_dt60,
     "Trained with both rules on the reference's labels (`dagger_checked_agents`, five seeds a row), the imitation "
-    "meets the bar on seven rows of nine. On `n11_m2_dt60` it reaches 98.5 % of the reference but overflows in "
-    "1.5 % of the episodes, on `n16_m2_dt120` 96.9 % with 2.1 %: fewer overflows than any other learned method on "
-    "either row, and still three and four times the bar.": checked_imitation_against_the_reference,
+    "meets the bar on seven rows of nine. On `n16_m2_dt120` it reaches 96.9 % of the reference and overflows in "
+    "2.1 % of the episodes, four times the bar. On `n11_m2_dt60`, where its check looks two steps ahead, it "
+    "overflows in 0.5 %, within the bar, but reaches 96.5 % of the reference. On both rows it overflows less often "
+    "than any other learned method.": checked_imitation_against_the_reference,
 }
 
 
