@@ -179,6 +179,7 @@ def _taken_pus(timers_s: np.ndarray, emptyings: int) -> list[bool]:
 #: The entries of a container agent's observation (every variant) that its own check reads.
 _OWN = tuple(SCALAR_FEATURES.index(name) for name in
              ("volume_frac", "fill_rate_frac", "fill_noise_frac", "free_pu_frac"))
+_OWN_COLUMNS = np.asarray(_OWN, dtype=np.int64)
 
 
 @jit
@@ -207,7 +208,7 @@ def own_deadline_due(observations: np.ndarray, risk: float, lead_steps: int) -> 
         raise ValueError(f"observations: expected (N, F >= {len(SCALAR_FEATURES)}) container-agent observations, "
                          f"got shape {obs.shape}")
     out = np.empty(obs.shape[0], dtype=np.bool_)
-    _own_due(obs, np.asarray(_OWN, dtype=np.int64), float(risk), int(lead_steps) + 1, out)
+    _own_due(obs, _OWN_COLUMNS, float(risk), int(lead_steps) + 1, out)
     return out
 
 
