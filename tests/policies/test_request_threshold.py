@@ -55,6 +55,22 @@ def test_a_greedy_agent_requests_where_its_probability_is_above_the_threshold(th
     assert np.allclose(draws, PROBABILITIES, atol=0.04)
 
 
+def test_the_greedy_rule_is_the_probability_against_the_threshold_on_many_logits_and_after_a_change():
+    """greedy() requests exactly where softmax(logits)[1] > τ, on 20,000 random logit pairs, for several τ
+    set one after another on the same model (its cached shift follows the threshold)."""
+    model = ActorCritic("decentralised", 3, 2, generator=torch.Generator().manual_seed(0))
+    logits = torch.randn(20_000, 2, generator=torch.Generator().manual_seed(1), dtype=torch.float32) * 4
+    p_request = torch.softmax(logits.double(), -1)[:, 1].numpy()
+    for tau in (0.3, 0.05, 0.5, 0.3, 0.9):
+        model.request_threshold = tau
+        got = model.greedy(logits).numpy()
+        assert got.dtype == np.int64
+        far = np.abs(p_request - tau) > 1e-6  # away from float rounding at the boundary
+        assert far.mean() > 0.99 and np.array_equal(got[far], (p_request[far] > tau).astype(np.int64))
+    model.request_threshold = None
+    assert np.array_equal(model.greedy(logits).numpy(), logits.argmax(-1).numpy())
+
+
 def test_a_masked_request_is_never_made_whatever_the_threshold():
     model, observations = _requests_with([0.9, 0.9], 0.1)
     model.action_mask = True
