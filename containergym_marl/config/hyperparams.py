@@ -29,7 +29,8 @@ An entry may also name the plant's decision interval ``timestep_s`` or its numbe
 ``num_processing_units``; it then applies only to plants of that value (rl-baselines3-zoo keeps settings
 per environment: a setting chosen on one row, e.g. how far ahead an agent's own check looks where two PUs
 serve eleven containers at δ = 60 s, need not suit another). A plant takes, of the entries that apply to
-it, the one naming the most of these two, then the one of the largest ``min_containers``::
+it, the one naming the most of these two, then the one of the largest ``min_containers`` (then the later
+in the file)::
 
     [[by_size]]
     min_containers = 11

@@ -101,13 +101,13 @@ def team_no_better():
 
 def native_team_mixed():
     from containergym_marl.config import load_config
-    from containergym_marl.config.hyperparams import method_settings
+    from containergym_marl.config.hyperparams import plant_settings
 
     configs = sorted({c for c, m in rows() if m == "fast_shared_ppo_team"})
     assert len(configs) == 9
     # each at its settings file: every published run of both methods trained at its file's setting for its plant
     at_file = all(json.loads((run / "args.json").read_text())["hyperparams"]
-                  == method_settings(method, load_config(c).n_containers)
+                  == plant_settings(method, load_config(c))
                   for method in ("fast_shared_ppo", "fast_shared_ppo_team") for c in configs
                   for run in PUBLISHED.glob(f"runs/{method}_{c}_s*"))
     higher = {"n11_m2_dt60", "n11_m11_dt60", "n16_m2_dt120"}
