@@ -173,3 +173,23 @@ def test_write_settings_reads_back(tmp_path):
     assert files.read_settings(tmp_path / "m.toml") == (settings, 'trial 3 of "a search"')
     with pytest.raises(ValueError, match="method"):
         files.settings_file("../escape")
+
+
+def test_every_published_run_of_a_method_with_a_file_trained_at_its_plants_entry():
+    """The published table's runs are what the shipped files say: each run's recorded settings are its method's
+    file's entry for the run's plant (a file changed without retraining fails here)."""
+    from pathlib import Path
+
+    from containergym_marl.config import load_config
+
+    runs = Path(__file__).resolve().parents[2] / "results" / "paper_rows" / "runs"
+    checked = 0
+    for path in sorted(files.hyperparams_dir().glob("*.toml")):
+        for run in sorted(runs.glob(f"{path.stem}_n*_s*")):
+            args = json.loads((run / "args.json").read_text())
+            if args["algo"] != METHODS[path.stem].algo:
+                continue  # another method whose name starts with this one's
+            expected = files.plant_settings(path.stem, load_config(args["config"]))
+            assert args["hyperparams"] == expected, f"{run.name}: trained at {args['hyperparams']}, file {expected}"
+            checked += 1
+    assert checked >= 135 * 3 + 45 * 2
