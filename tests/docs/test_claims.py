@@ -599,6 +599,27 @@ def checked_imitation_lead_on_n11_m2_dt60():
             and plant_settings("dagger_checked_agents", load_config("n11_m2_dt60")) == {"own_check_lead_steps": 2})
 
 
+def checked_imitation_n16_not_closed_by_rules():
+    """n16_m2_dt120: the screened checks and thresholds of dagger_checked_agents' published models."""
+    from containergym_marl.training.dagger import CHECKED_SETTINGS
+
+    own = CHECKED_SETTINGS["own_check_risk"], CHECKED_SETTINGS["own_check_lead_steps"]
+    screen = json.loads((ROOT / "results" / "own_check" / "dagger_checked_agents" / "contended" / "screen.json")
+                        .read_text())
+    seeds = screen["results"]["dagger_checked_agents"]["n16_m2_dt120"].values()
+    checks = {(float(c.partition(":")[0]), int(c.partition(":")[2])):  # "ε:L"
+              (float(np.mean([s[c]["return_mean"] for s in seeds])), sum(s[c]["overflowing_episodes"] for s in seeds))
+              for c in screen["checks"]}
+    rows = json.loads((ROOT / "results" / "request_threshold" / "dagger_checked_agents_n16" / "summary.json").read_text())
+    (entry,) = [e for e in rows if e["method"] == "dagger_checked_agents" and e["row"] == "n16_m2_dt120"]
+    taus = {t: (c["share"], c["overflowing_episodes"]) for t, c in entry["thresholds"].items()}
+    mine_tau = str(CHECKED_SETTINGS["request_threshold"])
+    return (own in checks and len(checks) >= 5 and len(taus) >= 5
+            and all(v[0] < checks[own][0] for c, v in checks.items() if v[1] < checks[own][1])
+            and all(v[0] < taus[mine_tau][0] for t, v in taus.items() if v[1] < taus[mine_tau][1])
+            and all(v[0] < 0.97 for v in taus.values()))
+
+
 def threshold_in_training_on_n16():
     from containergym_marl.training.dagger import CHECKED_SETTINGS
 
@@ -892,6 +913,10 @@ PLANNER_CLAIMS = {
     "2.1 % of the episodes, four times the bar. On `n11_m2_dt60`, where its check looks two steps ahead, it "
     "overflows in 0.5 %, within the bar, but reaches 96.5 % of the reference. On both rows it overflows less often "
     "than any other learned method.": checked_imitation_against_the_reference,
+    "On `n16_m2_dt120` neither a stronger own check (`results/own_check/dagger_checked_agents/contended/`) nor another "
+    "request threshold (`results/request_threshold/dagger_checked_agents_n16/`) helps on validation episodes: no "
+    "threshold brings it to 97 % of the reference, and each check or threshold that overflows less often than the "
+    "method's own rules scores lower.": checked_imitation_n16_not_closed_by_rules,
 }
 
 
