@@ -96,6 +96,12 @@ VARIANTS: dict[str, Variant] = {
     # the contended states (more containers due than free PUs) a quarter or half of every minibatch
     "greedy_contended_0.25": Variant(("greedy=true", "contended_share=0.25"), "dagger_contended_agents"),
     "greedy_contended_0.5": Variant(("greedy=true", "contended_share=0.5"), "dagger_contended_agents"),
+    # dagger_checked_agents' settings with the contended states half of every minibatch, or with the labelling
+    # planner's futures doubled (n16_m2_dt120, where its agents' requests are still denied before an overflow)
+    "checked_contended_0.5": Variant(("greedy=true", "safety_risk=1e-6", "own_check_risk=1e-4",
+                                      "own_check_lead_steps=1", "request_threshold=0.3", "contended_share=0.5")),
+    "checked_k32": Variant(("greedy=true", "safety_risk=1e-6", "own_check_risk=1e-4", "own_check_lead_steps=1",
+                            "request_threshold=0.3", "futures=32")),
     # the fine-tuning with a decaying behaviour-cloning term (DAPG), at two starting weights
     "dapg_0.5": Variant(("imitation_share=0.5", "bc_coef=0.5", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
     "dapg_2": Variant(("imitation_share=0.5", "bc_coef=2", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
