@@ -101,3 +101,17 @@ def test_a_sigterm_to_the_study_stops_its_training_processes_before_it_exits(tmp
     sigterm_leaves_no_child([SCRIPT, "--variants", "greedy", "--rows", "n5_m2_dt120", "--seeds", "1", "2",
                              "--workers", "2", "--episodes", "2", "--out", str(tmp_path / "out"), "--runs",
                              str(tmp_path / "runs")], lambda cmd: " train " in f"{cmd} ", count=2)
+
+
+def test_every_variant_is_a_valid_setting_of_its_method():
+    """Each variant's --hp settings parse and pass its method's trainer checks (a typo in a key, or a
+    combination the trainer refuses, fails here rather than after a study has started)."""
+    from containergym_marl.algorithms import get_algorithm
+    from containergym_marl.methods import METHODS
+    from containergym_marl.options import key_values
+    from tests.helpers import load_script
+
+    study = load_script(SCRIPT)
+    for name, variant in study.VARIANTS.items():
+        trainer = get_algorithm(METHODS[variant.method].algo).trainer()
+        trainer.settings(key_values(list(variant.hp), "--hp"))  # raises, naming the key, where one is bad
