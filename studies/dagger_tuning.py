@@ -67,6 +67,8 @@ class Variant:
         return " ".join(words + list(self.hp)) or "(defaults)"
 
 
+#: the reference's labels, the agents' own check and a request threshold of 0.3: dagger_checked_agents' settings
+CHECKED = ("greedy=true", "safety_risk=1e-6", "own_check_risk=1e-4", "own_check_lead_steps=1", "request_threshold=0.3")
 #: variant name -> what it trains
 VARIANTS: dict[str, Variant] = {
     "sampled": Variant(("greedy=false",)),
@@ -89,8 +91,7 @@ VARIANTS: dict[str, Variant] = {
     # a request wherever the student's probability of one is above 0.3 rather than 0.5 (its most likely action), in
     # collection and evaluation (studies/request_threshold.py: the published imitations gain so on the contended rows)
     "greedy_threshold_0.3": Variant(("greedy=true", "request_threshold=0.3")),
-    "greedy_shielded_own_1_threshold_0.3": Variant(("greedy=true", "safety_risk=1e-6", "own_check_risk=1e-4",
-                                                    "own_check_lead_steps=1", "request_threshold=0.3")),
+    "greedy_shielded_own_1_threshold_0.3": Variant(CHECKED),
     "greedy_own_1_threshold_0.3": Variant(("greedy=true", "own_check_risk=1e-4", "own_check_lead_steps=1",
                                            "request_threshold=0.3")),
     # the contended states (more containers due than free PUs) a quarter or half of every minibatch
@@ -98,10 +99,8 @@ VARIANTS: dict[str, Variant] = {
     "greedy_contended_0.5": Variant(("greedy=true", "contended_share=0.5"), "dagger_contended_agents"),
     # dagger_checked_agents' settings with the contended states half of every minibatch, or with the labelling
     # planner's futures doubled (n16_m2_dt120, where its agents' requests are still denied before an overflow)
-    "checked_contended_0.5": Variant(("greedy=true", "safety_risk=1e-6", "own_check_risk=1e-4",
-                                      "own_check_lead_steps=1", "request_threshold=0.3", "contended_share=0.5")),
-    "checked_k32": Variant(("greedy=true", "safety_risk=1e-6", "own_check_risk=1e-4", "own_check_lead_steps=1",
-                            "request_threshold=0.3", "futures=32")),
+    "checked_contended_0.5": Variant((*CHECKED, "contended_share=0.5")),
+    "checked_k32": Variant((*CHECKED, "futures=32")),
     # the fine-tuning with a decaying behaviour-cloning term (DAPG), at two starting weights
     "dapg_0.5": Variant(("imitation_share=0.5", "bc_coef=0.5", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
     "dapg_2": Variant(("imitation_share=0.5", "bc_coef=2", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),

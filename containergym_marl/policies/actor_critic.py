@@ -195,15 +195,20 @@ class ActorCritic:
     def greedy(self, logits):
         """The greedy actions [B] of decision logits [B, A]: the most likely action, or for a model with a
         ``request_threshold`` τ, a request (1) where its probability is above τ."""
-        tau = self.request_threshold
-        if tau is None:
+        if self._greedy_shift is None:
             return logits.argmax(-1)
-        # P(request) > τ  <=>  l1 - log(τ / (1 - τ)) > l0: the most likely action of logits shifted once
+        return (logits - self._greedy_shift).argmax(-1)
+
+    @property
+    def request_threshold(self) -> float | None:
+        return self._request_threshold
+
+    @request_threshold.setter
+    def request_threshold(self, tau: float | None) -> None:
+        # P(request) > τ  <=>  l1 - log(τ / (1 - τ)) > l0: greedy's most likely action of logits shifted once
         # (argmax keeps the wait on a tie), one subtraction instead of three ops per decision
-        if getattr(self, "_greedy_shift_tau", None) != tau:
-            self._greedy_shift = _torch().tensor([0.0, math.log(tau / (1 - tau))])
-            self._greedy_shift_tau = tau
-        return (logits - self._greedy_shift.to(logits.dtype)).argmax(-1)
+        self._request_threshold = tau
+        self._greedy_shift = None if tau is None else _torch().tensor([0.0, math.log(tau / (1 - tau))])
 
     def value(self, observations):
         """State values [B] of observations [B, F]."""

@@ -575,27 +575,35 @@ def checked_imitation_against_the_reference():
             and mine["n11_m2_dt60"]["iqm_share"] < report["share"] and fewest)
 
 
+def checked_screens(*folders: str) -> dict[tuple[str, tuple[float, int]], tuple[float, int, int]]:
+    """results/own_check/dagger_checked_agents/<folder>/screen.json of these folders (the screens of the
+    published models, not the retrained ones'): (row, (ε, L)) -> (mean over seeds, overflowing episodes,
+    episodes)."""
+    scores = {}
+    for folder in folders:
+        data = json.loads((ROOT / "results" / "own_check" / "dagger_checked_agents" / folder / "screen.json")
+                          .read_text())
+        for row, by_seed in data["results"]["dagger_checked_agents"].items():
+            for check in data["checks"]:  # "ε:L"
+                risk, _, lead = check.partition(":")
+                scores[(row, (float(risk), int(lead)))] = (
+                    float(np.mean([s[check]["return_mean"] for s in by_seed.values()])),
+                    sum(s[check]["overflowing_episodes"] for s in by_seed.values()), len(by_seed) * data["episodes"])
+    return scores
+
+
 def checked_imitation_lead_on_n11_m2_dt60():
-    """results/own_check/dagger_checked_agents/: the checks screened on n11_m2_dt60, the chosen one's standing,
-    its cost on n11_m11_dt60; the settings file names it."""
+    """The checks screened on n11_m2_dt60, the chosen one's standing, its cost on n11_m11_dt60; the settings
+    file names it."""
     from containergym_marl.config import load_config
     from containergym_marl.config.hyperparams import plant_settings
 
-    folder = ROOT / "results" / "own_check" / "dagger_checked_agents"
-    scores: dict[tuple[str, str], tuple[float, int, int]] = {}
-    for path in folder.glob("*/screen.json"):
-        data = json.loads(path.read_text())
-        for row, by_seed in data["results"]["dagger_checked_agents"].items():
-            for check in data["checks"]:
-                means = [s[check]["return_mean"] for s in by_seed.values()]
-                scores[(row, check)] = (float(np.mean(means)), sum(s[check]["overflowing_episodes"]
-                                                                    for s in by_seed.values()),
-                                        len(means) * data["episodes"])
+    scores = checked_screens("contended", "dt60", "n11_m2_dt60")
     n11 = {check: v for (row, check), v in scores.items() if row == "n11_m2_dt60"}
     clean = {check: v for check, v in n11.items() if v[1] == 0}
-    cost = scores[("n11_m11_dt60", "1e-4:1")][0] - scores[("n11_m11_dt60", "1e-4:2")][0]
+    cost = scores[("n11_m11_dt60", (1e-4, 1))][0] - scores[("n11_m11_dt60", (1e-4, 2))][0]
     return (len(n11) == 10 and all(v[2] == 500 for v in n11.values()) and len(clean) == 5
-            and max(clean, key=lambda c: clean[c][0]) == "1e-4:2" and round(cost, 1) == 3.3
+            and max(clean, key=lambda c: clean[c][0]) == (1e-4, 2) and round(cost, 1) == 3.3
             and plant_settings("dagger_checked_agents", load_config("n11_m2_dt60")) == {"own_check_lead_steps": 2})
 
 
@@ -604,12 +612,7 @@ def checked_imitation_n16_not_closed_by_rules():
     from containergym_marl.training.dagger import CHECKED_SETTINGS
 
     own = CHECKED_SETTINGS["own_check_risk"], CHECKED_SETTINGS["own_check_lead_steps"]
-    screen = json.loads((ROOT / "results" / "own_check" / "dagger_checked_agents" / "contended" / "screen.json")
-                        .read_text())
-    seeds = screen["results"]["dagger_checked_agents"]["n16_m2_dt120"].values()
-    checks = {(float(c.partition(":")[0]), int(c.partition(":")[2])):  # "ε:L"
-              (float(np.mean([s[c]["return_mean"] for s in seeds])), sum(s[c]["overflowing_episodes"] for s in seeds))
-              for c in screen["checks"]}
+    checks = {check: v for (row, check), v in checked_screens("contended").items() if row == "n16_m2_dt120"}
     rows = json.loads((ROOT / "results" / "request_threshold" / "dagger_checked_agents_n16" / "summary.json").read_text())
     (entry,) = [e for e in rows if e["method"] == "dagger_checked_agents" and e["row"] == "n16_m2_dt120"]
     taus = {t: (c["share"], c["overflowing_episodes"]) for t, c in entry["thresholds"].items()}
