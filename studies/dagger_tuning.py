@@ -69,6 +69,7 @@ class Variant:
 
 #: the reference's labels, the agents' own check and a request threshold of 0.3: dagger_checked_agents' settings
 CHECKED = ("greedy=true", "safety_risk=1e-6", "own_check_risk=1e-4", "own_check_lead_steps=1", "request_threshold=0.3")
+CHECKED_LEAD_2 = tuple("own_check_lead_steps=2" if hp.startswith("own_check_lead_steps=") else hp for hp in CHECKED)
 #: variant name -> what it trains
 VARIANTS: dict[str, Variant] = {
     "sampled": Variant(("greedy=false",)),
@@ -101,6 +102,10 @@ VARIANTS: dict[str, Variant] = {
     # planner's futures doubled (n16_m2_dt120, where its agents' requests are still denied before an overflow)
     "checked_contended_0.5": Variant((*CHECKED, "contended_share=0.5")),
     "checked_k32": Variant((*CHECKED, "futures=32")),
+    # dagger_checked_agents' settings on n11_m2_dt60 (its own check two steps ahead), and the same with the labelling
+    # planner's look-ahead as long in plant time as H = 8 at the evaluation's δ = 120 s: 16 steps of 60 s
+    "checked_lead_2": Variant(CHECKED_LEAD_2),
+    "checked_lead_2_h16": Variant((*CHECKED_LEAD_2, "horizon=16")),
     # the fine-tuning with a decaying behaviour-cloning term (DAPG), at two starting weights
     "dapg_0.5": Variant(("imitation_share=0.5", "bc_coef=0.5", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
     "dapg_2": Variant(("imitation_share=0.5", "bc_coef=2", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),

@@ -115,3 +115,24 @@ def test_every_variant_is_a_valid_setting_of_its_method():
     for name, variant in study.VARIANTS.items():
         trainer = get_algorithm(METHODS[variant.method].algo).trainer()
         trainer.settings(key_values(list(variant.hp), "--hp"))  # raises, naming the key, where one is bad
+
+
+def test_checked_lead_2_is_what_dagger_checked_agents_trains_on_n11_m2_dt60():
+    """The variant the study compares the longer look-ahead with stands for the published
+    dagger_checked_agents runs of n11_m2_dt60 (their models are its seeds): the method's defaults with its
+    settings file's entry for that plant, and nothing else changed."""
+    from containergym_marl.config.hyperparams import plant_settings
+    from containergym_marl.config.loading import load_config
+    from containergym_marl.options import key_values
+    from containergym_marl.training.dagger import CHECKED_SETTINGS
+    from tests.helpers import load_script
+
+    study = load_script(SCRIPT)
+    variant = key_values(list(study.VARIANTS["checked_lead_2"].hp), "--hp")
+    published = {"greedy": True, **CHECKED_SETTINGS,
+                 **plant_settings("dagger_checked_agents", load_config("n11_m2_dt60"))}
+    assert published["own_check_lead_steps"] == 2
+    assert {k: float(v) if k != "greedy" else v for k, v in variant.items()} == \
+        {k: float(v) if k != "greedy" else v for k, v in published.items()}
+    longer = key_values(list(study.VARIANTS["checked_lead_2_h16"].hp), "--hp")
+    assert longer == {**variant, "horizon": 16}
