@@ -94,15 +94,17 @@ class Args:
     in_domain: bool = True  # the methods trained on every target plant too
     centralised: list[str] = field(default_factory=lambda: list(CENTRALISED))  # trained on every plant
     timing_steps: int = 300  # plant steps of each policy's decision-time measurement
+    figure: str = "docs/figures/transfer_cost_to_rule.png"  # the training cost against n
     report: bool = False
     smoke: bool = False
 
     def for_smoke(self) -> "Args":
+        out = self.out if self.out != Args.out else "runs/transfer_smoke/results"
         return replace(self, methods=["fast_shared_ppo"], sources=["n5_m2_dt120"], targets=["n11_m2_dt120",
                        "n32_m4_dt120"], seeds=[SEEDS[0]], timesteps=2_000, episodes=2, planner_episodes=1, workers=1,
-                       n_envs=2, hyperparams={"n_steps": 16, "minibatch_size": 64}, timing_steps=5,
-                       out=self.out if self.out != Args.out else "runs/transfer_smoke/results",
-                       runs=self.runs if self.runs != Args.runs else "runs/transfer_smoke/runs")
+                       n_envs=2, hyperparams={"n_steps": 16, "minibatch_size": 64}, timing_steps=5, out=out,
+                       runs=self.runs if self.runs != Args.runs else "runs/transfer_smoke/runs",
+                       figure=self.figure if self.figure != Args.figure else str(Path(out) / "cost_to_rule.png"))
 
     def validate(self) -> None:
         """Refuse bad values before anything runs or is written (a ValueError naming the field)."""
@@ -369,28 +371,47 @@ def cost_to_rule(args: Args, plans: dict, plant: str, method: str) -> dict | Non
             "cpu_s_median": float(np.median([v["cpu_s"] for v in hit])) if hit else None}
 
 
+def cost_lines(report: dict) -> dict[tuple[str, str], list[tuple[int, float]]]:
+    """(method, share of PUs) -> the (n, median training samples to the rule's share) of its plants, by n:
+    m = n/8 as the larger plants' proportional ones, fewer as the scarce ones, more as n11_m2, so that the
+    two plants of each size are not joined."""
+    from containergym_marl import load_config
+
+    def pus(plant: str) -> str:
+        config = load_config(plant)
+        n, m = config.n_containers, config.num_processing_units
+        return "m = n/8" if 8 * m == n else ("m < n/8" if 8 * m < n else "m > n/8")
+
+    lines: dict[tuple[str, str], list[tuple[int, float]]] = {}
+    for e in report["entries"]:
+        for label, cell in e["cells"].items():
+            cost = cell.get("cost_to_rule")
+            if cost and cost["samples_median"] is not None:
+                key = (label.replace(" (trained here)", ""), pus(e["plant"]))
+                lines.setdefault(key, []).append((e["n"], cost["samples_median"]))
+    return {key: sorted(points) for key, points in lines.items()}
+
+
 def draw_costs(report: dict, path: Path) -> Path | None:
-    """Training samples to the rule's share against the plant's size, one line per method (log scales)."""
+    """Training samples to the rule's share against the plant's size (log scales): a colour per method, a
+    line style per share of PUs (:func:`cost_lines`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    lines: dict[str, list[tuple[int, float]]] = {}
-    for e in report["entries"]:
-        for label, cell in e["cells"].items():
-            cost = cell.get("cost_to_rule")
-            if cost and cost["samples_median"] is not None:
-                lines.setdefault(label.replace(" (trained here)", ""), []).append((e["n"], cost["samples_median"]))
+    lines = cost_lines(report)
     if not lines:
         return None
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for method, points in lines.items():
-        points.sort()
-        ax.plot([n for n, _ in points], [s for _, s in points], marker="o", label=method)
+    colours = {method: f"C{i}" for i, method in enumerate(dict.fromkeys(m for m, _ in lines))}
+    styles = {"m = n/8": "-", "m < n/8": "--", "m > n/8": ":"}
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    for (method, share), points in lines.items():
+        ax.plot([n for n, _ in points], [s for _, s in points], marker="o", color=colours[method],
+                linestyle=styles[share], label=f"{method}, {share}")
     ax.set(xscale="log", yscale="log", xlabel="containers n", ylabel="training samples (median over seeds)",
            title=f"Training to {RULE_SHARE:.0%} of {RULE}'s validation return")
-    ax.legend()
+    ax.legend(fontsize="small")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
@@ -524,7 +545,7 @@ def main(args: Args) -> dict:
     report = summarise(args, timing)
     atomic_write_text(out / "table.json", json.dumps(report, indent=1) + "\n")
     atomic_write_text(out / "table.md", markdown(report))
-    draw_costs(report, out / "cost_to_rule.png")
+    draw_costs(report, Path(args.figure))
     print(markdown(report))
     if failed:
         raise SystemExit(f"{len(failed)} task(s) failed; rerun the same command to retry them")
@@ -550,6 +571,7 @@ def parse(argv=None) -> Args:
     p.add_argument("--workers", type=int, default=Args.workers, help="processes, one run or evaluation each")
     p.add_argument("--out", default=Args.out)
     p.add_argument("--runs", default=Args.runs)
+    p.add_argument("--figure", default=Args.figure, help="the figure of the training cost against n")
     p.add_argument("--report", action="store_true", help="only the table, from the files there")
     p.add_argument("--smoke", action="store_true", help="fast_shared_ppo on n5_m2_dt120, one seed, 2000 samples, "
                                                         "targets n11_m2_dt120 and n32_m4_dt120, 2 episodes")

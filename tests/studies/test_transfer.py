@@ -141,3 +141,26 @@ def test_a_call_for_one_method_keeps_the_other_methods_cells_in_the_table(tmp_pa
     assert report["shown"] == {"methods": ["fast_shared_ppo", "dagger_agents"], "in_domain": [], "centralised": []}
     table = (out / "table.md").read_text()
     assert "(`fast_shared_ppo`, `dagger_agents`)" in table and "| n11_m2_dt120 | 11 | fast_shared_ppo (trained here) |" in table
+
+
+def test_the_cost_figure_joins_plants_of_one_share_of_pus_only(tmp_path):
+    """The two plants of each size (PUs in proportion, and scarce) are separate lines of the figure, each
+    ordered by n, and the figure is written where it is asked to be."""
+    study = load_script("studies/transfer.py")
+
+    def cell(samples):
+        return {"cost_to_rule": {"samples_median": samples}}
+
+    report = {"entries": [
+        {"plant": "n32_m3_dt120", "n": 32, "cells": {"dagger_agents (trained here)": cell(3.0)}},
+        {"plant": "n64_m8_dt120", "n": 64, "cells": {"dagger_agents (trained here)": cell(2.0)}},
+        {"plant": "n32_m4_dt120", "n": 32, "cells": {"dagger_agents (trained here)": cell(1.0),
+                                                     "dagger_agents from n16_m2_dt120": {}}},
+        {"plant": "n64_m6_dt120", "n": 64, "cells": {"dagger_agents (trained here)": cell(None)}},
+        {"plant": "n11_m2_dt120", "n": 11, "cells": {"dagger_agents (trained here)": cell(4.0)}},
+    ]}
+    assert study.cost_lines(report) == {("dagger_agents", "m < n/8"): [(32, 3.0)],
+                                        ("dagger_agents", "m = n/8"): [(32, 1.0), (64, 2.0)],
+                                        ("dagger_agents", "m > n/8"): [(11, 4.0)]}
+    path = tmp_path / "figure" / "cost.png"
+    assert study.draw_costs(report, path) == path and path.stat().st_size > 0
