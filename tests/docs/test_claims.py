@@ -623,6 +623,18 @@ def checked_imitation_n16_not_closed_by_rules():
             and all(v[0] < 0.97 for v in taus.values()))
 
 
+def checked_threshold_on_n11_m2_dt60():
+    from containergym_marl.training.dagger import CHECKED_SETTINGS
+
+    path = ROOT / "results" / "request_threshold" / "dagger_checked_agents_n11_m2_dt60" / "summary.json"
+    (entry,) = json.loads(path.read_text())
+    taus = {float(t): (c["share"], c["overflowing_episodes"]) for t, c in entry["thresholds"].items()}
+    own = CHECKED_SETTINGS["request_threshold"]
+    return (entry["method"] == "dagger_checked_agents" and entry["row"] == "n11_m2_dt60" and len(taus) == 6
+            and max(taus) == 0.5 and min(taus) == 0.15 and max(taus, key=lambda t: taus[t][0]) == own
+            and all(v[1] > 0 for t, v in taus.items() if t < own))
+
+
 def checked_variants_on_n16():
     t = tuning(seeds=(1, 2, 3))
     base = t[("greedy_shielded_own_1_threshold_0.3", "n16_m2_dt120")]
@@ -933,6 +945,10 @@ PLANNER_CLAIMS = {
     "request threshold (`results/request_threshold/dagger_checked_agents_n16/`) helps on validation episodes: no "
     "threshold brings it to 97 % of the reference, and each check or threshold that overflows less often than the "
     "method's own rules scores lower.": checked_imitation_n16_not_closed_by_rules,
+    "On `n11_m2_dt60` no other request threshold helps either "
+    "(`results/request_threshold/dagger_checked_agents_n11_m2_dt60/`, its own check two steps ahead in every "
+    "policy): of six thresholds from 0.5 to 0.15 on validation episodes, its own 0.3 scores highest, and every "
+    "lower one overflows.": checked_threshold_on_n11_m2_dt60,
     "On top of its settings, neither half of every minibatch drawn from the contended states (`checked_contended_0.5`) "
     "nor twice the labelling planner's futures (`checked_k32`) moved its best models on `n16_m2_dt120` by more than "
     "half a point (three seeds each, one overflowing episode of 90 each).": checked_variants_on_n16,
