@@ -94,17 +94,16 @@ class Args:
     in_domain: bool = True  # the methods trained on every target plant too
     centralised: list[str] = field(default_factory=lambda: list(CENTRALISED))  # trained on every plant
     timing_steps: int = 300  # plant steps of each policy's decision-time measurement
-    figure: str = "docs/figures/transfer_cost_to_rule.png"  # the training cost against n
+    figure: str | None = None  # the figure of the training cost against n; None: --out/cost_to_rule.png
     report: bool = False
     smoke: bool = False
 
     def for_smoke(self) -> "Args":
-        out = self.out if self.out != Args.out else "runs/transfer_smoke/results"
         return replace(self, methods=["fast_shared_ppo"], sources=["n5_m2_dt120"], targets=["n11_m2_dt120",
                        "n32_m4_dt120"], seeds=[SEEDS[0]], timesteps=2_000, episodes=2, planner_episodes=1, workers=1,
-                       n_envs=2, hyperparams={"n_steps": 16, "minibatch_size": 64}, timing_steps=5, out=out,
-                       runs=self.runs if self.runs != Args.runs else "runs/transfer_smoke/runs",
-                       figure=self.figure if self.figure != Args.figure else str(Path(out) / "cost_to_rule.png"))
+                       n_envs=2, hyperparams={"n_steps": 16, "minibatch_size": 64}, timing_steps=5,
+                       out=self.out if self.out != Args.out else "runs/transfer_smoke/results",
+                       runs=self.runs if self.runs != Args.runs else "runs/transfer_smoke/runs")
 
     def validate(self) -> None:
         """Refuse bad values before anything runs or is written (a ValueError naming the field)."""
@@ -545,7 +544,7 @@ def main(args: Args) -> dict:
     report = summarise(args, timing)
     atomic_write_text(out / "table.json", json.dumps(report, indent=1) + "\n")
     atomic_write_text(out / "table.md", markdown(report))
-    draw_costs(report, Path(args.figure))
+    draw_costs(report, Path(args.figure) if args.figure else out / "cost_to_rule.png")
     print(markdown(report))
     if failed:
         raise SystemExit(f"{len(failed)} task(s) failed; rerun the same command to retry them")
@@ -571,7 +570,9 @@ def parse(argv=None) -> Args:
     p.add_argument("--workers", type=int, default=Args.workers, help="processes, one run or evaluation each")
     p.add_argument("--out", default=Args.out)
     p.add_argument("--runs", default=Args.runs)
-    p.add_argument("--figure", default=Args.figure, help="the figure of the training cost against n")
+    p.add_argument("--figure", default=None, help="where to draw the training cost against n (default: "
+                                                  "--out/cost_to_rule.png; docs/scale.md shows "
+                                                  "docs/figures/transfer_cost_to_rule.png)")
     p.add_argument("--report", action="store_true", help="only the table, from the files there")
     p.add_argument("--smoke", action="store_true", help="fast_shared_ppo on n5_m2_dt120, one seed, 2000 samples, "
                                                         "targets n11_m2_dt120 and n32_m4_dt120, 2 episodes")
