@@ -575,6 +575,26 @@ def checked_imitation_against_the_reference():
             and mine["n11_m2_dt60"]["iqm_share"] < report["share"] and fewest)
 
 
+def checked_imitation_denials_on_n16():
+    """results/planner/decisions_n16_m2_dt120_dagger_checked_agents.json (the published best model's) against
+    its fresh-episode gap to the reference (reference_shares.json) and the plant's r_pen."""
+    from containergym_marl.config.loading import load_config
+
+    record = json.loads((PLANNER / "decisions_n16_m2_dt120_dagger_checked_agents.json").read_text())
+    table = json.loads((ROOT / "results" / "paper_rows" / "table.json").read_text())
+    (best,) = [r["best_seed"] for r in table["rows"]
+               if r["config"] == "n16_m2_dt120" and r["method"] == "dagger_checked_agents"]
+    (row,) = [e for e in json.loads((PLANNER / "reference_shares.json").read_text())["rows"]
+              if e["config"] == "n16_m2_dt120"]
+    t = record["totals"]
+    denial_cost = t["denied_requests"] * -load_config("n16_m2_dt120").penalty_reward / record["episodes"]
+    gap = row["reference_fresh_mean"] - row["methods"]["dagger_checked_agents"]["best_fresh_mean"]
+    return (record["episodes"] == 30 and f"dagger_checked_agents_n16_m2_dt120_s{best}/validated_model.pt" in record["model"]
+            and t["overflowing_episodes"] == 0
+            and (t["learned_requests"], t["planned_requests"], t["denied_requests"], t["denied_extra"]) == (4564, 3710, 567, 337)
+            and round(denial_cost, 1) == 1.9 and round(gap, 1) == 3.7 and 0.4 <= denial_cost / gap <= 0.6)
+
+
 def checked_screens(*folders: str) -> dict[tuple[str, tuple[float, int]], tuple[float, int, int]]:
     """results/own_check/dagger_checked_agents/<folder>/screen.json of these folders (the screens of the
     published models, not the retrained ones'): (row, (ε, L)) -> (mean over seeds, overflowing episodes,
@@ -952,6 +972,11 @@ PLANNER_CLAIMS = {
     "On top of its settings, neither half of every minibatch drawn from the contended states (`checked_contended_0.5`) "
     "nor twice the labelling planner's futures (`checked_k32`) moved its best models on `n16_m2_dt120` by more than "
     "half a point (three seeds each, one overflowing episode of 90 each).": checked_variants_on_n16,
+    "It overflows in none of the 30 episodes, but asks for a PU more often than the planner would in the same states "
+    "(4,564 requests against 3,710), and 567 of its requests are denied, 337 of them ones the planner would not have "
+    "made.": checked_imitation_denials_on_n16,
+    "At r_pen = −0.1 a denied request, the denials cost it 1.9 per episode: about half of the 3.7 by which the same "
+    "model trails the reference on the fresh episodes.": checked_imitation_denials_on_n16,
     "On `n11_m2_dt60`, a labelling planner that looks as far ahead in plant time as at the evaluation's δ = 120 s "
     "(`checked_lead_2_h16`: H = 16 steps of 60 s) scored within half a point of the method's published runs there "
     "(`checked_lead_2`, five seeds each, no overflowing episode in 150 each)": labels_look_ahead_on_n11_m2_dt60,
