@@ -165,7 +165,7 @@ def main(argv=None) -> dict:
     figure = Path(ns.out) / f"{stem}.png"
     ending = "overflows" if shown["overflowed"] else "ends"
     plot_episode(shown, params, cfg.container_names,
-                 f"{cfg.name}, validation episode {shown['seed']} ({ending} at step {len(shown['learned'])}): "
+                 f"{cfg.name}, validation episode {shown['seed']} ({ending} at step {len(shown['learned'])}):\n"
                  f"{policy.name} acting, {ShieldedPlannerAgents.name} asked in the same states", figure, ns.window)
     result = {"config": cfg.name, "learned": policy.name, "model": str(model_path), "reference": ShieldedPlannerAgents.name,
               "episodes": ns.episodes, "first_seed": VALIDATION.first_seed, "totals": totals,
