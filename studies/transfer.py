@@ -383,11 +383,11 @@ def cost_lines(report: dict) -> dict[tuple[str, str], list[tuple[int, float]]]:
 
     lines: dict[tuple[str, str], list[tuple[int, float]]] = {}
     for e in report["entries"]:
+        share = pus(e["plant"])
         for label, cell in e["cells"].items():
             cost = cell.get("cost_to_rule")
             if cost and cost["samples_median"] is not None:
-                key = (label.replace(" (trained here)", ""), pus(e["plant"]))
-                lines.setdefault(key, []).append((e["n"], cost["samples_median"]))
+                lines.setdefault((label.replace(" (trained here)", ""), share), []).append((e["n"], cost["samples_median"]))
     return {key: sorted(points) for key, points in lines.items()}
 
 

@@ -167,19 +167,22 @@ def _pick(whole: dict[str, Any], n_containers: int | None,
     return dict(entry["settings"]), entry["source"]
 
 
+def _file_settings(method: str, n_containers: int | None, **plant_keys) -> dict[str, Any]:
+    path = settings_file(method)
+    return read_settings(path, n_containers, **plant_keys)[0] if path.is_file() else {}
+
+
 def method_settings(method: str, n_containers: int | None = None) -> dict[str, Any]:
     """``method``'s settings from its file for a plant of ``n_containers`` (None: its [settings] table,
     for any size; entries naming a plant's timestep_s or PUs apply only through :func:`plant_settings`);
     {} when it has none."""
-    path = settings_file(method)
-    return read_settings(path, n_containers)[0] if path.is_file() else {}
+    return _file_settings(method, n_containers)
 
 
 def plant_settings(method: str, plant) -> dict[str, Any]:
     """``method``'s settings from its file for the plant ``plant`` (a PlantConfig); {} when it has none."""
-    path = settings_file(method)
-    return read_settings(path, plant.n_containers, timestep_s=plant.timestep_s,
-                         num_processing_units=plant.num_processing_units)[0] if path.is_file() else {}
+    return _file_settings(method, plant.n_containers, timestep_s=plant.timestep_s,
+                          num_processing_units=plant.num_processing_units)
 
 
 def write_settings(path: str | Path, settings: dict[str, Any], source: str,

@@ -627,16 +627,22 @@ def checked_imitation_lead_on_n11_m2_dt60():
             and plant_settings("dagger_checked_agents", load_config("n11_m2_dt60")) == {"own_check_lead_steps": 2})
 
 
+def threshold_screen(folder: str, row: str) -> dict[float, tuple[float, int]]:
+    """dagger_checked_agents' row in results/request_threshold/<folder>/summary.json: τ -> (share of the
+    reference, overflowing episodes)."""
+    rows = json.loads((ROOT / "results" / "request_threshold" / folder / "summary.json").read_text())
+    (entry,) = [e for e in rows if e["method"] == "dagger_checked_agents" and e["row"] == row]
+    return {float(t): (c["share"], c["overflowing_episodes"]) for t, c in entry["thresholds"].items()}
+
+
 def checked_imitation_n16_not_closed_by_rules():
     """n16_m2_dt120: the screened checks and thresholds of dagger_checked_agents' published models."""
     from containergym_marl.training.dagger import CHECKED_SETTINGS
 
     own = CHECKED_SETTINGS["own_check_risk"], CHECKED_SETTINGS["own_check_lead_steps"]
     checks = {check: v for (row, check), v in checked_screens("contended").items() if row == "n16_m2_dt120"}
-    rows = json.loads((ROOT / "results" / "request_threshold" / "dagger_checked_agents_n16" / "summary.json").read_text())
-    (entry,) = [e for e in rows if e["method"] == "dagger_checked_agents" and e["row"] == "n16_m2_dt120"]
-    taus = {t: (c["share"], c["overflowing_episodes"]) for t, c in entry["thresholds"].items()}
-    mine_tau = str(CHECKED_SETTINGS["request_threshold"])
+    taus = threshold_screen("dagger_checked_agents_n16", "n16_m2_dt120")
+    mine_tau = CHECKED_SETTINGS["request_threshold"]
     return (own in checks and len(checks) >= 5 and len(taus) >= 5
             and all(v[0] < checks[own][0] for c, v in checks.items() if v[1] < checks[own][1])
             and all(v[0] < taus[mine_tau][0] for t, v in taus.items() if v[1] < taus[mine_tau][1])
@@ -646,12 +652,9 @@ def checked_imitation_n16_not_closed_by_rules():
 def checked_threshold_on_n11_m2_dt60():
     from containergym_marl.training.dagger import CHECKED_SETTINGS
 
-    path = ROOT / "results" / "request_threshold" / "dagger_checked_agents_n11_m2_dt60" / "summary.json"
-    (entry,) = json.loads(path.read_text())
-    taus = {float(t): (c["share"], c["overflowing_episodes"]) for t, c in entry["thresholds"].items()}
+    taus = threshold_screen("dagger_checked_agents_n11_m2_dt60", "n11_m2_dt60")
     own = CHECKED_SETTINGS["request_threshold"]
-    return (entry["method"] == "dagger_checked_agents" and entry["row"] == "n11_m2_dt60" and len(taus) == 6
-            and max(taus) == 0.5 and min(taus) == 0.15 and max(taus, key=lambda t: taus[t][0]) == own
+    return (len(taus) == 6 and max(taus) == 0.5 and min(taus) == 0.15 and max(taus, key=lambda t: taus[t][0]) == own
             and all(v[1] > 0 for t, v in taus.items() if t < own))
 
 
@@ -1099,6 +1102,11 @@ def imitation_transfers_worse():
             and all(from11[p]["overflow_share"] > 0.5 for p in ("n64_m6_dt120", "n128_m12_dt120")))
 
 
+def learned_cells(cells: dict) -> dict:
+    """The transfer table's cells of learned policies (trained there or zero-shot), by label."""
+    return {label: c for label, c in cells.items() if label.startswith(("fast_", "dagger_"))}
+
+
 def imitation_best_trained_there():
     def cost(cell, key):
         return cell["cost_to_rule"][key]
@@ -1108,8 +1116,8 @@ def imitation_best_trained_there():
         cells = transfer()[plant]
         here, ppo = cells["dagger_agents (trained here)"], cells["fast_shared_ppo (trained here)"]
         assert here["seeds"] == 5
-        others = [c["return_per_container"] for label, c in cells.items()
-                  if label.startswith(("fast_", "dagger_")) and label != "dagger_agents (trained here)"]
+        others = [c["return_per_container"] for label, c in learned_cells(cells).items()
+                  if label != "dagger_agents (trained here)"]
         best.append(here["return_per_container"] > max(others))
         if plant in SCARCE:
             fewer_overflows.append(here["overflow_share"] < ppo["overflow_share"])
@@ -1121,12 +1129,11 @@ def imitation_best_trained_there():
 def planner_leads_at_scale():
     def lead(plant):
         cells = transfer()[plant]
-        learned = max(c["return_per_container"] for label, c in cells.items() if label.startswith(("fast_", "dagger_")))
+        learned = max(c["return_per_container"] for c in learned_cells(cells).values())
         return cells["planner_agents"]["return_per_container"] - learned
 
     learned_below = all(c["return_per_container"] < cells["planner_agents"]["return_per_container"]
-                        for cells in transfer().values() for label, c in cells.items()
-                        if label.startswith(("fast_", "dagger_")))
+                        for cells in transfer().values() for c in learned_cells(cells).values())
     pairs = [("n32_m4_dt120", "n32_m3_dt120"), ("n64_m8_dt120", "n64_m6_dt120"), ("n128_m16_dt120", "n128_m12_dt120")]
     return learned_below and all(lead(scarce) > lead(proportional) for proportional, scarce in pairs)
 
