@@ -3,6 +3,7 @@ fresh processes, alternated, the same algorithm, plant, settings and seed in bot
 
     python benchmarks/trainer_ab.py --other /path/to/other/checkout            # fast_shared_ppo, n11_m2_dt120
     python benchmarks/trainer_ab.py --other ../old --algo fast_ppo --samples 300000 --rounds 4
+    python benchmarks/trainer_ab.py --other ../old --algo dagger_agents --samples 200000 --rounds 2
     python benchmarks/trainer_ab.py --other . --samples 20000 --rounds 1        # the smoke test: seconds
 
 Each run is one ``containergym_marl.training.train`` call (one torch thread) in a new Python process
@@ -24,6 +25,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from containergym_marl.algorithms import ALGORITHMS, get_algorithm
 
 REPO = Path(__file__).resolve().parents[1]
 CHILD = r"""
@@ -69,7 +72,8 @@ def one_run(checkout: Path, algo: str, config: str, samples: int, hp: dict, out:
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--other", required=True, type=Path, help="the other checkout (a git worktree of another commit)")
-    p.add_argument("--algo", default="fast_shared_ppo", choices=["fast_ppo", "fast_shared_ppo"])
+    p.add_argument("--algo", default="fast_shared_ppo",
+                   choices=[a for a in ALGORITHMS if get_algorithm(a).native])  # the package's own trainers
     p.add_argument("--config", default="n11_m2_dt120")
     p.add_argument("--samples", type=int, default=200_000)
     p.add_argument("--rounds", type=int, default=3)

@@ -446,19 +446,21 @@ def step(
 
 def step_checked(state: PlantState, requests: np.ndarray, params: PlantParams, normals: np.ndarray,
                  uniforms: np.ndarray, rule: ArbitrationRule,
-                 outputs: StepOutputs | None = None) -> tuple[PlantState, StepOutcome]:
+                 outputs: StepOutputs | None = None, threaded: bool = True) -> tuple[PlantState, StepOutcome]:
     """:func:`step` for inputs already checked: C-contiguous (B, n) bool requests and float64 random
     rows, and a rule from :func:`get_rule`. The kernel checks no bounds; the simulator, whose inputs
     are right by construction, calls this to skip the checks (a fifth of a one-simulation step).
 
     ``outputs``: where to write the step (fresh arrays when None); they must not hold ``state``.
+    ``threaded``: False steps a large batch in the calling thread too (a caller that works within
+    one core, as the planner's look-ahead inside a training run).
     """
     bsz, n = state.volumes.shape
     if outputs is None:
         outputs = StepOutputs(bsz, n, state.pu_timers_s.shape[1])
     arrays = outputs.arrays
     inputs = (*state, requests, normals, uniforms)
-    if bsz < PARALLEL_MIN_BATCH or _THREADS == 1:
+    if not threaded or bsz < PARALLEL_MIN_BATCH or _THREADS == 1:
         rule.step_batch(*inputs, *params.kernel_arrays(), *arrays)
     else:  # row blocks in threads: the kernel releases the GIL, and simulations are independent
         bounds = np.linspace(0, bsz, _THREADS + 1).astype(int)

@@ -15,7 +15,7 @@ idea as a full simulator object (one generator per copy, episode control), for i
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -93,18 +93,46 @@ def simulate_futures(
     Cost: H compiled steps of C·K simulations (and their overflow probabilities) plus H calls of
     ``policy`` on them.
     """
-    first_requests = np.asarray(first_requests, dtype=bool)
-    normals = np.asarray(normals, dtype=np.float64)
-    n_candidates, n = first_requests.shape
-    horizon, copies = normals.shape[:2]
-    if normals.shape != (horizon, copies, n) or n != params.n_containers or horizon < 1:
-        raise ValueError(f"normals: expected shape (H >= 1, K, {params.n_containers}), got {normals.shape}")
-    batch = n_candidates * copies
+    return simulate_future_groups(state, [(sim, first_requests, normals)], policy, params, arbitration)[0]
+
+
+def simulate_future_groups(
+    state: PlantState,
+    groups: Sequence[tuple[int, np.ndarray, np.ndarray]],
+    policy: RequestPolicy,
+    params: PlantParams,
+    arbitration: str = DEFAULT_ARBITRATION,
+) -> list[Futures]:
+    """:func:`simulate_futures` of several simulations of ``state`` at once: one
+    ``(sim, first_requests, normals)`` per group, every group's C·K futures stepped together (one call
+    of the compiled step per look-ahead step for all of them). Each group's :class:`Futures` are
+    those :func:`simulate_futures` gives it alone: every simulation steps on its own row and noise,
+    and the batch runs while any future of any group is alive (a future that ended records nothing
+    more). The groups must share H."""
+    if not groups:
+        return []
+    rows, requests, noises, shapes = [], [], [], []
+    horizon = None
+    for sim, first_requests, normals in groups:
+        first_requests = np.asarray(first_requests, dtype=bool)
+        normals = np.asarray(normals, dtype=np.float64)
+        n_candidates, n = first_requests.shape
+        h, copies = normals.shape[:2]
+        if normals.shape != (h, copies, n) or n != params.n_containers or h < 1 or h != (horizon or h):
+            raise ValueError(f"normals: expected shape (H >= 1, K, {params.n_containers}) with the same H in "
+                             f"every group, got {normals.shape}")
+        horizon = h
+        rows.append(np.full(n_candidates * copies, int(sim)))
+        requests.append(np.repeat(first_requests, copies, axis=0))
+        noises.append(np.tile(normals, (1, n_candidates, 1)))  # [t] candidate-major: row c·K + k uses stream k
+        shapes.append((n_candidates, copies))
+    n = params.n_containers
+    current = state.select(np.concatenate(rows))
+    batch = current.volumes.shape[0]
     rule = dynamics.get_rule(arbitration)
-    current = state.select(np.full(batch, int(sim)))
     uniforms = np.full((batch, n), 0.5)
-    requests = np.repeat(first_requests, copies, axis=0)
-    noise = np.tile(normals, (1, n_candidates, 1))  # [t] candidate-major: row c·K + k uses stream k
+    step_requests = np.concatenate(requests)
+    noise = np.concatenate(noises, axis=1)
     # two sets of step outputs, taken in turn (a step must not write over the state it reads), so the
     # look-ahead's steps allocate nothing; its other inputs are right by construction (no checks)
     outputs = [dynamics.StepOutputs(batch, n, current.pu_timers_s.shape[1]) for _ in range(2)]
@@ -115,13 +143,20 @@ def simulate_futures(
     alive = np.ones(batch, dtype=bool)
     for t in range(horizon):
         if t > 0:
-            requests = dynamics.check_requests(policy(current, params), (batch, n))
+            step_requests = dynamics.check_requests(policy(current, params), (batch, n))
         before = current.volumes
-        current, out = dynamics.step_checked(current, requests, params, noise[t], uniforms, rule, outputs[t % 2])
+        # one thread: a planner decides within one core (a training run's, an evaluation worker's)
+        current, out = dynamics.step_checked(current, step_requests, params, noise[t], uniforms, rule,
+                                             outputs[t % 2], threaded=False)
         step_risk = dynamics.overflow_probabilities(before, out.granted, params)
         if not _record_step(t, alive, out.plant_reward, step_risk, out.terminated, out.truncated, rewards, risk,
                             end_step, overflowed):
             break
-    shape = (n_candidates, copies)
-    return Futures(rewards.reshape(*shape, horizon), risk.reshape(*shape, horizon), end_step.reshape(shape), overflowed.reshape(shape),
-                   current, (~alive).reshape(shape))
+    futures, start = [], 0
+    for shape in shapes:
+        stop = start + shape[0] * shape[1]
+        futures.append(Futures(rewards[start:stop].reshape(*shape, horizon), risk[start:stop].reshape(*shape, horizon),
+                               end_step[start:stop].reshape(shape), overflowed[start:stop].reshape(shape),
+                               current.select(slice(start, stop)), (~alive[start:stop]).reshape(shape)))
+        start = stop
+    return futures

@@ -47,7 +47,10 @@ probabilities and H base-policy calls on them, C <= n + 1 candidates. With the d
 H = 8) that is 8 steps of up to 192 simulations at n = 11, about 1–2 ms of CPU on one core; steps
 without a choice (no free PU, nothing eligible) cost nothing. Doubling K doubles the simulated
 work (the per-step Python overhead stays); doubling H doubles both. ``studies/planner_rows.py``
-measures the time per step on every row (``results/planner/rows.md``).
+measures the time per step on every row (``results/planner/rows.md``). :func:`decide_all` decides
+for many simulations at once, one planner each (DAgger's labels): the same decisions, every
+look-ahead's futures stepped in one batch, which costs less CPU than one planner at a time
+(``benchmarks/labelling.py`` measures both side by side).
 
 **Choosing the settings.** The defaults were chosen on validation episodes (seeds 20000+, not the
 test seeds); ``studies/planner_sweep.py`` (``results/planner/sweep_n11_m2_dt120.md``) and
@@ -111,14 +114,14 @@ from __future__ import annotations
 
 import hashlib
 import itertools
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
 from containergym_marl.config.pu_time import jit
 from containergym_marl.core.dynamics import PlantState, emptying_rewards
 from containergym_marl.core.params import PlantParams
-from containergym_marl.core.whatif import Futures, simulate_futures
+from containergym_marl.core.whatif import Futures, simulate_future_groups, simulate_futures
 from containergym_marl.policies.rule_based import within_margin
 from containergym_marl.policies.safety import DeadlineCheck
 
@@ -280,6 +283,10 @@ class RolloutPlanner:
 
     def decide(self, state: PlantState, params: PlantParams) -> np.ndarray:
         """(n,) bool: the containers to empty now in the one-simulation ``state``."""
+        return decide_all([self], state, params)[0]
+
+    def _begin(self, state: PlantState, params: PlantParams) -> np.ndarray | _Look:
+        """The decision where it needs no look-ahead; else the look-ahead to simulate, its futures drawn."""
         self.decisions += 1
         self._start_of_step(state)
         n = params.n_containers
@@ -298,14 +305,18 @@ class RolloutPlanner:
         base = self._base(state, params, limit, self.margin)[0]
         candidates = self._candidates(base, eligible, limit, volumes[0] / params.max_volume)
         if len(candidates) == 1:
-            values = None
-        else:
-            self.planned += 1
-            values = self._values(state, params, candidates, self.futures)
-            if self.max_futures > self.futures and self.uncertain(values, self.confidence):
-                self.widened += 1
-                values = np.concatenate([values, self._values(state, params, candidates,
-                                                              self.max_futures - self.futures)], axis=1)
+            return self._finish(state, params, _Look(candidates, None, (check, base, eligible, limit)), None)
+        self.planned += 1
+        return _Look(candidates, self._normals(params, self.futures), (check, base, eligible, limit))
+
+    def _finish(self, state: PlantState, params: PlantParams, look: _Look, values: np.ndarray | None) -> np.ndarray:
+        """The decision from the look-ahead's (C, K) ``values`` (None: a single candidate)."""
+        check, base, eligible, limit = look.context
+        candidates = look.candidates
+        if values is not None and self.max_futures > self.futures and self.uncertain(values, self.confidence):
+            self.widened += 1
+            values = np.concatenate([values, self._values(state, params, candidates,
+                                                          self.max_futures - self.futures)], axis=1)
         best = 0 if values is None else int(np.argmax(values.mean(axis=1)))  # the first best: the base on ties
         if check is None or check.safe(candidates[best]):
             return candidates[best]
@@ -359,12 +370,29 @@ class RolloutPlanner:
 
     def _values(self, state: PlantState, params: PlantParams, candidates: np.ndarray, futures: int) -> np.ndarray:
         """(C, K) values of ``futures`` new futures of every candidate (the same streams for each)."""
-        n = params.n_containers
-        max_requests = n if self.max_requests is None else self.max_requests
-        simulated = simulate_futures(
-            state, 0, candidates, lambda s, p: self._base(s, p, max_requests, self.margin), params,
-            self._rng.standard_normal((self.horizon, futures, n)))
+        simulated = simulate_futures(state, 0, candidates, self._later_requests, params,
+                                     self._normals(params, futures))
+        return self._value_candidates(state, params, candidates, simulated)
+
+    def _value_candidates(self, state: PlantState, params: PlantParams, candidates: np.ndarray,
+                          simulated: Futures) -> np.ndarray:
+        """(C, K) values of the ``candidates``' ``simulated`` futures from the one-simulation ``state``:
+        every look-ahead's values pass here (alone or batched)."""
         return self.future_values(simulated, params, int(state.step_count[0]))
+
+    def _normals(self, params: PlantParams, futures: int) -> np.ndarray:
+        """(H, K, n) standard normals from the planner's generator: the noise streams of K futures."""
+        return self._rng.standard_normal((self.horizon, futures, params.n_containers))
+
+    def _later_requests(self, state: PlantState, params: PlantParams) -> np.ndarray:
+        """The base policy's requests at the look-ahead's later steps."""
+        max_requests = params.n_containers if self.max_requests is None else self.max_requests
+        return self._base(state, params, max_requests, self.margin)
+
+    def _same_look_ahead(self, other: "RolloutPlanner") -> bool:
+        """Whether ``other``'s futures may be simulated in one batch with this planner's (:func:`decide_all`)."""
+        return (other.horizon == self.horizon and other._base is self._base and other.margin == self.margin
+                and other.max_requests == self.max_requests)
 
     @staticmethod
     def uncertain(values: np.ndarray, confidence: float) -> bool:
@@ -440,6 +468,10 @@ class PlannerAgents(RolloutPlanner):
         are valued on the same K futures. No look-ahead where no PU is free (every request would be
         denied) or no container is eligible and none requested (what :meth:`decide` does there):
         nothing is requested."""
+        return respond_all([self], state, params, np.asarray(requests, dtype=bool).reshape(1, -1))[0]
+
+    def _begin_response(self, state: PlantState, params: PlantParams, requests: np.ndarray) -> np.ndarray | _Look:
+        """:meth:`respond` where it needs no look-ahead; else the look-ahead of the n + 1 request sets."""
         self.decisions += 1
         self._start_of_step(state)
         n = params.n_containers
@@ -450,10 +482,86 @@ class PlannerAgents(RolloutPlanner):
             return np.zeros(n, dtype=bool)
         self.planned += 1
         flips = np.logical_xor(requests[None, :], np.eye(n, dtype=bool))  # row i: agent i's request flipped
-        worth = self._values(state, params, np.vstack([requests[None, :], flips]), self.futures).mean(axis=1)
+        return _Look(np.vstack([requests[None, :], flips]), self._normals(params, self.futures), requests)
+
+    @staticmethod
+    def _finish_response(look: _Look, values: np.ndarray) -> np.ndarray:
+        worth, requests = values.mean(axis=1), look.context
         with_request = np.where(requests, worth[0], worth[1:])
         without = np.where(requests, worth[1:], worth[0])
         return with_request > without  # a tie: no request
+
+
+class _Look(NamedTuple):
+    """A decision's look-ahead: its (C, n) candidates, their (H, K, n) noise (None: nothing to
+    simulate) and what the decision needs afterwards."""
+
+    candidates: np.ndarray
+    normals: np.ndarray | None
+    context: Any
+
+
+def _simulate_looks(planners: Sequence[RolloutPlanner], states: list[PlantState], state: PlantState,
+                    params: PlantParams, looks: dict[int, _Look]) -> dict[int, np.ndarray]:
+    """The (C, K) values of each planner b's look-ahead ``looks[b]`` in simulation b of ``state``
+    (``states[b]`` alone), all futures stepped in one batch
+    (:func:`~containergym_marl.core.whatif.simulate_future_groups`)."""
+    if not looks:
+        return {}
+    first = planners[next(iter(looks))]
+    if not all(first._same_look_ahead(planners[b]) for b in looks):
+        raise ValueError("planners: a batch of decisions needs the same horizon, base policy, margin and view")
+    order = list(looks)
+    futures = simulate_future_groups(state, [(b, looks[b].candidates, looks[b].normals) for b in order],
+                                     first._later_requests, params)
+    return {b: planners[b]._value_candidates(states[b], params, looks[b].candidates, f)
+            for b, f in zip(order, futures)}
+
+
+def decide_all(planners: Sequence[RolloutPlanner], state: PlantState, params: PlantParams) -> np.ndarray:
+    """(B, n) bool: planner b's decision in simulation b of ``state`` (B rows), each what
+    ``planners[b].decide`` would return in that simulation alone (same look-ahead, same random stream),
+    with the look-ahead futures of every planner that plans simulated together: one compiled step per
+    look-ahead step for the whole batch rather than per planner, which is what labelling many
+    simulations at once costs (:class:`~containergym_marl.training.dagger.Labeller`). The planners must
+    share their horizon, base policy, margin and view."""
+    return _decide_together(planners, state, params, lambda b, planner, one: planner._begin(one, params),
+                            lambda planner, one, look, values: planner._finish(one, params, look, values))
+
+
+def respond_all(planners: Sequence[PlannerAgents], state: PlantState, params: PlantParams,
+                requests: np.ndarray) -> np.ndarray:
+    """(B, n) bool: :meth:`PlannerAgents.respond` of planner b in simulation b of ``state`` to the
+    agents' ``requests[b]`` ((B, n) bool), the look-aheads simulated together as in :func:`decide_all`."""
+    requests = np.asarray(requests, dtype=bool)
+    b_count = state.volumes.shape[0]
+    if requests.shape != (b_count, params.n_containers):
+        raise ValueError(f"requests: expected shape ({b_count}, {params.n_containers}), got {requests.shape}")
+    return _decide_together(planners, state, params,
+                            lambda b, planner, one: planner._begin_response(one, params, requests[b]),
+                            lambda planner, one, look, values: PlannerAgents._finish_response(look, values))
+
+
+def _decide_together(planners: Sequence[RolloutPlanner], state: PlantState, params: PlantParams,
+                     begin: Callable[[int, RolloutPlanner, PlantState], np.ndarray | _Look],
+                     finish: Callable[[RolloutPlanner, PlantState, _Look, np.ndarray], np.ndarray]) -> np.ndarray:
+    """Each planner's ``begin`` in its simulation (a decision, or a look-ahead to simulate), then every
+    look-ahead simulated in one batch and each planner's ``finish`` on its values."""
+    b_count = state.volumes.shape[0]
+    if len(planners) != b_count:
+        raise ValueError(f"planners: expected one per simulation ({b_count}), got {len(planners)}")
+    out = np.zeros((b_count, params.n_containers), dtype=bool)
+    states = [state.select(slice(b, b + 1)) for b in range(b_count)]
+    looks = {}
+    for b, planner in enumerate(planners):
+        begun = begin(b, planner, states[b])
+        if isinstance(begun, _Look):
+            looks[b] = begun
+        else:
+            out[b] = begun
+    for b, values in _simulate_looks(planners, states, state, params, looks).items():
+        out[b] = finish(planners[b], states[b], looks[b], values)
+    return out
 
 
 #: The deadline check's setting of the shielded planners, chosen on validation episodes (seeds 20000+,

@@ -109,7 +109,7 @@ from containergym_marl.config.bounds import (
 from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation, check_same_observation
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.actor_critic import ActorCritic, check_request_threshold, load_tensors, save_tensors
-from containergym_marl.policies.planner import SHIELD, PlannerAgents
+from containergym_marl.policies.planner import SHIELD, PlannerAgents, decide_all, respond_all
 from containergym_marl.policies.safety import own_check_setting, own_deadline_due
 from containergym_marl.rundir import RunError, RunWarning
 from containergym_marl.training import fast_ppo
@@ -306,9 +306,9 @@ class Labeller:
         (:meth:`~containergym_marl.policies.planner.PlannerAgents.respond`)."""
         t0 = time.process_time()
         state, params = simulator.state, simulator.params
-        out = np.stack([p.decide(state.select(slice(b, b + 1)), params) if requests is None
-                        else p.respond(state.select(slice(b, b + 1)), params, requests[b])
-                        for b, p in enumerate(self.planners)])
+        # every simulation's look-ahead in one batch: the labels each planner alone gives, at a fraction of the cost
+        out = (decide_all(self.planners, state, params) if requests is None
+               else respond_all(self.planners, state, params, requests))
         self.cpu_s += time.process_time() - t0
         return out
 

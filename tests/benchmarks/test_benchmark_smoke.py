@@ -215,6 +215,22 @@ def test_planner_ab_compares_a_checkout_with_itself(tmp_path):
     assert "episodes (requests and rewards) identical" in proc.stdout and "| other (" in proc.stdout
 
 
+@pytest.mark.parametrize("labels", ["planner", "response"])
+def test_labelling_benchmark_labels_alike_on_both_sides(tmp_path, labels):
+    """benchmarks/labelling.py end to end at 4 simulations and 3 steps: both sides plan the same
+    decisions and give the same labels (the hash), and the table has a row per plant."""
+    out = tmp_path / "labels.json"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "labelling.py"), "--smoke", "--labels", labels,
+                           "--json", str(out)], capture_output=True, text=True, timeout=300, check=True)
+    report = json.loads(out.read_text())
+    assert set(report["configs"]) == {"n11_m2_dt120", "n16_m2_dt120"}
+    for row in report["configs"].values():
+        one, batched = row["rounds"][0]
+        assert row["identical_labels"] and one["labels_sha256"] == batched["labels_sha256"]
+        assert one["planned"] == batched["planned"] == row["planned"] > 0
+    assert proc.stdout.count("| identical |") == 2
+
+
 def test_scaling_smoke_measures_every_path_of_each_plant(tmp_path):
     """benchmarks/scaling.py end to end on two plants (structure, not speed): each plant's row holds
     every rate, container decisions are n × plant steps, and the planner was timed."""

@@ -68,6 +68,36 @@ def test_threaded_step_equals_the_one_thread_step(rule, monkeypatch):
     assert threaded[1].granted.any() and threaded[1].denied.any() and threaded[1].terminated.any()
 
 
+def test_look_ahead_steps_large_batches_in_the_calling_thread(monkeypatch):
+    """The planner's look-ahead works within its caller's core: a batch of futures larger than the
+    threaded step's threshold never reaches the thread pool (``threaded=False``), and ``step_checked``
+    with ``threaded=False`` gives the threaded step's outputs."""
+    from containergym_marl.core.whatif import simulate_future_groups
+    from containergym_marl.policies.planner import fullest_base
+
+    cfg = load_config("n11_m2_dt120")
+    params = PlantParams.from_config(cfg)
+    B, n = dynamics.PARALLEL_MIN_BATCH + 37, cfg.n_containers
+    rng = np.random.default_rng(6)
+    state = dynamics.PlantState(rng.uniform(0.0, 30.0, (B, n)), np.zeros((B, 2)), np.zeros(B, dtype=np.int64))
+    args = (state, np.ascontiguousarray(rng.random((B, n)) < 0.2), params, rng.standard_normal((B, n)),
+            rng.random((B, n)), dynamics.get_rule("fullest"))
+    monkeypatch.setattr(dynamics, "_THREADS", 2)
+    threaded = dynamics.step_checked(*args)
+
+    def no_threads():
+        raise AssertionError("the thread pool was used")
+
+    monkeypatch.setattr(dynamics, "_thread_pool", no_threads)
+    single = dynamics.step_checked(*args, threaded=False)
+    for got, expected in zip((*threaded[0], *threaded[1]), (*single[0], *single[1])):
+        np.testing.assert_array_equal(got, expected)
+    with pytest.raises(AssertionError, match="thread pool"):
+        dynamics.step_checked(*args)
+    groups = [(b, rng.random((4, n)) < 0.2, rng.standard_normal((3, 16, n))) for b in range(40)]  # 2,560 futures
+    simulate_future_groups(state, groups, lambda s, p: fullest_base(s, p, n), params)
+
+
 def test_reseeding_one_simulation_leaves_the_others_alone():
     cfg = load_config("n5_m2_dt120")
     a = PlantSimulator(cfg, num_sims=3)

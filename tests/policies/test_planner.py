@@ -11,12 +11,13 @@ import pytest
 
 from containergym_marl import ContainerGymEnv, load_config
 from containergym_marl.core import dynamics, overflow_probabilities, simulate_futures
+from containergym_marl.core.whatif import simulate_future_groups
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.simulator import PlantSimulator
 from containergym_marl.envs.container_agents_v0 import parallel_env
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.policies import PlannerAgents, RolloutPlanner, RuleBasedAgents
-from containergym_marl.policies.planner import fullest_base, index_base
+from containergym_marl.policies.planner import decide_all, fullest_base, index_base, respond_all
 from tests.helpers import make_state
 
 SMALL = dict(futures=4, horizon=6)  # a cheap planner for behaviour tests
@@ -94,6 +95,97 @@ def test_futures_match_the_step_and_share_noise_across_candidates():
     assert fut.rewards[1, :, 0] == pytest.approx(dynamics.emptying_reward(1, 26.5, params))
     with pytest.raises(ValueError, match="normals"):
         simulate_futures(state, 0, candidates, _no_requests, params, normals[:, :, :4])
+
+
+def test_grouped_futures_are_each_groups_futures_alone():
+    """Several simulations' futures stepped in one batch are, group by group, the futures each gets
+    alone, bit for bit: here one group reaches the time limit after 2 of 6 steps and another
+    overflows early, while the third runs on (so the batch steps past the first two's ends)."""
+    cfg = load_config("n5_m2_dt120")
+    params = PlantParams.from_config(cfg)
+    t_end = params.episode_length_steps
+    state = make_state([[5.0, 26.5, 20.0, 30.0, 12.0], [1.0, 2.0, 3.0, 4.0, 5.0], [5.0, 5.0, 5.0, 5.0, 39.9]],
+                       [[0.0, 300.0], [0.0, 0.0], [100.0, 200.0]])
+    state.step_count[:] = [10, t_end - 2, 3]
+    rng = np.random.default_rng(8)
+    groups = [(b, rng.random((c, 5)) < 0.3, rng.standard_normal((6, k, 5))) for b, c, k in ((0, 3, 4), (1, 2, 5),
+                                                                                          (2, 1, 3), (0, 2, 2))]
+    together = simulate_future_groups(state, groups, fullest_base_all, params)
+    assert together[1].ended.all() and (together[1].end_step == 2).all()  # the time limit
+    assert together[2].overflowed.any() and not together[0].ended.all()
+    for (sim, first, normals), batched in zip(groups, together):
+        alone = simulate_futures(state, sim, first, fullest_base_all, params, normals)
+        for field in ("rewards", "overflow_risk", "end_step", "overflowed", "ended"):
+            np.testing.assert_array_equal(getattr(batched, field), getattr(alone, field), err_msg=field)
+        running = ~alone.ended.reshape(-1)  # the final states of futures still running
+        np.testing.assert_array_equal(batched.final_state.volumes[running], alone.final_state.volumes[running])
+    with pytest.raises(ValueError, match="same H"):
+        simulate_future_groups(state, [groups[0], (1, groups[1][1], groups[1][2][:4])], fullest_base_all, params)
+
+
+@pytest.mark.parametrize("config, safety_risk", [("n11_m2_dt120", None), ("n16_m2_dt120", 1e-6)])
+def test_planners_deciding_together_decide_as_each_alone(config, safety_risk):
+    """:func:`decide_all` over B simulations gives each planner's own decision, step after step: the
+    same look-ahead on the same random stream, the simulations driven by those decisions (so a
+    difference anywhere would change the rest), with the deadline check's replanning included."""
+    cfg = load_config(config)
+    together, alone = (PlantSimulator(cfg, num_sims=6) for _ in range(2))
+    for sim in (together, alone):
+        sim.reset(generators=[np.random.default_rng(40 + b) for b in range(6)])
+    planners = {side: [PlannerAgents(safety_risk=safety_risk, **SMALL) for _ in range(6)] for side in ("a", "b")}
+    for side in planners:
+        for b, planner in enumerate(planners[side]):
+            planner.reset(70 + b)
+    for sim in (together, alone):  # the simulations near the ends of their episodes, each at another step
+        sim.state.step_count[:] = cfg.episode_length_steps - 45 + 7 * np.arange(6)  # ends at different steps
+    for _ in range(60):
+        batched = decide_all(planners["a"], together.state, together.params)
+        single = np.stack([p.decide(alone.state.select(slice(b, b + 1)), alone.params)
+                           for b, p in enumerate(planners["b"])])
+        np.testing.assert_array_equal(batched, single)
+        for sim in (together, alone):
+            out = sim.step(batched)
+            if (done := out.terminated | out.truncated).any():
+                sim.reset(np.flatnonzero(done))
+    assert [p.planned for p in planners["a"]] == [p.planned for p in planners["b"]]
+    assert sum(p.planned for p in planners["a"]) > 30
+    if safety_risk is not None:
+        assert [p.shielded for p in planners["a"]] == [p.shielded for p in planners["b"]]
+
+
+def test_best_responses_together_are_each_planners_alone():
+    cfg = load_config("n11_m2_dt120")
+    sim = PlantSimulator(cfg, num_sims=5)
+    sim.reset(generators=[np.random.default_rng(90 + b) for b in range(5)])
+    a, b = ([PlannerAgents(**SMALL) for _ in range(5)] for _ in range(2))
+    for k in range(5):
+        a[k].reset(k)
+        b[k].reset(k)
+    rng = np.random.default_rng(1)
+    responded = 0
+    for _ in range(40):
+        requests = rng.random((5, 11)) < 0.1
+        batched = respond_all(a, sim.state, sim.params, requests)
+        single = np.stack([p.respond(sim.state.select(slice(k, k + 1)), sim.params, requests[k])
+                           for k, p in enumerate(b)])
+        np.testing.assert_array_equal(batched, single)
+        responded += int(batched.sum())
+        out = sim.step(requests)
+        if (done := out.terminated | out.truncated).any():
+            sim.reset(np.flatnonzero(done))
+    assert responded > 0 and sum(p.planned for p in a) == sum(p.planned for p in b) > 0
+
+
+def test_planners_deciding_together_must_match_the_batch():
+    sim = PlantSimulator(load_config("n5_m2_dt120"), num_sims=2)
+    sim.reset(generators=[np.random.default_rng(b) for b in range(2)])
+    with pytest.raises(ValueError, match="planners: expected one per simulation"):
+        decide_all([PlannerAgents()], sim.state, sim.params)
+    with pytest.raises(ValueError, match="requests"):
+        respond_all([PlannerAgents(), PlannerAgents()], sim.state, sim.params, np.zeros((2, 4), bool))
+    state = make_state([[30.0, 30.0, 30.0, 30.0, 30.0]] * 2, [[0.0, 0.0]] * 2)  # both plan
+    with pytest.raises(ValueError, match="same horizon"):
+        decide_all([PlannerAgents(horizon=4), PlannerAgents(horizon=8)], state, sim.params)
 
 
 def test_overflow_probability_matches_the_normal_tail_and_sampling():

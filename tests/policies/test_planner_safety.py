@@ -71,8 +71,8 @@ def test_the_check_sees_two_containers_due_before_a_pu_frees():
     # a planner whose look-ahead prefers waiting takes the choice of least total schedule risk
     # (P_1(5) ≈ 0.013 against P_0(5) ≈ 0.35 and P_0(1) + P_1(6) ≈ 0.08): emptying C1-20
     planner = RolloutPlanner(**SMALL, safety_risk=1e-3)
-    planner._values = lambda state, params, candidates, futures: np.repeat(
-        (~candidates.any(axis=1)).astype(float)[:, None], futures, axis=1)
+    planner._value_candidates = lambda state, params, candidates, simulated: np.repeat(
+        (~candidates.any(axis=1)).astype(float)[:, None], simulated.rewards.shape[1], axis=1)
     assert np.flatnonzero(planner.decide(_state([36.0, 36.0, 5.0, 5.0, 5.0], [1000.0, 0.0]), params)).tolist() == [0]
     assert planner.shielded == 1
     slack = DeadlineCheck(np.array([36.0, 36.0, 5.0, 5.0, 5.0]), np.array([130.0, 0.0]), params, 1e-3, 24)
@@ -106,11 +106,11 @@ def test_the_shield_replaces_an_unsafe_look_ahead_choice(monkeypatch):
     state = _state([5.0, 5.0, 5.0, 31.5, 30.0], [1000.0, 0.0])
 
     for c1_60, wait, expected in ((0.5, 0.0, [4]), (0.0, 0.5, [])):
-        def stub(self, state, params, candidates, futures, c1_60=c1_60, wait=wait):
+        def stub(self, state, params, candidates, simulated, c1_60=c1_60, wait=wait):
             value = np.where(candidates[:, 3], 1.0, np.where(candidates[:, 4], c1_60, wait))
-            return np.repeat(value[:, None], futures, axis=1)
+            return np.repeat(value[:, None], simulated.rewards.shape[1], axis=1)
 
-        monkeypatch.setattr(RolloutPlanner, "_values", stub)
+        monkeypatch.setattr(RolloutPlanner, "_value_candidates", stub)
         plain = RolloutPlanner(**SMALL)
         assert np.flatnonzero(plain.decide(state, params)).tolist() == [3]
         shielded = RolloutPlanner(**SMALL, safety_risk=1e-4)
@@ -135,12 +135,13 @@ def test_the_container_agents_shield_weighs_sets_without_the_look_ahead_s_choice
         assert not check.safe(np.isin(np.arange(5), around_base)), around_base
     assert check.safe(np.isin(np.arange(5), [3, 4]))
 
-    def values(self, state, params, candidates, futures):
-        return np.repeat(np.where(candidates[:, 0], 1.0, 0.0)[:, None], futures, axis=1)
+    def values(self, state, params, candidates, simulated):
+        return np.repeat(np.where(candidates[:, 0], 1.0, 0.0)[:, None], simulated.rewards.shape[1], axis=1)
 
-    monkeypatch.setattr(PlannerAgents, "_values", values)
+    monkeypatch.setattr(PlannerAgents, "_value_candidates", values)
     shielded = PlannerAgents(**SMALL, safety_risk=1e-4)
-    shielded._base = lambda state, params, limit, margin: np.isin(np.arange(params.n_containers), [0])[None, :]
+    shielded._base = lambda state, params, limit, margin: np.repeat(  # every simulation: C1-20
+        np.isin(np.arange(params.n_containers), [0])[None, :], state.volumes.shape[0], axis=0)
     assert np.flatnonzero(shielded.decide(state, params)).tolist() == [3, 4] and shielded.shielded == 1
 
 
@@ -185,10 +186,10 @@ def test_the_centralised_schedule_starts_one_emptying_a_step():
     assert central.schedule_risk(now)[order[1]] == central.risk[order[1], 0] <= 1e-3
     # the planners: a look-ahead that prefers waiting is overruled in the centralised view (one emptying a
     # step), and in the agents' view only if waiting is unsafe there
-    prefer_waiting = lambda state, params, candidates, futures: np.repeat(  # noqa: E731
-        (~candidates.any(axis=1)).astype(float)[:, None], futures, axis=1)
+    prefer_waiting = lambda state, params, candidates, simulated: np.repeat(  # noqa: E731
+        (~candidates.any(axis=1)).astype(float)[:, None], simulated.rewards.shape[1], axis=1)
     planner, agents_planner = RolloutPlanner(**SMALL, safety_risk=1e-3), PlannerAgents(**SMALL, safety_risk=1e-3)
     for p in (planner, agents_planner):
-        p._values = prefer_waiting
+        p._value_candidates = prefer_waiting
     assert planner.decide(_state(volumes, [0.0, 0.0]), params).sum() == 1 and planner.shielded == 1
     assert agents_planner.decide(_state(volumes, [0.0, 0.0]), params).any() == (not agents.safe(wait))
