@@ -1,0 +1,249 @@
+"""The container agents sharing one message each per step: screened on the published imitations (issue 38).
+
+    python studies/shared_check_screen.py                      # dagger_checked_agents, the 3 contended rows, 5 seeds
+    python studies/shared_check_screen.py --methods dagger_agents --rows n16_m2_dt120 --layers none withdraw
+    python studies/shared_check_screen.py --smoke              # one row and seed, 2 episodes (a test)
+
+**Question.** Where two PUs serve 11 or 16 containers, the imitation of the planner loses to it in two
+ways that need the other agents' state (results/planner/decisions_*): requests that the arbitration
+denies (each costs r_pen) and the rare step where a PU goes to a container that could have waited while
+another one, due sooner, is left to overflow. The reference's deadline check (:mod:`~containergym_marl.
+policies.safety`) sees every container; a container agent sees its own. This screen asks how much of
+the gap one round of communication closes, with the trained networks unchanged.
+
+**What is communicated.** Each step every agent broadcasts one message: its container's volume (its own
+``volume_frac`` × its v_max) and whether its policy asks for a PU. Every agent receives all n messages
+and the PU timers it already observes (``pu_timer_frac``), and knows the plant's description (each
+container's v_max, fill statistics and PU times, as the planner does). From the same messages every
+agent computes the same deterministic rule, so the requests stay decentralised decisions:
+
+* ``withdraw``: an agent whose request the plant's arbitration (fullest first) would deny withdraws it:
+  the same emptyings, without the denied requests' cost;
+* ``check``: the reference's deadline check (ε, W: ``--epsilon``, ``--window``) on the emptyings the
+  requests would get; if they leave some container's overflow risk above ε, the requests become the
+  check's safe set of emptyings nearest to them (most of the requested emptyings kept, then the fewest
+  emptyings, then the earliest-due first); if no set is safe, the one of least total schedule risk;
+* ``both``: the check, then the withdrawal; ``none``: the policy as published.
+
+**Protocol.** Each run's standing model (validated, else best; ``--runs``, by default the published
+runs), ``--episodes`` validation episodes (seeds 20000 on, δ = 120 s, T = 600; never the test or fresh
+ones), all at once (:func:`~containergym_marl.evaluation.batched.evaluate_batched`), beside the reference
+``planner_agents_shielded`` on the same episodes. The table (``--out``/screen.md, screen.json): per
+method, row and layer, the mean over seeds of each seed's mean return as a share of the reference's, its
+range, and the overflowing episodes of all seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from containergym_marl.core.observations import agent_feature_names
+from containergym_marl.core.params import PlantParams
+from containergym_marl.evaluation import EvalProtocol, evaluate
+from containergym_marl.evaluation.batched import evaluate_batched
+from containergym_marl.evaluation.protocol import policy_observation
+from containergym_marl.evaluation.run_policies import evaluated_which, policy_from_run
+from containergym_marl.files import atomic_write_text
+from containergym_marl.policies.planner import SHIELD, SHIELD_POOL, ShieldedPlannerAgents
+from containergym_marl.policies.safety import DeadlineCheck
+from containergym_marl.rundir import run_name
+
+ROWS = ("n11_m2_dt60", "n11_m2_dt120", "n16_m2_dt120")
+LAYERS = ("none", "withdraw", "check", "both")
+
+
+def granted_by_fullest(requests: np.ndarray, volumes: np.ndarray, params: PlantParams, free: int) -> np.ndarray:
+    """(n,) bool: the requests the plant grants with ``free`` PUs, fullest (v / v_max) first, ties to
+    the lower index (the default arbitration)."""
+    asking = np.flatnonzero(requests)
+    order = asking[np.lexsort((asking, -(volumes[asking] / params.max_volume[asking])))]
+    out = np.zeros_like(requests)
+    out[order[:free]] = True
+    return out
+
+
+def safe_emptyings(check: DeadlineCheck, granted: np.ndarray, free: int) -> np.ndarray:
+    """The emptyings nearest to ``granted`` that pass ``check``: candidate sets of at most ``free``
+    containers (``granted``, the earliest-due k, every one or two of the earliest-due and the granted),
+    the safe one keeping most of ``granted``, then the fewest, then in due order; if none is safe, the
+    one of least total schedule risk."""
+    n = granted.size
+    pool = np.union1d(check.due[:SHIELD_POOL], np.flatnonzero(granted))
+    sets = [np.flatnonzero(granted), *(check.due[:k] for k in range(1, free + 1)),
+            *(np.array(c) for size in (1, 2) for c in itertools.combinations(pool, size))]
+    candidates = {tuple(sorted(int(i) for i in s)) for s in sets if 0 < len(s) <= free} | {()}
+    rank = {int(i): k for k, i in enumerate(check.due)}
+    best, best_key, least, least_risk = None, None, None, np.inf
+    for members in sorted(candidates):
+        chosen = np.isin(np.arange(n), members)
+        risk = check.schedule_risk(chosen)
+        key = (int((chosen & granted).sum()), -len(members), tuple(-rank.get(i, n) for i in members))
+        if risk.max(initial=0.0) <= check.epsilon and (best_key is None or key > best_key):
+            best, best_key = chosen, key
+        if risk.sum() < least_risk:
+            least, least_risk = chosen, risk.sum()
+    return best if best is not None else least
+
+
+class SharedCheckPolicy:
+    """A container-agent policy with one round of messages between its agents (the module doc): its
+    network unchanged, the requests of each simulation passed through ``layer``."""
+
+    view = "decentralised"
+    deterministic = True
+
+    def __init__(self, inner: Any, params: PlantParams, layer: str, epsilon: float, window: int):
+        if layer not in LAYERS:
+            raise ValueError(f"layer: expected one of {LAYERS}, got {layer!r}")
+        self.inner, self.params, self.layer = inner, params, layer
+        self.epsilon, self.window = float(epsilon), int(window)
+        self.name = f"{inner.name}+{layer}"
+        self.observation = policy_observation(inner)
+        names = agent_feature_names(params, self.observation)
+        self._volume = names.index("volume_frac")
+        self._timers = [names.index(f"pu_timer_frac[{j}]") for j in range(params.n_pus)]
+        self.changed = self.withdrawn = 0  # requests the check changed, denied requests withdrawn
+
+    @property
+    def observation_space(self):
+        return self.inner.observation_space
+
+    def act_batch(self, observations: np.ndarray, masks: np.ndarray | None = None) -> np.ndarray:
+        actions = np.asarray(self.inner.act_batch(observations, masks)).reshape(-1)
+        if self.layer == "none":
+            return actions
+        p, n = self.params, self.params.n_containers
+        obs = observations.reshape(-1, n, observations.shape[-1])
+        requests = actions.reshape(-1, n).astype(bool)
+        for b in range(obs.shape[0]):
+            timers = obs[b, 0, self._timers].astype(np.float64) * p.max_pu_time_s  # every agent sees them
+            free = int((timers == 0.0).sum())
+            if free == 0:  # every request would be denied
+                if self.layer in ("withdraw", "both"):
+                    self.withdrawn += int(requests[b].sum())
+                    requests[b] = False
+                continue
+            volumes = obs[b, :, self._volume].astype(np.float64) * np.asarray(p.max_volume)  # the messages
+            granted = granted_by_fullest(requests[b], volumes, p, free)
+            if self.layer in ("check", "both"):
+                check = DeadlineCheck(volumes, timers, p, self.epsilon, self.window)
+                if check.due.size and not check.safe(granted):
+                    safe = safe_emptyings(check, granted, free)
+                    self.changed += int((safe != granted).any())
+                    granted = safe
+                    if self.layer == "check":  # the safe emptyings, the other requests as they were
+                        requests[b] = granted | (requests[b] & ~granted_by_fullest(requests[b], volumes, p, free))
+                        continue
+            if self.layer in ("withdraw", "both"):
+                self.withdrawn += int((requests[b] & ~granted).sum())
+                requests[b] = granted
+        return requests.reshape(-1).astype(np.int64)
+
+
+def screen_run(run: Path, row: str, layers: list[str], protocol: EvalProtocol, epsilon: float,
+               window: int) -> dict[str, Any]:
+    which = evaluated_which(run)
+    inner = policy_from_run(run, which)
+    if inner.view != "decentralised":
+        raise ValueError(f"{run}: not a container-agent policy")
+    params = PlantParams.from_config(protocol.plant(row))
+    out: dict[str, Any] = {"model": which}
+    for layer in layers:
+        policy = SharedCheckPolicy(inner, params, layer, epsilon, window)
+        result = evaluate_batched(policy, row, protocol)
+        out[layer] = {"returns": [float(m.cumulative_reward) for m in result.episodes],
+                      "overflowing_episodes": int(sum(bool(m.values["overflow"]) for m in result.episodes)),
+                      "changed": policy.changed, "withdrawn": policy.withdrawn}
+    return out
+
+
+def reference_returns(row: str, protocol: EvalProtocol, cache: Path) -> list[float]:
+    """``planner_agents_shielded``'s return on each of the protocol's episodes (cached in ``cache``)."""
+    data = json.loads(cache.read_text()) if cache.is_file() else {}
+    key = f"{row}|{protocol.first_seed}|{protocol.episodes}"
+    if key not in data:
+        result = evaluate(ShieldedPlannerAgents(), row, protocol)
+        data[key] = [float(m.cumulative_reward) for m in result.episodes]
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(cache, json.dumps(data, indent=1) + "\n")
+    return data[key]
+
+
+def table(data: dict[str, Any]) -> str:
+    lines = ["# One message per agent and step: the published imitations with a shared check (validation episodes)", "",
+             f"Generated by `python studies/shared_check_screen.py` from `{data['runs']}`: each run's standing model "
+             f"(its network unchanged), {data['episodes']} validation episodes (seeds {data['first_seed']}+, δ = 120 s, "
+             f"T = 600), with each layer (the study's docstring; check: ε = {data['epsilon']:g}, W = {data['window']}). "
+             "Share: the mean over seeds of each seed's mean return as a share of `planner_agents_shielded`'s on the "
+             "same episodes; overflowing: episodes of all seeds; changed: steps where the check changed the "
+             "emptyings; withdrawn: denied requests withdrawn (all seeds).", "",
+             "| method | row | reference | layer | seeds | return | share | min – max share | overflowing episodes "
+             "| changed | withdrawn |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for method, rows in data["results"].items():
+        for row, seeds in rows.items():
+            reference = float(np.mean(data["reference"][row]))
+            for layer in data["layers"]:
+                means = [float(np.mean(s[layer]["returns"])) for s in seeds.values()]
+                shares = [m / reference for m in means]
+                over = sum(s[layer]["overflowing_episodes"] for s in seeds.values())
+                lines.append(f"| `{method}` | {row} | {reference:.2f} | {layer} | {len(means)} | {np.mean(means):.2f} | "
+                             f"{100 * np.mean(shares):.1f} % | {100 * min(shares):.1f} – {100 * max(shares):.1f} % | "
+                             f"{over} of {len(means) * data['episodes']} | "
+                             f"{sum(s[layer]['changed'] for s in seeds.values())} | "
+                             f"{sum(s[layer]['withdrawn'] for s in seeds.values())} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--methods", nargs="+", default=["dagger_checked_agents"])
+    p.add_argument("--rows", nargs="+", default=list(ROWS))
+    p.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
+    p.add_argument("--layers", nargs="+", choices=LAYERS, default=list(LAYERS))
+    p.add_argument("--epsilon", type=float, default=SHIELD["safety_risk"], help="the check's ε (the reference's)")
+    p.add_argument("--window", type=int, default=SHIELD["safety_horizon_steps"], help="the check's W (steps)")
+    p.add_argument("--episodes", type=int, default=100, help="validation episodes (seeds 20000 on)")
+    p.add_argument("--runs", default="results/paper_rows/runs", help="the run directories <method>_<row>_s<seed>")
+    p.add_argument("--out", default="results/shared_check")
+    p.add_argument("--smoke", action="store_true", help="one row and seed, 2 episodes")
+    ns = p.parse_args(argv)
+    if ns.smoke:
+        ns.rows, ns.seeds, ns.episodes = ["n11_m2_dt120"], [1], 2
+    if ns.episodes < 1:
+        p.error(f"--episodes: expected a positive number of episodes, got {ns.episodes}")
+    if not 0 < ns.epsilon < 1:
+        p.error(f"--epsilon: expected a probability in (0, 1), got {ns.epsilon}")
+    if ns.window < 1:
+        p.error(f"--window: expected a number of steps >= 1, got {ns.window}")
+    runs, out = Path(ns.runs), Path(ns.out)
+    missing = [run_name(m, r, s) for m in ns.methods for r in ns.rows for s in ns.seeds
+               if not (runs / run_name(m, r, s) / "args.json").is_file()]
+    if missing:
+        p.error(f"--runs {runs}: no run {missing[0]}" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+    protocol = EvalProtocol(episodes=ns.episodes, first_seed=20_000)
+    data = {"runs": str(runs), "episodes": ns.episodes, "first_seed": protocol.first_seed, "layers": ns.layers,
+            "epsilon": ns.epsilon, "window": ns.window,
+            "reference": {row: reference_returns(row, protocol, out / "reference.json") for row in ns.rows},
+            "results": {}}
+    for method in ns.methods:
+        for row in ns.rows:
+            for seed in ns.seeds:
+                got = screen_run(runs / run_name(method, row, seed), row, ns.layers, protocol, ns.epsilon, ns.window)
+                data["results"].setdefault(method, {}).setdefault(row, {})[f"s{seed}"] = got
+                print(method, row, f"s{seed}", got["model"], " ".join(
+                    f"{k} {np.mean(v['returns']):.2f}/{v['overflowing_episodes']}" for k, v in got.items()
+                    if k != "model"), flush=True)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "screen.json", json.dumps(data, indent=1) + "\n")
+    atomic_write_text(out / "screen.md", table(data))
+    print(table(data))
+
+
+if __name__ == "__main__":
+    main()
