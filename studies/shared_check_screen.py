@@ -19,16 +19,19 @@ agent computes the same deterministic rule, so the requests stay decentralised d
 
 * ``withdraw``: an agent whose request the plant's arbitration (fullest first) would deny withdraws it:
   the same emptyings, without the denied requests' cost;
-* ``check``: the reference's deadline check (ε, W: ``--epsilon``, ``--window``) on the emptyings the
-  requests would get; if they leave some container's overflow risk above ε, the requests become the
-  check's safe set of emptyings nearest to them (most of the requested emptyings kept, then the fewest
-  emptyings, then the earliest-due first); if no set is safe, the one of least total schedule risk;
-* ``both``: the check, then the withdrawal; ``none``: the policy as published.
+* ``both``: the withdrawal after the reference's deadline check (ε, W: ``--epsilon``, ``--window``) on the
+  emptyings the requests would get: if they leave some container's overflow risk above ε, the requests
+  become the check's safe set of emptyings nearest to them (most of the requested emptyings kept, then the
+  fewest emptyings, then the earliest-due first; ``--prefer policy``: the safe set the agents' policy finds
+  most likely, each message then carrying the agent's log-odds of requesting); if no set is safe, the one of
+  least total schedule risk;
+* ``none``: the policy as published.
 
 **Protocol.** Each run's standing model (validated, else best; ``--runs``, by default the published
 runs), ``--episodes`` validation episodes (seeds 20000 on, δ = 120 s, T = 600; never the test or fresh
 ones), all at once (:func:`~containergym_marl.evaluation.batched.evaluate_batched`), beside the reference
-``planner_agents_shielded`` on the same episodes. The table (``--out``/screen.md, screen.json): per
+``planner_agents_shielded`` on the same episodes; ``--fresh`` reports a setting chosen there on the
+fresh episodes instead (seeds 30000 on, 200 by default, used for nothing else). The table (``--out``/screen.md, screen.json): per
 method, row and layer, the mean over seeds of each seed's mean return as a share of the reference's, its
 range, and the overflowing episodes of all seeds.
 """
@@ -47,15 +50,19 @@ from containergym_marl.core.observations import agent_feature_names
 from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.evaluation.batched import evaluate_batched
-from containergym_marl.evaluation.protocol import policy_observation
+from containergym_marl.evaluation.protocol import FRESH, VALIDATION, policy_observation
 from containergym_marl.evaluation.run_policies import evaluated_which, policy_from_run
+from containergym_marl.evaluation.stats import iqm
 from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.planner import SHIELD, SHIELD_POOL, ShieldedPlannerAgents
 from containergym_marl.policies.safety import DeadlineCheck
 from containergym_marl.rundir import run_name
 
 ROWS = ("n11_m2_dt60", "n11_m2_dt120", "n16_m2_dt120")
-LAYERS = ("none", "withdraw", "check", "both")
+LAYERS = ("none", "withdraw", "both")
+#: How the check chooses among safe emptyings: nearest to the requested ones, or the policy's most likely.
+PREFERENCES = ("nearest", "policy")
+PREFERRED = {"nearest": "nearest to the requested ones", "policy": "the agents' policy finds most likely"}
 
 
 def granted_by_fullest(requests: np.ndarray, volumes: np.ndarray, params: PlantParams, free: int) -> np.ndarray:
@@ -68,11 +75,14 @@ def granted_by_fullest(requests: np.ndarray, volumes: np.ndarray, params: PlantP
     return out
 
 
-def safe_emptyings(check: DeadlineCheck, granted: np.ndarray, free: int) -> np.ndarray:
+def safe_emptyings(check: DeadlineCheck, granted: np.ndarray, free: int,
+                   log_odds: np.ndarray | None = None) -> np.ndarray:
     """The emptyings nearest to ``granted`` that pass ``check``: candidate sets of at most ``free``
     containers (``granted``, the earliest-due k, every one or two of the earliest-due and the granted),
-    the safe one keeping most of ``granted``, then the fewest, then in due order; if none is safe, the
-    one of least total schedule risk."""
+    the safe one keeping most of ``granted``, then the fewest, then in due order; with ``log_odds``
+    ((n,) each agent's log-odds of requesting), the safe one the agents' policy finds most likely
+    instead (the largest sum of its members' log-odds; ties as above). If none is safe, the one of
+    least total schedule risk."""
     n = granted.size
     pool = np.union1d(check.due[:SHIELD_POOL], np.flatnonzero(granted))
     sets = [np.flatnonzero(granted), *(check.due[:k] for k in range(1, free + 1)),
@@ -84,6 +94,8 @@ def safe_emptyings(check: DeadlineCheck, granted: np.ndarray, free: int) -> np.n
         chosen = np.isin(np.arange(n), members)
         risk = check.schedule_risk(chosen)
         key = (int((chosen & granted).sum()), -len(members), tuple(-rank.get(i, n) for i in members))
+        if log_odds is not None:
+            key = (float(log_odds[list(members)].sum()), *key)
         if risk.max(initial=0.0) <= check.epsilon and (best_key is None or key > best_key):
             best, best_key = chosen, key
         if risk.sum() < least_risk:
@@ -98,17 +110,22 @@ class SharedCheckPolicy:
     view = "decentralised"
     deterministic = True
 
-    def __init__(self, inner: Any, params: PlantParams, layer: str, epsilon: float, window: int):
+    def __init__(self, inner: Any, params: PlantParams, layer: str, epsilon: float, window: int,
+                 prefer: str = "nearest"):
         if layer not in LAYERS:
             raise ValueError(f"layer: expected one of {LAYERS}, got {layer!r}")
-        self.inner, self.params, self.layer = inner, params, layer
+        if prefer not in PREFERENCES:
+            raise ValueError(f"prefer: expected one of {PREFERENCES}, got {prefer!r}")
+        if prefer == "policy" and not hasattr(getattr(inner, "model", None), "decision_logits"):
+            raise ValueError(f"prefer: 'policy' needs a native model's request probabilities; {inner.name!r} has none")
+        self.inner, self.params, self.layer, self.prefer = inner, params, layer, prefer
         self.epsilon, self.window = float(epsilon), int(window)
         self.name = f"{inner.name}+{layer}"
         self.observation = policy_observation(inner)
         names = agent_feature_names(params, self.observation)
         self._volume = names.index("volume_frac")
         self._timers = [names.index(f"pu_timer_frac[{j}]") for j in range(params.n_pus)]
-        self.changed = self.withdrawn = 0  # requests the check changed, denied requests withdrawn
+        self.changed = self.withdrawn = 0  # steps the check changed the emptyings, requests dropped
 
     @property
     def observation_space(self):
@@ -121,33 +138,36 @@ class SharedCheckPolicy:
         p, n = self.params, self.params.n_containers
         obs = observations.reshape(-1, n, observations.shape[-1])
         requests = actions.reshape(-1, n).astype(bool)
+        log_odds = self._log_odds(observations).reshape(-1, n) if self.prefer == "policy" else None
         for b in range(obs.shape[0]):
             timers = obs[b, 0, self._timers].astype(np.float64) * p.max_pu_time_s  # every agent sees them
             free = int((timers == 0.0).sum())
             if free == 0:  # every request would be denied
-                if self.layer in ("withdraw", "both"):
-                    self.withdrawn += int(requests[b].sum())
-                    requests[b] = False
+                self.withdrawn += int(requests[b].sum())
+                requests[b] = False
                 continue
             volumes = obs[b, :, self._volume].astype(np.float64) * np.asarray(p.max_volume)  # the messages
             granted = granted_by_fullest(requests[b], volumes, p, free)
-            if self.layer in ("check", "both"):
+            if self.layer == "both":
                 check = DeadlineCheck(volumes, timers, p, self.epsilon, self.window)
                 if check.due.size and not check.safe(granted):
-                    safe = safe_emptyings(check, granted, free)
+                    safe = safe_emptyings(check, granted, free, None if log_odds is None else log_odds[b])
                     self.changed += int((safe != granted).any())
                     granted = safe
-                    if self.layer == "check":  # the safe emptyings, the other requests as they were
-                        requests[b] = granted | (requests[b] & ~granted_by_fullest(requests[b], volumes, p, free))
-                        continue
-            if self.layer in ("withdraw", "both"):
-                self.withdrawn += int((requests[b] & ~granted).sum())
-                requests[b] = granted
+            self.withdrawn += int((requests[b] & ~granted).sum())
+            requests[b] = granted
         return requests.reshape(-1).astype(np.int64)
+
+    def _log_odds(self, observations: np.ndarray) -> np.ndarray:
+        """(N,) each agent's log-odds of requesting under the network (the second message of ``prefer='policy'``)."""
+        import torch
+
+        logits = self.inner.model.decision_logits(torch.as_tensor(observations, dtype=torch.float32))
+        return (logits[:, 1] - logits[:, 0]).numpy().astype(np.float64)
 
 
 def screen_run(run: Path, row: str, layers: list[str], protocol: EvalProtocol, epsilon: float,
-               window: int) -> dict[str, Any]:
+               window: int, prefer: str = "nearest") -> dict[str, Any]:
     which = evaluated_which(run)
     inner = policy_from_run(run, which)
     if inner.view != "decentralised":
@@ -155,7 +175,7 @@ def screen_run(run: Path, row: str, layers: list[str], protocol: EvalProtocol, e
     params = PlantParams.from_config(protocol.plant(row))
     out: dict[str, Any] = {"model": which}
     for layer in layers:
-        policy = SharedCheckPolicy(inner, params, layer, epsilon, window)
+        policy = SharedCheckPolicy(inner, params, layer, epsilon, window, prefer)
         result = evaluate_batched(policy, row, protocol)
         out[layer] = {"returns": [float(m.cumulative_reward) for m in result.episodes],
                       "overflowing_episodes": int(sum(bool(m.values["overflow"]) for m in result.episodes)),
@@ -176,15 +196,18 @@ def reference_returns(row: str, protocol: EvalProtocol, cache: Path) -> list[flo
 
 
 def table(data: dict[str, Any]) -> str:
-    lines = ["# One message per agent and step: the published imitations with a shared check (validation episodes)", "",
+    kind = "fresh" if data["first_seed"] == FRESH.first_seed else "validation"
+    lines = [f"# One message per agent and step: the published imitations with a shared check ({kind} episodes)", "",
              f"Generated by `python studies/shared_check_screen.py` from `{data['runs']}`: each run's standing model "
-             f"(its network unchanged), {data['episodes']} validation episodes (seeds {data['first_seed']}+, δ = 120 s, "
-             f"T = 600), with each layer (the study's docstring; check: ε = {data['epsilon']:g}, W = {data['window']}). "
+             f"(its network unchanged), {data['episodes']} {kind} episodes (seeds {data['first_seed']}+, δ = 120 s, "
+             f"T = 600), with each layer (the study's docstring; check: ε = {data['epsilon']:g}, W = {data['window']}, "
+             f"choosing the safe emptyings {PREFERRED[data.get('prefer', 'nearest')]}). "
              "Share: the mean over seeds of each seed's mean return as a share of `planner_agents_shielded`'s on the "
-             "same episodes; overflowing: episodes of all seeds; changed: steps where the check changed the "
-             "emptyings; withdrawn: denied requests withdrawn (all seeds).", "",
-             "| method | row | reference | layer | seeds | return | share | min – max share | overflowing episodes "
-             "| changed | withdrawn |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "same episodes; IQM share: the interquartile mean over seeds of those means as a share of it (the bar's "
+             "statistic); overflowing: episodes of all seeds; changed: steps where the check changed the "
+             "emptyings; withdrawn: requests the layer dropped, denied ones and those the check replaced (all seeds).", "",
+             "| method | row | reference | layer | seeds | return | share | IQM share | min – max share "
+             "| overflowing episodes | changed | withdrawn |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for method, rows in data["results"].items():
         for row, seeds in rows.items():
             reference = float(np.mean(data["reference"][row]))
@@ -193,7 +216,8 @@ def table(data: dict[str, Any]) -> str:
                 shares = [m / reference for m in means]
                 over = sum(s[layer]["overflowing_episodes"] for s in seeds.values())
                 lines.append(f"| `{method}` | {row} | {reference:.2f} | {layer} | {len(means)} | {np.mean(means):.2f} | "
-                             f"{100 * np.mean(shares):.1f} % | {100 * min(shares):.1f} – {100 * max(shares):.1f} % | "
+                             f"{100 * np.mean(shares):.1f} % | {100 * iqm(means) / reference:.1f} % | "
+                             f"{100 * min(shares):.1f} – {100 * max(shares):.1f} % | "
                              f"{over} of {len(means) * data['episodes']} | "
                              f"{sum(s[layer]['changed'] for s in seeds.values())} | "
                              f"{sum(s[layer]['withdrawn'] for s in seeds.values())} |")
@@ -208,13 +232,22 @@ def main(argv=None) -> None:
     p.add_argument("--layers", nargs="+", choices=LAYERS, default=list(LAYERS))
     p.add_argument("--epsilon", type=float, default=SHIELD["safety_risk"], help="the check's ε (the reference's)")
     p.add_argument("--window", type=int, default=SHIELD["safety_horizon_steps"], help="the check's W (steps)")
-    p.add_argument("--episodes", type=int, default=100, help="validation episodes (seeds 20000 on)")
+    p.add_argument("--prefer", choices=PREFERENCES, default="nearest",
+                   help="the check's choice among safe emptyings: nearest to the requests, or the policy's most "
+                        "likely (each agent's message then carries its log-odds of requesting)")
+    p.add_argument("--episodes", type=int, default=None,
+                   help="validation episodes (seeds 20000 on; default 100); with --fresh, fresh ones (default 200)")
+    p.add_argument("--fresh", action="store_true",
+                   help="report a setting chosen on validation episodes on the fresh ones (seeds 30000 on, used for "
+                        "nothing else) instead")
     p.add_argument("--runs", default="results/paper_rows/runs", help="the run directories <method>_<row>_s<seed>")
     p.add_argument("--out", default="results/shared_check")
     p.add_argument("--smoke", action="store_true", help="one row and seed, 2 episodes")
     ns = p.parse_args(argv)
     if ns.smoke:
         ns.rows, ns.seeds, ns.episodes = ["n11_m2_dt120"], [1], 2
+    first = FRESH if ns.fresh else VALIDATION
+    ns.episodes = first.episodes if ns.episodes is None and ns.fresh else 100 if ns.episodes is None else ns.episodes
     if ns.episodes < 1:
         p.error(f"--episodes: expected a positive number of episodes, got {ns.episodes}")
     if not 0 < ns.epsilon < 1:
@@ -226,20 +259,31 @@ def main(argv=None) -> None:
                if not (runs / run_name(m, r, s) / "args.json").is_file()]
     if missing:
         p.error(f"--runs {runs}: no run {missing[0]}" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
-    protocol = EvalProtocol(episodes=ns.episodes, first_seed=20_000)
-    data = {"runs": str(runs), "episodes": ns.episodes, "first_seed": protocol.first_seed, "layers": ns.layers,
-            "epsilon": ns.epsilon, "window": ns.window,
-            "reference": {row: reference_returns(row, protocol, out / "reference.json") for row in ns.rows},
-            "results": {}}
+    protocol = EvalProtocol(episodes=ns.episodes, first_seed=first.first_seed)
+    settings = {"runs": str(runs), "episodes": ns.episodes, "first_seed": protocol.first_seed, "layers": ns.layers,
+                "epsilon": ns.epsilon, "window": ns.window, "prefer": ns.prefer}
+    earlier = json.loads((out / "screen.json").read_text()) if (out / "screen.json").is_file() else {}
+    out.mkdir(parents=True, exist_ok=True)
+    # a screen stopped part way resumes, and one on other rows or methods adds to it: the runs screened
+    # with the same settings are kept
+    data = {**settings, "reference": {}, "results": earlier.get("results", {}) if all(
+        earlier.get(k) == v for k, v in settings.items()) else {}}
     for method in ns.methods:
         for row in ns.rows:
+            data["reference"][row] = reference_returns(row, protocol, out / "reference.json")
             for seed in ns.seeds:
-                got = screen_run(runs / run_name(method, row, seed), row, ns.layers, protocol, ns.epsilon, ns.window)
-                data["results"].setdefault(method, {}).setdefault(row, {})[f"s{seed}"] = got
+                done = data["results"].setdefault(method, {}).setdefault(row, {})
+                if f"s{seed}" not in done:
+                    done[f"s{seed}"] = screen_run(runs / run_name(method, row, seed), row, ns.layers, protocol,
+                                                  ns.epsilon, ns.window, ns.prefer)
+                    atomic_write_text(out / "screen.json", json.dumps(data, indent=1) + "\n")
+                got = done[f"s{seed}"]
                 print(method, row, f"s{seed}", got["model"], " ".join(
                     f"{k} {np.mean(v['returns']):.2f}/{v['overflowing_episodes']}" for k, v in got.items()
                     if k != "model"), flush=True)
-    out.mkdir(parents=True, exist_ok=True)
+    for rows in data["results"].values():  # the rows an earlier invocation screened too
+        for row in rows:
+            data["reference"][row] = reference_returns(row, protocol, out / "reference.json")
     atomic_write_text(out / "screen.json", json.dumps(data, indent=1) + "\n")
     atomic_write_text(out / "screen.md", table(data))
     print(table(data))

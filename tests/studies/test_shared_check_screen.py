@@ -53,6 +53,12 @@ def test_an_emptying_that_breaks_a_deadline_is_replaced_by_the_nearest_safe_one(
         chosen = safe_emptyings(check, c1_50, free=1)
         assert np.flatnonzero(chosen).tolist() == expected and check.safe(chosen)
         assert np.flatnonzero(safe_emptyings(check, c1_60, free=1)).tolist() == [4]
+    # the policy's preference: the safe set its agents find most likely (C1-60 favoured: emptied; disfavoured:
+    # waiting, where waiting is safe)
+    check = DeadlineCheck(np.array([5.0, 5.0, 5.0, 31.5, 30.0]), np.array([1000.0, 0.0]), params, 1e-4, 24)
+    favoured, disfavoured = np.array([-3.0, -3.0, -3.0, 2.0, 0.5]), np.array([-3.0, -3.0, -3.0, 2.0, -0.5])
+    assert np.flatnonzero(safe_emptyings(check, c1_50, 1, favoured)).tolist() == [4]
+    assert np.flatnonzero(safe_emptyings(check, c1_50, 1, disfavoured)).tolist() == []
 
 
 class _AskEveryone:
@@ -102,6 +108,12 @@ def test_the_smoke_screen_writes_its_table_and_bad_settings_are_refused(tmp_path
     got = data["results"]["dagger_checked_agents"]["n11_m2_dt120"]["s1"]
     assert set(got) == {"model", "none", "both"} and len(got["none"]["returns"]) == len(data["reference"]["n11_m2_dt120"]) == 2
     assert (tmp_path / "out" / "screen.md").read_text() == table(data)
+    assert data["first_seed"] == 20_000 and "validation episodes (seeds 20000+" in table(data)
+    subprocess.run([sys.executable, SCRIPT, "--smoke", "--fresh", "--layers", "none", "--out", str(tmp_path / "fresh")],
+                   check=True, capture_output=True, text=True, timeout=900)
+    fresh = json.loads((tmp_path / "fresh" / "screen.json").read_text())
+    assert fresh["first_seed"] == 30_000 and "2 fresh episodes (seeds 30000+" in table(fresh)
+    assert fresh["reference"]["n11_m2_dt120"] != data["reference"]["n11_m2_dt120"]
     for bad, match in ((["--epsilon", "2"], "--epsilon"), (["--window", "0"], "--window"),
                        (["--rows", "n5_m2_dt120", "--runs", str(tmp_path)], "--runs")):
         done = subprocess.run([sys.executable, SCRIPT, *bad, "--out", str(tmp_path / "bad")],
