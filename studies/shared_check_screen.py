@@ -46,6 +46,8 @@ from typing import Any
 
 import numpy as np
 
+from containergym_marl.core import dynamics
+from containergym_marl.core.dynamics import PlantState
 from containergym_marl.core.observations import agent_feature_names
 from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import EvalProtocol, evaluate
@@ -54,25 +56,30 @@ from containergym_marl.evaluation.protocol import FRESH, VALIDATION, policy_obse
 from containergym_marl.evaluation.run_policies import evaluated_which, policy_from_run
 from containergym_marl.evaluation.stats import iqm
 from containergym_marl.files import atomic_write_text
-from containergym_marl.policies.planner import SHIELD, SHIELD_POOL, ShieldedPlannerAgents
+from containergym_marl.methods import get_method
+from containergym_marl.policies.planner import SHIELD, SHIELD_POOL
 from containergym_marl.policies.safety import DeadlineCheck
 from containergym_marl.rundir import run_name
 
 ROWS = ("n11_m2_dt60", "n11_m2_dt120", "n16_m2_dt120")
+REFERENCE = "planner_agents_shielded"
+#: The published fresh evaluations, per row and policy (the reference's among them).
+PUBLISHED_FRESH = Path(__file__).resolve().parents[1] / "results" / "paper_rows" / "fresh"
 LAYERS = ("none", "withdraw", "both")
 #: How the check chooses among safe emptyings: nearest to the requested ones, or the policy's most likely.
 PREFERENCES = ("nearest", "policy")
 PREFERRED = {"nearest": "nearest to the requested ones", "policy": "the agents' policy finds most likely"}
 
 
-def granted_by_fullest(requests: np.ndarray, volumes: np.ndarray, params: PlantParams, free: int) -> np.ndarray:
-    """(n,) bool: the requests the plant grants with ``free`` PUs, fullest (v / v_max) first, ties to
-    the lower index (the default arbitration)."""
-    asking = np.flatnonzero(requests)
-    order = asking[np.lexsort((asking, -(volumes[asking] / params.max_volume[asking])))]
-    out = np.zeros_like(requests)
-    out[order[:free]] = True
-    return out
+def granted_requests(requests: np.ndarray, volumes: np.ndarray, timers_s: np.ndarray,
+                     params: PlantParams) -> np.ndarray:
+    """(B, n) bool: the ``requests`` (B, n) the plant grants at ``volumes`` (B, n) and PU timers (B, m):
+    its own step's arbitration (the default rule), read from one step of the core (its fill is not used)."""
+    b_count, n = requests.shape
+    state = PlantState(np.asarray(volumes, dtype=np.float64), np.asarray(timers_s, dtype=np.float64),
+                       np.zeros(b_count, dtype=np.int64))
+    _, outcome = dynamics.step(state, requests, params, np.zeros((b_count, n)), np.full((b_count, n), 0.5))
+    return outcome.granted.copy()
 
 
 def safe_emptyings(check: DeadlineCheck, granted: np.ndarray, free: int,
@@ -139,24 +146,21 @@ class SharedCheckPolicy:
         obs = observations.reshape(-1, n, observations.shape[-1])
         requests = actions.reshape(-1, n).astype(bool)
         log_odds = self._log_odds(observations).reshape(-1, n) if self.prefer == "policy" else None
-        for b in range(obs.shape[0]):
-            timers = obs[b, 0, self._timers].astype(np.float64) * p.max_pu_time_s  # every agent sees them
-            free = int((timers == 0.0).sum())
-            if free == 0:  # every request would be denied
-                self.withdrawn += int(requests[b].sum())
-                requests[b] = False
-                continue
-            volumes = obs[b, :, self._volume].astype(np.float64) * np.asarray(p.max_volume)  # the messages
-            granted = granted_by_fullest(requests[b], volumes, p, free)
-            if self.layer == "both":
-                check = DeadlineCheck(volumes, timers, p, self.epsilon, self.window)
-                if check.due.size and not check.safe(granted):
-                    safe = safe_emptyings(check, granted, free, None if log_odds is None else log_odds[b])
-                    self.changed += int((safe != granted).any())
-                    granted = safe
-            self.withdrawn += int((requests[b] & ~granted).sum())
-            requests[b] = granted
-        return requests.reshape(-1).astype(np.int64)
+        timers = obs[:, 0, self._timers].astype(np.float64) * p.max_pu_time_s  # every agent sees them
+        volumes = obs[:, :, self._volume].astype(np.float64) * np.asarray(p.max_volume)  # the messages
+        granted = granted_requests(requests, volumes, timers, p)  # none where no PU is free
+        if self.layer == "both":
+            for b in range(obs.shape[0]):
+                free = int((timers[b] == 0.0).sum())
+                if free == 0:
+                    continue
+                check = DeadlineCheck(volumes[b], timers[b], p, self.epsilon, self.window)
+                if check.due.size and not check.safe(granted[b]):
+                    safe = safe_emptyings(check, granted[b], free, None if log_odds is None else log_odds[b])
+                    self.changed += int((safe != granted[b]).any())
+                    granted[b] = safe
+        self.withdrawn += int((requests & ~granted).sum())
+        return granted.reshape(-1).astype(np.int64)
 
     def _log_odds(self, observations: np.ndarray) -> np.ndarray:
         """(N,) each agent's log-odds of requesting under the network (the second message of ``prefer='policy'``)."""
@@ -184,12 +188,19 @@ def screen_run(run: Path, row: str, layers: list[str], protocol: EvalProtocol, e
 
 
 def reference_returns(row: str, protocol: EvalProtocol, cache: Path) -> list[float]:
-    """``planner_agents_shielded``'s return on each of the protocol's episodes (cached in ``cache``)."""
+    """``planner_agents_shielded``'s return on each of the protocol's episodes: from its published evaluation
+    where that holds these episodes (the fresh ones, ``results/paper_rows/fresh``), else evaluated here (and
+    cached in ``cache``)."""
     data = json.loads(cache.read_text()) if cache.is_file() else {}
     key = f"{row}|{protocol.first_seed}|{protocol.episodes}"
     if key not in data:
-        result = evaluate(ShieldedPlannerAgents(), row, protocol)
-        data[key] = [float(m.cumulative_reward) for m in result.episodes]
+        published = PUBLISHED_FRESH / row / f"{REFERENCE}.json"
+        episodes = json.loads(published.read_text())["episodes"] if published.is_file() else []
+        if [e["seed"] for e in episodes[:protocol.episodes]] == list(protocol.seeds):
+            data[key] = [float(e["cumulative_reward"]) for e in episodes[:protocol.episodes]]
+        else:
+            result = evaluate(get_method(REFERENCE).controller(), row, protocol)
+            data[key] = [float(m.cumulative_reward) for m in result.episodes]
         cache.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(cache, json.dumps(data, indent=1) + "\n")
     return data[key]

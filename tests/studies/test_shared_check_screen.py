@@ -22,20 +22,25 @@ REPO = Path(__file__).resolve().parents[2]
 SCRIPT = str(REPO / "studies" / "shared_check_screen.py")
 sys.path.insert(0, str(REPO / "studies"))
 try:
-    from shared_check_screen import SharedCheckPolicy, granted_by_fullest, safe_emptyings, table
+    from shared_check_screen import SharedCheckPolicy, granted_requests, safe_emptyings, table
 finally:
     sys.path.remove(str(REPO / "studies"))
 
 
 def test_the_fullest_requests_are_granted_ties_to_the_lower_index():
-    params = PlantParams.from_config(load_config("n5_m2_dt120"))
+    params = PlantParams.from_config(load_config("n5_m5_dt120"))
     v_max = np.asarray(params.max_volume)
     volumes = np.array([0.5, 0.9, 0.9, 0.2, 0.7]) * v_max  # C2 and C3 equally full (v / v_max)
     requests = np.array([True, True, True, False, True])
-    assert np.flatnonzero(granted_by_fullest(requests, volumes, params, 2)).tolist() == [1, 2]
-    assert np.flatnonzero(granted_by_fullest(requests, volumes, params, 1)).tolist() == [1]
-    assert np.flatnonzero(granted_by_fullest(requests, volumes, params, 3)).tolist() == [1, 2, 4]
-    assert not granted_by_fullest(np.zeros(5, bool), volumes, params, 2).any()
+
+    def granted(requests, free):
+        timers = np.where(np.arange(params.n_pus) < free, 0.0, 500.0)
+        return granted_requests(requests[None], volumes[None], timers[None], params)[0]
+
+    assert np.flatnonzero(granted(requests, 2)).tolist() == [1, 2]
+    assert np.flatnonzero(granted(requests, 1)).tolist() == [1]
+    assert np.flatnonzero(granted(requests, 3)).tolist() == [1, 2, 4]
+    assert not granted(np.zeros(5, bool), 2).any()
 
 
 def test_an_emptying_that_breaks_a_deadline_is_replaced_by_the_nearest_safe_one():
