@@ -264,6 +264,12 @@ REGISTRY: dict[str, AlgorithmSpec] = {
                       "says its container may overflow within two fills, or its request probability is above 0.3",
                       native="containergym_marl.training.dagger:CHECKED_IMITATION",
                       **{**_NATIVE, "default_n_envs": 64}),
+        AlgorithmSpec("dagger_messaging_agents", None, SharedActorCriticPolicy,
+                      "dagger_checked_agents whose agents send one message each a step (the container's volume, "
+                      "the log-odds of requesting) and apply one shared rule to all: requests the arbitration would "
+                      "deny are withdrawn, unsafe emptyings replaced by the safe set the policy prefers",
+                      native="containergym_marl.training.dagger:MESSAGING_IMITATION",
+                      **{**_NATIVE, "default_n_envs": 64}),
         # the fine-tuning's default reward is the plant's, the objective the planner it imitates plans for
         AlgorithmSpec("dagger_ppo_agents", None, SharedActorCriticPolicy,
                       "dagger_agents for half the budget, then fast_shared_ppo from the imitated policy, "

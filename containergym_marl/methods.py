@@ -116,6 +116,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     # the imitation of the reference, with the agents' own check beside its network
     _learned("dagger_checked_agents", counterpart="planner_shielded", teacher="planner_agents_shielded",
              shield="the agents' own check"),
+    # the same with one message per agent and step and the rule all apply to them (policies.shared_check)
+    _learned("dagger_messaging_agents", counterpart="planner_shielded", teacher="planner_agents_shielded",
+             shield="the agents' own check and shared check"),
     _learned("mappo", "team", counterpart="ppo"),  # trained by baselines/train_mappo.py; compare reads its files
 )}
 #: The controllers (rules and planners) by name: what ``containergym-marl evaluate NAME`` builds.

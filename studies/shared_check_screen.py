@@ -11,21 +11,11 @@ another one, due sooner, is left to overflow. The reference's deadline check (:m
 policies.safety`) sees every container; a container agent sees its own. This screen asks how much of
 the gap one round of communication closes, with the trained networks unchanged.
 
-**What is communicated.** Each step every agent broadcasts one message: its container's volume (its own
-``volume_frac`` × its v_max) and whether its policy asks for a PU. Every agent receives all n messages
-and the PU timers it already observes (``pu_timer_frac``), and knows the plant's description (each
-container's v_max, fill statistics and PU times, as the planner does). From the same messages every
-agent computes the same deterministic rule, so the requests stay decentralised decisions:
-
-* ``withdraw``: an agent whose request the plant's arbitration (fullest first) would deny withdraws it:
-  the same emptyings, without the denied requests' cost;
-* ``both``: the withdrawal after the reference's deadline check (ε, W: ``--epsilon``, ``--window``) on the
-  emptyings the requests would get: if they leave some container's overflow risk above ε, the requests
-  become the check's safe set of emptyings nearest to them (most of the requested emptyings kept, then the
-  fewest emptyings, then the earliest-due first; ``--prefer policy``: the safe set the agents' policy finds
-  most likely, each message then carrying the agent's log-odds of requesting); if no set is safe, the one of
-  least total schedule risk;
-* ``none``: the policy as published.
+**What is communicated**, and the rule every agent applies to the messages:
+:mod:`containergym_marl.policies.shared_check` (the rule a ``dagger_messaging_agents`` model carries). The
+layers: ``withdraw`` (step 1 alone: requests the arbitration would deny are withdrawn), ``both`` (steps 1
+and 2: then the deadline check, ε and W by ``--epsilon`` and ``--window``, its choice among safe emptyings
+by ``--prefer``), ``none`` (the policy as published).
 
 **Protocol.** Each run's standing model (validated, else best; ``--runs``, by default the published
 runs), ``--episodes`` validation episodes (seeds 20000 on, δ = 120 s, T = 600; never the test or fresh
@@ -39,16 +29,12 @@ range, and the overflowing episodes of all seeds.
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from containergym_marl.core import dynamics
-from containergym_marl.core.dynamics import PlantState
-from containergym_marl.core.observations import agent_feature_names
 from containergym_marl.core.params import PlantParams
 from containergym_marl.evaluation import EvalProtocol, evaluate
 from containergym_marl.evaluation.batched import evaluate_batched
@@ -57,8 +43,8 @@ from containergym_marl.evaluation.run_policies import evaluated_which, policy_fr
 from containergym_marl.evaluation.stats import iqm
 from containergym_marl.files import atomic_write_text
 from containergym_marl.methods import get_method
-from containergym_marl.policies.planner import SHIELD, SHIELD_POOL
-from containergym_marl.policies.safety import DeadlineCheck
+from containergym_marl.policies.planner import SHIELD
+from containergym_marl.policies.shared_check import PREFERENCES, SharedCheck
 from containergym_marl.rundir import run_name
 
 ROWS = ("n11_m2_dt60", "n11_m2_dt120", "n16_m2_dt120")
@@ -66,53 +52,13 @@ REFERENCE = "planner_agents_shielded"
 #: The published fresh evaluations, per row and policy (the reference's among them).
 PUBLISHED_FRESH = Path(__file__).resolve().parents[1] / "results" / "paper_rows" / "fresh"
 LAYERS = ("none", "withdraw", "both")
-#: How the check chooses among safe emptyings: nearest to the requested ones, or the policy's most likely.
-PREFERENCES = ("nearest", "policy")
 PREFERRED = {"nearest": "nearest to the requested ones", "policy": "the agents' policy finds most likely"}
-
-
-def granted_requests(requests: np.ndarray, volumes: np.ndarray, timers_s: np.ndarray,
-                     params: PlantParams) -> np.ndarray:
-    """(B, n) bool: the ``requests`` (B, n) the plant grants at ``volumes`` (B, n) and PU timers (B, m):
-    its own step's arbitration (the default rule), read from one step of the core (its fill is not used)."""
-    b_count, n = requests.shape
-    state = PlantState(np.asarray(volumes, dtype=np.float64), np.asarray(timers_s, dtype=np.float64),
-                       np.zeros(b_count, dtype=np.int64))
-    _, outcome = dynamics.step(state, requests, params, np.zeros((b_count, n)), np.full((b_count, n), 0.5))
-    return outcome.granted.copy()
-
-
-def safe_emptyings(check: DeadlineCheck, granted: np.ndarray, free: int,
-                   log_odds: np.ndarray | None = None) -> np.ndarray:
-    """The emptyings nearest to ``granted`` that pass ``check``: candidate sets of at most ``free``
-    containers (``granted``, the earliest-due k, every one or two of the earliest-due and the granted),
-    the safe one keeping most of ``granted``, then the fewest, then in due order; with ``log_odds``
-    ((n,) each agent's log-odds of requesting), the safe one the agents' policy finds most likely
-    instead (the largest sum of its members' log-odds; ties as above). If none is safe, the one of
-    least total schedule risk."""
-    n = granted.size
-    pool = np.union1d(check.due[:SHIELD_POOL], np.flatnonzero(granted))
-    sets = [np.flatnonzero(granted), *(check.due[:k] for k in range(1, free + 1)),
-            *(np.array(c) for size in (1, 2) for c in itertools.combinations(pool, size))]
-    candidates = {tuple(sorted(int(i) for i in s)) for s in sets if 0 < len(s) <= free} | {()}
-    rank = {int(i): k for k, i in enumerate(check.due)}
-    best, best_key, least, least_risk = None, None, None, np.inf
-    for members in sorted(candidates):
-        chosen = np.isin(np.arange(n), members)
-        risk = check.schedule_risk(chosen)
-        key = (int((chosen & granted).sum()), -len(members), tuple(-rank.get(i, n) for i in members))
-        if log_odds is not None:
-            key = (float(log_odds[list(members)].sum()), *key)
-        if risk.max(initial=0.0) <= check.epsilon and (best_key is None or key > best_key):
-            best, best_key = chosen, key
-        if risk.sum() < least_risk:
-            least, least_risk = chosen, risk.sum()
-    return best if best is not None else least
 
 
 class SharedCheckPolicy:
     """A container-agent policy with one round of messages between its agents (the module doc): its
-    network unchanged, the requests of each simulation passed through ``layer``."""
+    network unchanged, the requests of each simulation passed through ``layer`` (the package's compiled
+    rule, :class:`~containergym_marl.policies.shared_check.SharedCheck`), counting what it changed."""
 
     view = "decentralised"
     deterministic = True
@@ -121,17 +67,14 @@ class SharedCheckPolicy:
                  prefer: str = "nearest"):
         if layer not in LAYERS:
             raise ValueError(f"layer: expected one of {LAYERS}, got {layer!r}")
-        if prefer not in PREFERENCES:
-            raise ValueError(f"prefer: expected one of {PREFERENCES}, got {prefer!r}")
         if prefer == "policy" and not hasattr(getattr(inner, "model", None), "decision_logits"):
             raise ValueError(f"prefer: 'policy' needs a native model's request probabilities; {inner.name!r} has none")
-        self.inner, self.params, self.layer, self.prefer = inner, params, layer, prefer
-        self.epsilon, self.window = float(epsilon), int(window)
+        self.inner, self.layer = inner, layer
         self.name = f"{inner.name}+{layer}"
         self.observation = policy_observation(inner)
-        names = agent_feature_names(params, self.observation)
-        self._volume = names.index("volume_frac")
-        self._timers = [names.index(f"pu_timer_frac[{j}]") for j in range(params.n_pus)]
+        self.check = None if layer == "none" else SharedCheck(
+            {"risk": epsilon, "window_steps": window, "prefer": prefer}, params, self.observation,
+            deadline_check=layer == "both")
         self.changed = self.withdrawn = 0  # steps the check changed the emptyings, requests dropped
 
     @property
@@ -140,26 +83,12 @@ class SharedCheckPolicy:
 
     def act_batch(self, observations: np.ndarray, masks: np.ndarray | None = None) -> np.ndarray:
         actions = np.asarray(self.inner.act_batch(observations, masks)).reshape(-1)
-        if self.layer == "none":
+        if self.check is None:
             return actions
-        p, n = self.params, self.params.n_containers
-        obs = observations.reshape(-1, n, observations.shape[-1])
-        requests = actions.reshape(-1, n).astype(bool)
-        log_odds = self._log_odds(observations).reshape(-1, n) if self.prefer == "policy" else None
-        timers = obs[:, 0, self._timers].astype(np.float64) * p.max_pu_time_s  # every agent sees them
-        volumes = obs[:, :, self._volume].astype(np.float64) * np.asarray(p.max_volume)  # the messages
-        granted = granted_requests(requests, volumes, timers, p)  # none where no PU is free
-        if self.layer == "both":
-            for b in range(obs.shape[0]):
-                free = int((timers[b] == 0.0).sum())
-                if free == 0:
-                    continue
-                check = DeadlineCheck(volumes[b], timers[b], p, self.epsilon, self.window)
-                if check.due.size and not check.safe(granted[b]):
-                    safe = safe_emptyings(check, granted[b], free, None if log_odds is None else log_odds[b])
-                    self.changed += int((safe != granted[b]).any())
-                    granted[b] = safe
-        self.withdrawn += int((requests & ~granted).sum())
+        log_odds = self._log_odds(observations) if self.check.uses_log_odds else None
+        granted, changed = self.check(observations, actions, log_odds)
+        self.changed += int(changed.sum())
+        self.withdrawn += int((actions.astype(bool) & ~granted.reshape(-1)).sum())
         return granted.reshape(-1).astype(np.int64)
 
     def _log_odds(self, observations: np.ndarray) -> np.ndarray:

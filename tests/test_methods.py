@@ -38,7 +38,7 @@ def test_each_method_is_what_its_name_says():
         "dagger_agents": ("learned", "decentralised"), "dagger_ppo_agents": ("learned", "decentralised"),
         "dagger_response_agents": ("learned", "decentralised"), "mappo": ("learned", "decentralised"),
         "dagger_contended_agents": ("learned", "decentralised"), "dagger_dapg_agents": ("learned", "decentralised"),
-        "dagger_checked_agents": ("learned", "decentralised"),
+        "dagger_checked_agents": ("learned", "decentralised"), "dagger_messaging_agents": ("learned", "decentralised"),
     }
     assert {name: (m.kind, m.view) for name, m in METHODS.items()} == expected
     assert CONTROLLERS == {"rule_based": RuleBasedController, "rule_based_agents": RuleBasedAgents,
@@ -61,14 +61,16 @@ def test_each_method_is_what_its_name_says():
             } == {"planner"}
     assert METHODS["dagger_dapg_agents"].train_settings() == {"reward_mode": "team"}
     # the imitation of the reference is set against the centralised reference
-    assert METHODS["dagger_checked_agents"].counterpart == "planner_shielded"
+    assert METHODS["dagger_checked_agents"].counterpart == METHODS["dagger_messaging_agents"].counterpart \
+        == "planner_shielded"
     # who learns from a teacher (the planner's imitations), and who carries a fixed rule beside its network
     assert {n: m.teacher for n, m in METHODS.items() if m.teacher} == {
         **{n: "planner_agents" for n in ("dagger_agents", "dagger_ppo_agents", "dagger_response_agents",
                                          "dagger_contended_agents", "dagger_dapg_agents")},
-        "dagger_checked_agents": "planner_agents_shielded"}
+        "dagger_checked_agents": "planner_agents_shielded", "dagger_messaging_agents": "planner_agents_shielded"}
     assert {n: m.shield for n, m in METHODS.items() if m.shield} == {
-        "fast_shared_ppo_checked": "the agents' own check", "dagger_checked_agents": "the agents' own check"}
+        "fast_shared_ppo_checked": "the agents' own check", "dagger_checked_agents": "the agents' own check",
+        "dagger_messaging_agents": "the agents' own check and shared check"}
 
 
 def test_pairs_set_a_decentralised_method_against_a_centralised_one():

@@ -115,6 +115,26 @@ def _floor_at_zero(x: float) -> float:
 
 
 # ---- one step of every simulation ----------------------------------------------------------------
+@numba.njit(inline="always", **JIT_OPTIONS)  # inlined: a call per simulation slowed the step by 13 %
+def grant_requests(requests, priorities, b, free_pus, granted):
+    """Row b of ``granted``: the requests of row b of ``requests``, or where they are more than
+    ``free_pus``, the ``free_pus`` of highest priority (``priorities[b, i]``, ties to the lower index)."""
+    n_requests = 0
+    for i in range(requests.shape[1]):
+        granted[b, i] = requests[b, i]
+        n_requests += requests[b, i]
+    if n_requests > free_pus:
+        for i in range(requests.shape[1]):
+            granted[b, i] = False
+        for _ in range(free_pus):
+            best, best_priority = -1, 0.0
+            for i in range(requests.shape[1]):
+                if requests[b, i] and not granted[b, i]:
+                    if best < 0 or priorities[b, i] > best_priority:
+                        best, best_priority = i, priorities[b, i]
+            granted[b, best] = True
+
+
 @jit
 def step_simulations(state, requests, normals, priorities, params, next_state, out):
     """Step every simulation b of ``state`` into row b of ``next_state`` and ``out`` (a StepOutcome).
@@ -137,21 +157,9 @@ def step_simulations(state, requests, normals, priorities, params, next_state, o
         for j in range(m):
             if timers[b, j] == 0.0:
                 free_pus += 1
-        n_requests = 0
         for i in range(n):
             out.requested[b, i] = requests[b, i]
-            granted[b, i] = requests[b, i]
-            n_requests += requests[b, i]
-        if n_requests > free_pus:
-            for i in range(n):
-                granted[b, i] = False
-            for _ in range(free_pus):
-                best, best_priority = -1, 0.0
-                for i in range(n):
-                    if requests[b, i] and not granted[b, i]:
-                        if best < 0 or priorities[b, i] > best_priority:
-                            best, best_priority = i, priorities[b, i]
-                granted[b, best] = True
+        grant_requests(requests, priorities, b, free_pus, granted)
 
         # 2. Rewards (volumes before the inflow) and 4. timers: granted containers, in index order,
         # take the free PUs in index order; every other timer counts down by δ.

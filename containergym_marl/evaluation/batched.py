@@ -48,6 +48,8 @@ def evaluate_batched(policy, config: str | PlantConfig, protocol: EvalProtocol =
     agent_obs = AgentObservations(params, policy_observation(policy), episodes) if policy.view == "decentralised" \
         else None
     _check_fits(policy, sim, plant, agent_obs)
+    if hasattr(policy, "bind"):  # a policy whose rule needs the plant's description (a model's shared check)
+        policy.bind(params, arbitration)
 
     active = np.ones(episodes, dtype=bool)  # the episode of simulation b has not ended yet
     totals, returns = BatchTotals(episodes), np.zeros(episodes)

@@ -19,6 +19,7 @@ The file (``torch.save`` of plain containers)::
      "observation": "local",              # the container agents' observation variant it was trained on
      "own_check": {"risk": ε, "lead_steps": L},  # only with a container agent's own deadline check
      "request_threshold": τ,              # only where a greedy container agent requests above τ, not 0.5
+     "shared_check": {"risk": ε, "window_steps": W, "prefer": "policy"},  # only with the agents' shared check
      "state_dict": {"actor.0.weight": ..., ..., "critic.4.bias": ...},
      "meta": {...}}                       # where it came from (algorithm, config, seed, samples)
 
@@ -40,11 +41,20 @@ the share of similar-looking states in which the planner requests; below 1/2 the
 action is to wait, although a missed request near an overflow costs far more than an early one.
 Greedy acting (``deterministic=True``, every evaluation) applies it; sampling ignores it.
 
+``shared_check`` (absent: None) is a decentralised model's one round of messages between its agents
+(:mod:`~containergym_marl.policies.shared_check`): each agent broadcasts its container's volume and its
+log-odds of requesting, and all apply the same rule: the requests the arbitration would deny are
+withdrawn, and emptyings that the reference's deadline check finds unsafe are replaced by the safe set
+the policy finds most likely. The rule needs the plant's description: the policy adapter binds it from
+the environment it acts in (``act``), or from :meth:`SharedActorCriticPolicy.bind` (``act_batch``;
+:func:`~containergym_marl.evaluation.batched.evaluate_batched` binds it). It applies after the own check
+and the request threshold, to greedy and sampled actions alike.
+
 The same model as safetensors (:meth:`ActorCritic.save_safetensors`, ``.safetensors``: a format
 that holds tensors and a string header, never code): the state dict's tensors, and the other fields
 as the header's metadata (``format``, ``version``, ``view``, ``observation_size``, ``n_actions``,
-``hidden``, ``action_mask``, ``observation``, ``own_check``, ``request_threshold``, ``meta``; numbers, lists,
-``own_check`` and ``meta`` as JSON text).
+``hidden``, ``action_mask``, ``observation``, ``own_check``, ``request_threshold``, ``shared_check``, ``meta``;
+numbers, lists, ``own_check``, ``shared_check`` and ``meta`` as JSON text).
 :meth:`ActorCritic.load` reads either by the file's suffix, with the same checks.
 
 The network is Stable-Baselines3's ``MlpPolicy`` for a discrete action: separate policy and value
@@ -70,8 +80,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from containergym_marl.config.bounds import MAX_HIDDEN_LAYERS, MAX_HIDDEN_WIDTH, MAX_NETWORK_PARAMETERS
+from containergym_marl.core.dynamics import DEFAULT_ARBITRATION
 from containergym_marl.core.observations import DEFAULT_OBSERVATION, check_observation, check_same_observation
 from containergym_marl.policies.safety import check_own_check, own_deadline_due
+from containergym_marl.policies.shared_check import SharedCheck, check_shared_check
 from containergym_marl.extras import missing_extra
 
 FORMAT = "containergym-marl actor-critic"
@@ -91,16 +103,18 @@ def check_request_threshold(value, where: str = "request_threshold") -> float | 
     return float(value)
 
 
-def check_agent_rules(view: str, own_check, request_threshold, where: str = "") -> tuple[dict | None, float | None]:
-    """A model's container-agent rules (its own check and its request threshold), each checked, and none on a
-    centralised model, which has no container agents (a ValueError naming the field and ``where``)."""
+def check_agent_rules(view: str, own_check, request_threshold, shared_check=None,
+                      where: str = "") -> tuple[dict | None, float | None, dict | None]:
+    """A model's container-agent rules (its own check, its request threshold, its shared check), each checked,
+    and none on a centralised model, which has no container agents (a ValueError naming the field and ``where``)."""
     prefix = f"{where}: " if where else ""
-    own_check = check_own_check(own_check, f"{prefix}own_check")
-    request_threshold = check_request_threshold(request_threshold, f"{prefix}request_threshold")
-    for name, value in (("own_check", own_check), ("request_threshold", request_threshold)):
+    rules = (("own_check", check_own_check(own_check, f"{prefix}own_check")),
+             ("request_threshold", check_request_threshold(request_threshold, f"{prefix}request_threshold")),
+             ("shared_check", check_shared_check(shared_check, f"{prefix}shared_check")))
+    for name, value in rules:
         if view == "centralised" and value is not None:
             raise ValueError(f"{prefix}{name}: a container agent's rule; a centralised model has no container agents")
-    return own_check, request_threshold
+    return tuple(value for _, value in rules)
 
 
 def _torch():
@@ -143,12 +157,14 @@ class ActorCritic:
             (:data:`~containergym_marl.core.observations.OBSERVATIONS`; "local" for a centralised model).
         own_check: a decentralised model's own deadline check, ``{"risk": ε, "lead_steps": L}``, or None.
         request_threshold: a decentralised model's greedy request threshold τ, or None (the most likely action).
+        shared_check: a decentralised model's shared check, ``{"risk": ε, "window_steps": W, "prefer": ...}``, or None.
     """
 
     def __init__(self, view: str, observation_size: int, n_actions: int, hidden: Sequence[int] = (64, 64),
                  action_mask: bool = False, state_dict: dict[str, Any] | None = None,
                  meta: dict[str, Any] | None = None, generator=None, observation: str = DEFAULT_OBSERVATION,
-                 own_check: dict[str, Any] | None = None, request_threshold: float | None = None):
+                 own_check: dict[str, Any] | None = None, request_threshold: float | None = None,
+                 shared_check: dict[str, Any] | None = None):
         torch = _torch()
         if view not in VIEWS:
             raise ValueError(f"view: expected one of {VIEWS}, got {view!r}")
@@ -156,7 +172,8 @@ class ActorCritic:
         if view == "centralised" and observation != DEFAULT_OBSERVATION:
             raise ValueError(f"observation: {observation!r} is a variant of the container agents' observation; "
                              f"a centralised model observes the global state ({DEFAULT_OBSERVATION!r})")
-        self.own_check, self.request_threshold = check_agent_rules(view, own_check, request_threshold)
+        self.own_check, self.request_threshold, self.shared_check = check_agent_rules(
+            view, own_check, request_threshold, shared_check)
         self.view, self.action_mask = view, bool(action_mask)
         self.observation_size, self.n_actions, self.hidden = check_network(observation_size, n_actions, hidden)
         self.meta = dict(meta or {})
@@ -223,7 +240,8 @@ class ActorCritic:
                 "meta": self.meta,
                 # only where there is one: a model without keeps the bytes of a file written before the check
                 **({"own_check": self.own_check} if self.own_check is not None else {}),
-                **({"request_threshold": self.request_threshold} if self.request_threshold is not None else {})}
+                **({"request_threshold": self.request_threshold} if self.request_threshold is not None else {}),
+                **({"shared_check": self.shared_check} if self.shared_check is not None else {})}
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "model") -> "ActorCritic":
@@ -239,11 +257,12 @@ class ActorCritic:
         observation = check_observation(data.get("observation", DEFAULT_OBSERVATION), f"{source}: observation")
         if data["view"] == "centralised" and observation != DEFAULT_OBSERVATION:
             raise ValueError(f"{source}: a centralised model with the container agents' {observation!r} observation")
-        own_check, threshold = check_agent_rules(data["view"], data.get("own_check"), data.get("request_threshold"),
-                                                 source)
+        own_check, threshold, shared_check = check_agent_rules(
+            data["view"], data.get("own_check"), data.get("request_threshold"), data.get("shared_check"), source)
         try:
             return cls(data["view"], *sizes, data["action_mask"], data["state_dict"], data.get("meta"),
-                       observation=observation, own_check=own_check, request_threshold=threshold)
+                       observation=observation, own_check=own_check, request_threshold=threshold,
+                       shared_check=shared_check)
         except (TypeError, RuntimeError, ValueError) as exc:
             raise ValueError(f"{source}: its shape and weights do not match ({type(exc).__name__}: {exc})") from exc
 
@@ -262,8 +281,7 @@ class ActorCritic:
                     "hidden": json.dumps(list(data["hidden"])), "action_mask": json.dumps(bool(data["action_mask"])),
                     "observation": data["observation"], "meta": json.dumps(data["meta"], sort_keys=True),
                     **({"own_check": json.dumps(data["own_check"])} if "own_check" in data else {}),
-                    **({"request_threshold": json.dumps(data["request_threshold"])}
-                       if "request_threshold" in data else {})}
+                    **({key: json.dumps(data[key]) for key in ("request_threshold", "shared_check") if key in data})}
         blob = _safetensors_torch().save({k: v.contiguous() for k, v in data["state_dict"].items()}, metadata)
         return atomic_write(path, lambda tmp: tmp.write_bytes(_sorted_header(blob)))
 
@@ -323,6 +341,7 @@ def read_safetensors(path: str | Path) -> dict[str, Any]:
                 "observation": metadata.get("observation", DEFAULT_OBSERVATION),
                 "own_check": json.loads(metadata.get("own_check", "null")),
                 "request_threshold": json.loads(metadata.get("request_threshold", "null")),
+                "shared_check": json.loads(metadata.get("shared_check", "null")),
                 "meta": json.loads(metadata.get("meta", "{}"))}
     except (KeyError, ValueError, TypeError) as exc:
         raise ValueError(f"{source}: its safetensors header lacks or garbles a field of the "
@@ -448,10 +467,11 @@ class _ActorCriticPolicy:
     #: How the algorithm registry loads this adapter's model files.
     load_model = staticmethod(ActorCritic.load)
 
-    def _action_tensor(self, observations: np.ndarray, masks: np.ndarray | None):
+    def _action_tensor(self, observations: np.ndarray, masks: np.ndarray | None, logits=None):
         torch = _torch()
         with torch.no_grad():
-            logits = self.model.decision_logits(torch.as_tensor(observations, dtype=torch.float32))
+            if logits is None:
+                logits = self.model.decision_logits(torch.as_tensor(observations, dtype=torch.float32))
             if masks is not None:
                 logits = logits.masked_fill(~torch.as_tensor(masks), MASKED_LOGIT)
             if self.deterministic:
@@ -479,20 +499,47 @@ class CentralisedActorCriticPolicy(_ActorCriticPolicy):
 
 class SharedActorCriticPolicy(_ActorCriticPolicy):
     """A native-PPO policy shared by every container agent of the decentralised view (one batched
-    forward per step), with the model's own check where it has one."""
+    forward per step), with the model's own check and shared check where it has them."""
 
     view = "decentralised"
 
+    def __init__(self, model: ActorCritic | str | Path, name: str = "ppo", deterministic: bool = True):
+        super().__init__(model, name, deterministic)
+        self._shared_check: SharedCheck | None = None
+
+    def bind(self, params: Any, arbitration: str = DEFAULT_ARBITRATION) -> "SharedActorCriticPolicy":
+        """Bind the model's shared check to the plant ``params`` (a PlantParams) it acts in, whose requests
+        ``arbitration`` ranks; nothing to do for a model without one. ``act`` binds it from its environment."""
+        if self.model.shared_check is not None:
+            bound = self._shared_check
+            if bound is None or bound.params is not params or bound.arbitration != arbitration:
+                self._shared_check = SharedCheck(self.model.shared_check, params, self.observation, arbitration)
+        return self
+
     def _actions(self, observations: np.ndarray, masks: np.ndarray | None) -> list[int]:
-        actions = self._action_tensor(observations, masks)
+        if self.model.shared_check is None:
+            actions = self._action_tensor(observations, masks)
+            if self.model.own_check is not None:
+                actions.numpy()[own_deadline_due(observations, **self.model.own_check)] = 1  # in place, no copy
+            return actions.tolist()
+        if self._shared_check is None:
+            raise ValueError(f"policy {self.name!r}: its model's shared check needs the plant it acts in: call "
+                             "bind(params) first (evaluate() and evaluate_batched() do)")
+        torch = _torch()
+        logits = self.model.decision_logits(torch.as_tensor(observations, dtype=torch.float32))
+        actions = self._action_tensor(observations, masks, logits).numpy()
         if self.model.own_check is not None:
-            actions.numpy()[own_deadline_due(observations, **self.model.own_check)] = 1  # in place, no copy
-        return actions.tolist()
+            actions[own_deadline_due(observations, **self.model.own_check)] = 1
+        log_odds = (logits[:, 1] - logits[:, 0]).double().numpy() if self._shared_check.uses_log_odds else None
+        granted, _ = self._shared_check(observations, actions, log_odds)
+        return granted.reshape(-1).astype(np.int64).tolist()
 
     def act(self, observations: dict[str, Any], env: Any) -> dict[str, int]:
         if getattr(env, "observation", DEFAULT_OBSERVATION) != self.observation:
             check_same_observation(self.observation, getattr(env, "observation", DEFAULT_OBSERVATION),
                                    f"policy {self.name!r}")
+        if self.model.shared_check is not None:
+            self.bind(env.simulator.params, env.simulator.arbitration)
         agents = list(observations)
         obs = np.stack([o["observation"] if isinstance(o, dict) else o for o in observations.values()])
         masks = None

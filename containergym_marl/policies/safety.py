@@ -52,7 +52,8 @@ import math
 import numpy as np
 
 from containergym_marl.config.bounds import MAX_OWN_CHECK_LEAD_STEPS
-from containergym_marl.config.pu_time import jit, pu_time_s
+from containergym_marl.config.pu_time import jit
+from containergym_marl.core.dynamics import pu_busy_time_s
 from containergym_marl.core.observations import SCALAR_FEATURES
 from containergym_marl.core.params import PlantParams
 
@@ -96,6 +97,47 @@ def deadlines(risk: np.ndarray, epsilon: float) -> np.ndarray:
     return (risk <= epsilon).sum(axis=1)  # P(s) grows with s: the fills that keep it <= ε come first
 
 
+@jit
+def busy_steps(i, volume, params):
+    """Steps a PU stays busy after emptying container i at ``volume`` (at most v_max): free
+    ``1 + ceil(g / δ)`` steps after the emptying's step."""
+    g = pu_busy_time_s(i, min(volume, params.max_volume[i]), params)
+    return 1 + math.ceil(g / params.timestep_s - 1e-9)
+
+
+@jit
+def schedule_risk_into(volumes, pu_timers_s, emptied, risk, due, params, one_per_step, free_at, out):
+    """:meth:`DeadlineCheck.schedule_risk` into ``out`` (n,), compiled (``free_at``: (m,) int scratch).
+    ``emptied`` may hold at most as many containers as PUs are free (the caller checks)."""
+    dt, window = params.timestep_s, risk.shape[1]
+    # the step (from this one) from which each PU is free: the emptied containers, in index order, take the
+    # free PUs in index order (as the plant does) and busy them g(v); every other PU counts down
+    member = 0
+    for j in range(pu_timers_s.shape[0]):
+        while member < emptied.shape[0] and not emptied[member]:
+            member += 1
+        if pu_timers_s[j] == 0.0 and member < emptied.shape[0]:
+            free_at[j] = busy_steps(member, volumes[member], params)
+            member += 1
+        else:
+            free_at[j] = 1 + math.ceil(max(pu_timers_s[j] - dt, 0.0) / dt - 1e-9)
+    out[:] = 0.0
+    last_start = 0  # this step's emptying, if any: the schedule's first start is a later step
+    for i in due:
+        if emptied[i]:
+            continue
+        j = 0
+        for k in range(1, free_at.shape[0]):
+            if free_at[k] < free_at[j]:
+                j = k
+        start = free_at[j]  # fills container i waits (the starts never decrease: list scheduling, EDF)
+        if one_per_step:
+            start = max(start, last_start + 1)
+        last_start = start
+        out[i] = risk[i, min(start, window) - 1]
+        free_at[j] = start + busy_steps(i, volumes[i] + start * params.fill_mean_per_step[i], params)
+
+
 class DeadlineCheck:
     """The schedule risks of a step's candidates, from one state (see the module doc).
 
@@ -121,58 +163,21 @@ class DeadlineCheck:
         due = np.flatnonzero(self.deadline < self.horizon_steps)
         self.due = due[np.lexsort((-self.risk[due, -1], self.deadline[due]))]
 
-    def _busy_steps(self, i: int, volume: float) -> int:
-        """Steps a PU stays busy after emptying container i at ``volume``: free ``1 + ceil(g / δ)``
-        steps after the emptying's step."""
-        p = self.params
-        g = pu_time_s(min(volume, p.max_volume[i]), p.pu_offset_s[i], p.pu_time_per_product_s[i], p.product_size[i])
-        return 1 + math.ceil(g / p.timestep_s - 1e-9)
-
     def schedule_risk(self, emptied: np.ndarray) -> np.ndarray:
         """(n,) each container's waiting risk P_i(s_i) under the EDF schedule after this step empties
         ``emptied`` (n,) bool (every emptying granted); 0 for containers emptied now or not due in
         the window."""
-        p = self.params
-        dt = p.timestep_s
         emptied = np.asarray(emptied, dtype=bool)
-        # the step (from this one) from which each PU is free: taken now -> busy g(v); else counting down
-        members = iter(np.flatnonzero(emptied))
-        free_at = []
-        for q, taken in zip(self.pu_timers_s, _taken_pus(self.pu_timers_s, int(emptied.sum()))):
-            if taken:
-                i = int(next(members))
-                free_at.append(self._busy_steps(i, self.volumes[i]))
-            else:
-                free_at.append(1 + math.ceil(max(q - dt, 0.0) / dt - 1e-9))
-        out = np.zeros(p.n_containers)
-        last_start = 0  # this step's emptying, if any: the schedule's first start is a later step
-        for i in self.due:
-            if emptied[i]:
-                continue
-            j = int(np.argmin(free_at))
-            start = free_at[j]  # fills container i waits (the starts never decrease: list scheduling, EDF)
-            if self.one_per_step:
-                start = max(start, last_start + 1)
-            last_start = start
-            out[i] = self.risk[i, min(start, self.horizon_steps) - 1]
-            free_at[j] = start + self._busy_steps(i, self.volumes[i] + start * p.fill_mean_per_step[i])
+        free = int((self.pu_timers_s == 0.0).sum())
+        if int(emptied.sum()) > free:
+            raise ValueError(f"emptied: {int(emptied.sum())} emptyings but only {free} free PU(s)")
+        out = np.empty(self.params.n_containers)
+        schedule_risk_into(self.volumes, self.pu_timers_s, emptied, self.risk, self.due, self.params,
+                           self.one_per_step, np.empty(self.params.n_pus, dtype=np.int64), out)
         return out
 
     def safe(self, emptied: np.ndarray) -> bool:
         return bool(self.schedule_risk(emptied).max(initial=0.0) <= self.epsilon)
-
-
-def _taken_pus(timers_s: np.ndarray, emptyings: int) -> list[bool]:
-    """Which PUs this step's ``emptyings`` take: the free ones in index order (as the plant does)."""
-    taken, left = [], emptyings
-    for q in timers_s:
-        take = q == 0.0 and left > 0
-        taken.append(bool(take))
-        left -= int(take)
-    if left > 0:
-        raise ValueError(f"emptied: {emptyings} emptyings but only {emptyings - left} free PU(s)")
-    return taken
-
 
 
 # ---- a container agent's own check --------------------------------------------------------------------

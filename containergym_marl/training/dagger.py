@@ -111,6 +111,7 @@ from containergym_marl.files import atomic_write_text
 from containergym_marl.policies.actor_critic import ActorCritic, check_request_threshold, load_tensors, save_tensors
 from containergym_marl.policies.planner import SHIELD, PlannerAgents, decide_all, respond_all
 from containergym_marl.policies.safety import own_check_setting, own_deadline_due
+from containergym_marl.policies.shared_check import SHARED_CHECK, SharedCheck, shared_check_setting
 from containergym_marl.rundir import RunError, RunWarning
 from containergym_marl.training import fast_ppo
 from containergym_marl.training.checkpoints import SegmentClock, TrainingProgress, save_checkpoint
@@ -174,6 +175,13 @@ class DAggerArgs:
     # labels of similar-looking agent states differ (the planner sees the whole plant), so the network learns the
     # share in which the planner requests. The imitation alone, acting greedily
     request_threshold: float = 0.5
+    # the agents' shared check (policies.shared_check): one message per agent and step (its container's volume and
+    # its log-odds of requesting) and one rule all apply to them, part of the trained policy wherever it acts:
+    # denied requests withdrawn, unsafe emptyings (the deadline check at this risk, over this window) replaced by
+    # the safe set the policy prefers (shared_check_prefer); 0 is no check. The imitation alone
+    shared_check_risk: float = 0.0
+    shared_check_window_steps: int = 24
+    shared_check_prefer: str = "policy"
     imitation_share: float = 1.0  # share of the budget DAgger trains; dagger_ppo_agents: 0.5, PPO the rest
     # the fine-tuning's behaviour-cloning term (DAPG): bc_coef × the cross-entropy on the imitation's data set beside
     # PPO's loss, its weight halving every bc_half_life of the fine-tuning's samples; 0: PPO alone
@@ -261,6 +269,10 @@ class DAggerArgs:
         if self.request_threshold != 0.5 and (self.ppo is not None or not self.greedy):
             raise ValueError("hp: request_threshold is the imitation's greedy decision rule: it takes greedy=true and "
                              "no fine-tuning (PPO's updates learn from sampled actions)")
+        self.shared_check()  # its three settings within their ranges
+        if self.shared_check_risk > 0 and self.ppo is not None:
+            raise ValueError("hp: shared_check_risk applies to the imitation alone: a rule that overrides the sampled "
+                             "actions would make PPO's fine-tuning learn from actions its policy did not take")
         if self.own_check_risk > 0 and self.ppo is not None:
             raise ValueError("hp: own_check_risk applies to the imitation alone: a check that overrides the sampled "
                              "actions would make PPO's fine-tuning learn from actions its policy did not take")
@@ -271,6 +283,10 @@ class DAggerArgs:
     def own_check(self) -> dict[str, Any] | None:
         """The model's own check (:func:`~containergym_marl.policies.safety.check_own_check`), or None."""
         return own_check_setting(self.own_check_risk, self.own_check_lead_steps)
+
+    def shared_check(self) -> dict[str, Any] | None:
+        """The model's shared check (:func:`~containergym_marl.policies.shared_check.check_shared_check`), or None."""
+        return shared_check_setting(self.shared_check_risk, self.shared_check_window_steps, self.shared_check_prefer)
 
     def model_threshold(self) -> float | None:
         """The model's request threshold, None where it is 0.5 (the most likely action, as a model without one)."""
@@ -419,7 +435,8 @@ def new_state(env, hp: DAggerArgs, seed: int, meta: dict[str, Any]) -> DAggerSta
     check_same_observation(hp.observation, getattr(env, "observation", DEFAULT_OBSERVATION), "the new DAgger model")
     model = ActorCritic("decentralised", obs_size, int(env.action_space.n), hp.hidden,
                         meta={**meta, "expert": "planner_agents"}, generator=generator, observation=hp.observation,
-                        own_check=hp.own_check(), request_threshold=hp.model_threshold())
+                        own_check=hp.own_check(), request_threshold=hp.model_threshold(),
+                        shared_check=hp.shared_check())
     return DAggerState(model, _optimizer(model, hp), generator, Dataset(hp.dataset_size, obs_size),
                        hyperparams=_jsonable(hp))
 
@@ -533,6 +550,8 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
     act_buf = torch.zeros((n_steps, slots), dtype=torch.long)
     contended_buf = torch.zeros((n_steps, slots), dtype=torch.bool)
     agents = slots // env.num_sims
+    shared = None if model.shared_check is None else SharedCheck(
+        model.shared_check, env.simulator.params, model.observation, env.simulator.arbitration)
     with torch.no_grad():
         for t in range(n_steps):
             if expert_acts:
@@ -545,6 +564,10 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
                     actions = (logits - torch.log(-torch.log(torch.rand(logits.shape, generator=generator)))).argmax(-1)
                 if model.own_check is not None:  # the check is part of the policy: it acts as deployed
                     actions = torch.where(torch.from_numpy(own_deadline_due(obs.numpy(), **model.own_check)), 1, actions)
+                if shared is not None:  # so is the shared check, after it (as the policy adapter applies them)
+                    log_odds = (logits[:, 1] - logits[:, 0]).double().numpy() if shared.uses_log_odds else None
+                    granted, _ = shared(obs.numpy(), actions.numpy(), log_odds)
+                    actions = torch.from_numpy(granted.reshape(-1).astype(np.int64))
                 requests = None if labels == "planner" else actions.numpy().reshape(env.num_sims, -1).astype(bool)
                 made = labeller.label(env.simulator, requests)
                 step_labels = torch.from_numpy(made.reshape(-1).astype(np.int64))
@@ -809,8 +832,14 @@ CHECKED_REQUEST_THRESHOLD = 0.3
 CHECKED_SETTINGS = {"safety_risk": SHIELD["safety_risk"], **fast_ppo.OWN_CHECK_SETTINGS,
                     "request_threshold": CHECKED_REQUEST_THRESHOLD}
 CHECKED_IMITATION = DAggerTrainer(fine_tune=False, defaults=CHECKED_SETTINGS)
+#: ``dagger_messaging_agents``: ``dagger_checked_agents`` with the agents' shared check (policies.shared_check) in
+#: collection and in the trained policy, at the setting studies/shared_check_screen.py chose on validation episodes
+#: for dagger_checked_agents' published networks (SHARED_CHECK).
+MESSAGING_SETTINGS = {**CHECKED_SETTINGS, **{f"shared_check_{key}": value for key, value in SHARED_CHECK.items()}}
+MESSAGING_IMITATION = DAggerTrainer(fine_tune=False, defaults=MESSAGING_SETTINGS)
 
 __all__ = ["BC_DATASET", "CHECKED_IMITATION", "CHECKED_SETTINGS", "CONTENDED_IMITATION", "CONTENDED_SHARE", "DAPG_SETTINGS", "DAggerArgs", "DAggerState", "DAggerTrainer", "IMITATION", "IMITATION_THEN_DAPG", "IMITATION_THEN_PPO", "LABELS",
+           "MESSAGING_IMITATION", "MESSAGING_SETTINGS",
            "RESPONSE_IMITATION", "Dataset", "Episodes",
            "Labeller", "MinibatchDraw", "Rollout", "collect", "learn",
            "load_checkpoint", "new_state", "summary", "train", "update"]

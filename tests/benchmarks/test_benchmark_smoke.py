@@ -271,3 +271,17 @@ def test_decision_time_smoke_compares_the_two_forwards_on_the_same_decisions(tmp
     result = json.loads(out_json.read_text())
     assert len(result["rounds"]) == 2 and result["ratio_wall"] > 0 and result["ratio_cpu"] > 0
     assert all(r[side]["ms_median"] > 0 for r in result["rounds"] for side in ("direct", "modules"))
+
+
+def test_shared_check_time_smoke_times_the_published_model_with_and_without_the_rule(tmp_path):
+    """benchmarks/shared_check_time.py at a few steps: the published best dagger_checked_agents model of
+    n11_m2_dt120 (read from the table), both sides timed in every round, the rule the chosen setting."""
+    from containergym_marl.policies.shared_check import SHARED_CHECK
+
+    out_json = tmp_path / "shared.json"
+    subprocess.run([sys.executable, str(REPO / "benchmarks" / "shared_check_time.py"), "--steps", "40", "--rounds",
+                    "2", "--json", str(out_json)], capture_output=True, text=True, timeout=300, check=True, cwd=tmp_path)
+    result = json.loads(out_json.read_text())
+    assert result["shared_check"] == SHARED_CHECK and "dagger_checked_agents_n11_m2_dt120_s" in result["model"]
+    assert len(result["rounds"]) == 2 and result["ratio_wall_median"] > 0 and result["ratio_cpu"] > 0
+    assert all(r[side]["ms_median"] > 0 for r in result["rounds"] for side in ("network", "shared_check"))

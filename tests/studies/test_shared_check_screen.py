@@ -1,6 +1,6 @@
-"""studies/shared_check_screen.py: one message per container agent and step (its volume, its request). The
-withdrawal keeps the plant's grants and drops the denied requests; the shared check replaces emptyings that
-break a deadline by safe ones; bad settings are refused before anything is written."""
+"""studies/shared_check_screen.py: the published networks with one message per container agent and step. The
+withdrawal keeps the plant's grants and drops the denied requests; bad settings are refused before anything is
+written (the rule itself: tests/policies/test_shared_check.py)."""
 
 from __future__ import annotations
 
@@ -16,54 +16,14 @@ from containergym_marl import load_config
 from containergym_marl.core.observations import AgentObservations
 from containergym_marl.core.params import PlantParams
 from containergym_marl.core.simulator import PlantSimulator
-from containergym_marl.policies.safety import DeadlineCheck
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = str(REPO / "studies" / "shared_check_screen.py")
 sys.path.insert(0, str(REPO / "studies"))
 try:
-    from shared_check_screen import SharedCheckPolicy, granted_requests, safe_emptyings, table
+    from shared_check_screen import SharedCheckPolicy, table
 finally:
     sys.path.remove(str(REPO / "studies"))
-
-
-def test_the_fullest_requests_are_granted_ties_to_the_lower_index():
-    params = PlantParams.from_config(load_config("n5_m5_dt120"))
-    v_max = np.asarray(params.max_volume)
-    volumes = np.array([0.5, 0.9, 0.9, 0.2, 0.7]) * v_max  # C2 and C3 equally full (v / v_max)
-    requests = np.array([True, True, True, False, True])
-
-    def granted(requests, free):
-        timers = np.where(np.arange(params.n_pus) < free, 0.0, 500.0)
-        return granted_requests(requests[None], volumes[None], timers[None], params)[0]
-
-    assert np.flatnonzero(granted(requests, 2)).tolist() == [1, 2]
-    assert np.flatnonzero(granted(requests, 1)).tolist() == [1]
-    assert np.flatnonzero(granted(requests, 3)).tolist() == [1, 2, 4]
-    assert not granted(np.zeros(5, bool), 2).any()
-
-
-def test_an_emptying_that_breaks_a_deadline_is_replaced_by_the_nearest_safe_one():
-    """n5_m2, PU 0 busy 1000 s, PU 1 free; C1-50 at its optimum and C1-60 near v_max, eight steps from
-    PU 0: giving PU 1 to C1-50 leaves C1-60 to overflow. At 30 units C1-60 can still wait (its deadline
-    2 fills) with PU 1 kept free, so the safe set nearest to the request (none of it kept, the fewest
-    emptyings) is waiting; at 36 units it cannot (deadline 0), and C1-60 takes the PU. A safe request
-    stays as it is."""
-    params = PlantParams.from_config(load_config("n5_m2_dt120"))
-    c1_50, c1_60 = np.isin(np.arange(5), [3]), np.isin(np.arange(5), [4])
-    for volume, expected in ((30.0, []), (36.0, [4])):
-        check = DeadlineCheck(np.array([5.0, 5.0, 5.0, 31.5, volume]), np.array([1000.0, 0.0]), params, 1e-4, 24)
-        assert check.due.tolist()[:1] == [4] and not check.safe(c1_50)
-        assert check.safe(np.zeros(5, bool)) == (expected == [])
-        chosen = safe_emptyings(check, c1_50, free=1)
-        assert np.flatnonzero(chosen).tolist() == expected and check.safe(chosen)
-        assert np.flatnonzero(safe_emptyings(check, c1_60, free=1)).tolist() == [4]
-    # the policy's preference: the safe set its agents find most likely (C1-60 favoured: emptied; disfavoured:
-    # waiting, where waiting is safe)
-    check = DeadlineCheck(np.array([5.0, 5.0, 5.0, 31.5, 30.0]), np.array([1000.0, 0.0]), params, 1e-4, 24)
-    favoured, disfavoured = np.array([-3.0, -3.0, -3.0, 2.0, 0.5]), np.array([-3.0, -3.0, -3.0, 2.0, -0.5])
-    assert np.flatnonzero(safe_emptyings(check, c1_50, 1, favoured)).tolist() == [4]
-    assert np.flatnonzero(safe_emptyings(check, c1_50, 1, disfavoured)).tolist() == []
 
 
 class _AskEveryone:

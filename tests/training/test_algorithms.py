@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 
@@ -20,7 +21,7 @@ def test_registry_entries_load_their_classes_and_views():
 
     classes = {"ppo": PPO, "trpo": TRPO, "dqn": DQN, "maskable_ppo": MaskablePPO, "shared_ppo": PPO}
     native = ("fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked", "dagger_agents", "dagger_ppo_agents", "dagger_response_agents",
-              "dagger_contended_agents", "dagger_dapg_agents", "dagger_checked_agents")
+              "dagger_contended_agents", "dagger_dapg_agents", "dagger_checked_agents", "dagger_messaging_agents")
     assert set(ALGORITHMS) == set(classes) | set(native)
     for name, cls in classes.items():
         assert get_algorithm(name).load_class() is cls
@@ -35,11 +36,11 @@ def test_registry_entries_load_their_classes_and_views():
     trainers = [get_algorithm(a).trainer() for a in native]
     assert trainers == [fast_ppo.TRAINER, fast_ppo.TRAINER, fast_ppo.CHECKED_TRAINER, dagger.IMITATION,
                         dagger.IMITATION_THEN_PPO, dagger.RESPONSE_IMITATION, dagger.CONTENDED_IMITATION,
-                        dagger.IMITATION_THEN_DAPG, dagger.CHECKED_IMITATION]
+                        dagger.IMITATION_THEN_DAPG, dagger.CHECKED_IMITATION, dagger.MESSAGING_IMITATION]
     assert fast_ppo.TRAINER.settings({}).own_check() is None  # the plain PPO has no check unless told
     assert fast_ppo.CHECKED_TRAINER.settings({}).own_check() == {"risk": 1e-4, "lead_steps": 1}
     assert fast_ppo.CHECKED_TRAINER.settings({"own_check_risk": 1e-3}).own_check()["risk"] == 1e-3  # --hp wins
-    imitations = trainers[3:]
+    imitations = trainers[3:-1]  # the messaging imitation: the checked one with the shared check, below
     assert not dagger.IMITATION.fine_tune and dagger.IMITATION_THEN_PPO.fine_tune
     assert [t.settings({}).labels for t in imitations] == ["planner"] * 2 + ["response"] + ["planner"] * 3
     assert [t.settings({}).contended_share for t in imitations] == [0.0, 0.0, 0.0, dagger.CONTENDED_SHARE, 0.0, 0.0]
@@ -54,6 +55,11 @@ def test_registry_entries_load_their_classes_and_views():
     assert [t.settings({}).bc_coef for t in imitations[1::3]] == [0.0, dagger.DAPG_SETTINGS["bc_coef"]]
     assert dagger.IMITATION_THEN_DAPG.fine_tune and dagger.IMITATION_THEN_DAPG.settings({}).ppo is not None
     assert dagger.CONTENDED_IMITATION.settings({"contended_share": 0.25}).contended_share == 0.25  # --hp wins
+    # the messaging imitation: the checked imitation's settings, and the shared check the screen chose
+    messaging = dagger.MESSAGING_IMITATION.settings({})
+    assert dataclasses.replace(messaging, shared_check_risk=0.0) == dagger.CHECKED_IMITATION.settings({})
+    assert messaging.shared_check() == {"risk": 1e-4, "window_steps": 24, "prefer": "policy"}
+    assert all(t.settings({}).shared_check() is None for t in imitations)
     with pytest.raises(ValueError, match="not trained by a native trainer"):
         get_algorithm("ppo").trainer()
     assert get_algorithm("dagger_agents").policy_adapter is get_algorithm("fast_shared_ppo").policy_adapter

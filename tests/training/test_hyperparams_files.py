@@ -29,7 +29,7 @@ def _settings(run) -> dict:
 
 def test_the_shipped_files_are_the_native_methods_and_valid():
     shipped = sorted(p.stem for p in files.hyperparams_dir().glob("*.toml"))
-    assert shipped == ["dagger_checked_agents", "fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked",
+    assert shipped == ["dagger_checked_agents", "dagger_messaging_agents", "fast_ppo", "fast_shared_ppo", "fast_shared_ppo_checked",
                        "fast_shared_ppo_team"]
     for name in shipped:
         assert name in METHODS
