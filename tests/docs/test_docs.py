@@ -154,6 +154,16 @@ def test_recipe_give_any_policy_the_agents_own_check(recipe_dir, capsys):
     assert re.fullmatch(r"with the check: 600 steps, return \d+\.\d\d", with_check)
 
 
+def test_recipe_let_the_agents_talk_once_a_step(recipe_dir, capsys):
+    """The policy that asks at its target has requests denied on this episode; with the rule none, and a
+    higher return."""
+    exec(compile(_recipe("Let the agents talk once a step"), "docs/recipes.md", "exec"), {"__name__": "recipe"})
+    pattern = r"with(out)? the shared check: 600 steps, return (\d+\.\d\d), (\d+) requests denied"
+    without, with_check = (re.fullmatch(pattern, line) for line in capsys.readouterr().out.splitlines())
+    assert int(without.group(3)) > 0 and int(with_check.group(3)) == 0
+    assert float(with_check.group(2)) > float(without.group(2))
+
+
 def test_recipe_train_one_small_run(recipe_dir):
     pytest.importorskip("torch", reason="the train extra is not installed")
     lines = [line for line in _recipe("Train one small run", "bash").splitlines() if line.strip()]
