@@ -117,6 +117,18 @@ def test_the_compiled_rule_is_the_python_rule_on_random_states(row):
     assert changed > 50  # the check did replace emptyings: the comparison covered its search
 
 
+def test_risks_are_summed_as_numpy_sums_them_bit_for_bit():
+    """The rule breaks ties of total risk as the Python rule (numpy's sum) does: its sum is numpy's, also past
+    the 8-accumulator blocks and the halving above 128 entries."""
+    from containergym_marl.policies.shared_check import _pairwise_sum
+
+    rng = np.random.default_rng(3)
+    for count in [*range(0, 40), 127, 128, 129, 255, 256, 257, 1000, 4099]:
+        x = rng.random(count) ** 8  # many orders of magnitude: the order of the additions shows
+        assert _pairwise_sum(x, 0, count) == x.sum()
+        assert _pairwise_sum(np.concatenate([[5.0], x]), 1, count) == x.sum()
+
+
 def test_the_fullest_requests_are_granted_ties_to_the_lower_index_and_none_without_a_free_pu():
     params = PlantParams.from_config(load_config("n5_m5_dt120"))
     volumes = np.array([[0.5, 0.9, 0.9, 0.2, 0.7]]) * np.asarray(params.max_volume)  # C2 and C3 equally full
