@@ -530,9 +530,7 @@ class SharedActorCriticPolicy(_ActorCriticPolicy):
         actions = self._action_tensor(observations, masks, logits).numpy()
         if self.model.own_check is not None:
             actions[own_deadline_due(observations, **self.model.own_check)] = 1
-        log_odds = (logits[:, 1] - logits[:, 0]).double().numpy() if self._shared_check.uses_log_odds else None
-        granted, _ = self._shared_check(observations, actions, log_odds)
-        return granted.reshape(-1).astype(np.int64).tolist()
+        return self._shared_check.requests_after(observations, actions, logits).tolist()
 
     def act(self, observations: dict[str, Any], env: Any) -> dict[str, int]:
         if getattr(env, "observation", DEFAULT_OBSERVATION) != self.observation:

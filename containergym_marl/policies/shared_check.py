@@ -370,6 +370,12 @@ class SharedCheck:
                       *self._storage, granted, changed)
         return granted, changed
 
+    def requests_after(self, observations: np.ndarray, requests: np.ndarray, logits) -> np.ndarray:
+        """(B·n,) int64: the agents' ``requests`` after the rule, the log-odds (where the rule uses them) taken
+        from the network's decision ``logits`` (a (B·n, 2) tensor): what a policy carrying the rule does."""
+        log_odds = (logits[:, 1] - logits[:, 0]).double().numpy() if self.uses_log_odds else None
+        return self(observations, requests, log_odds)[0].reshape(-1).astype(np.int64)
+
 
 __all__ = ["MAX_WINDOW_STEPS", "PREFERENCES", "SHARED_CHECK", "SharedCheck", "check_shared_check",
            "shared_check_setting"]

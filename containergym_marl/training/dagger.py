@@ -565,9 +565,7 @@ def collect(model: ActorCritic, env, obs: torch.Tensor, episode_start: torch.Ten
                 if model.own_check is not None:  # the check is part of the policy: it acts as deployed
                     actions = torch.where(torch.from_numpy(own_deadline_due(obs.numpy(), **model.own_check)), 1, actions)
                 if shared is not None:  # so is the shared check, after it (as the policy adapter applies them)
-                    log_odds = (logits[:, 1] - logits[:, 0]).double().numpy() if shared.uses_log_odds else None
-                    granted, _ = shared(obs.numpy(), actions.numpy(), log_odds)
-                    actions = torch.from_numpy(granted.reshape(-1).astype(np.int64))
+                    actions = torch.from_numpy(shared.requests_after(obs.numpy(), actions.numpy(), logits))
                 requests = None if labels == "planner" else actions.numpy().reshape(env.num_sims, -1).astype(bool)
                 made = labeller.label(env.simulator, requests)
                 step_labels = torch.from_numpy(made.reshape(-1).astype(np.int64))
