@@ -106,6 +106,11 @@ VARIANTS: dict[str, Variant] = {
     # planner's look-ahead as long in plant time as H = 8 at the evaluation's δ = 120 s: 16 steps of 60 s
     "checked_lead_2": Variant(CHECKED_LEAD_2),
     "checked_lead_2_h16": Variant((*CHECKED_LEAD_2, "horizon=16")),
+    # dagger_messaging_agents (the reference's labels, the agents' own check and the shared check), and the same
+    # imitating planner_agents (K = 16, H = 8, no deadline check): the shared check alone keeps its students from
+    # the overflows the cheap planner's labels allow?
+    "messaging": Variant((), "dagger_messaging_agents"),
+    "messaging_planner_labels": Variant(("safety_risk=0",), "dagger_messaging_agents"),
     # the fine-tuning with a decaying behaviour-cloning term (DAPG), at two starting weights
     "dapg_0.5": Variant(("imitation_share=0.5", "bc_coef=0.5", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
     "dapg_2": Variant(("imitation_share=0.5", "bc_coef=2", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
