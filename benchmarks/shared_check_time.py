@@ -2,6 +2,7 @@
 
     python benchmarks/shared_check_time.py        # dagger_checked_agents' published best model, n11_m2_dt120
     python benchmarks/shared_check_time.py --config n16_m2_dt120 --json out.json
+    python benchmarks/shared_check_time.py --method dagger_messaging_agents    # the method trained with the check
     python benchmarks/shared_check_time.py --rounds 1 --steps 50          # the smoke test: seconds
 
 Each round times ``policy.act`` per plant step (all agents at once, one torch thread, through the PettingZoo
@@ -24,20 +25,23 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_MODEL = "results/paper_rows/runs/dagger_checked_agents_{config}_s{seed}/validated_model.pt"  # under ROOT
+DEFAULT_MODEL = "results/paper_rows/runs/{method}_{config}_s{seed}/validated_model.pt"  # under ROOT
 
 
-def _best_seed(config: str) -> int:
-    """The seed of dagger_checked_agents' published best model on ``config`` (chosen on validation episodes)."""
+def _best_seed(method: str, config: str) -> int:
+    """The seed of ``method``'s published best model on ``config`` (chosen on validation episodes)."""
     table = json.loads((ROOT / "results" / "paper_rows" / "table.json").read_text())
-    rows = [r for r in table["rows"] if r["config"] == config and r["method"] == "dagger_checked_agents"]
+    rows = [r for r in table["rows"] if r["config"] == config and r["method"] == method]
+    if not rows:
+        raise SystemExit(f"--method: no published {method} on {config} in results/paper_rows/table.json")
     return int(rows[0]["best_seed"])
 
 
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--model", help="a decentralised native model file (default: dagger_checked_agents' published "
-                                   "best model on --config)")
+    p.add_argument("--model", help="a decentralised native model file (default: --method's published best model on "
+                                   "--config)")
+    p.add_argument("--method", default="dagger_checked_agents", help="whose published best model to time")
     p.add_argument("--config", default="n11_m2_dt120")
     p.add_argument("--steps", type=int, default=600)
     p.add_argument("--rounds", type=int, default=5)
@@ -53,7 +57,8 @@ def main(argv=None) -> dict:
     from containergym_marl.policies.shared_check import SHARED_CHECK
 
     torch.set_num_threads(1)
-    model_file = args.model or DEFAULT_MODEL.format(config=args.config, seed=_best_seed(args.config))
+    model_file = args.model or DEFAULT_MODEL.format(method=args.method, config=args.config,
+                                                       seed=_best_seed(args.method, args.config))
     plain = ActorCritic.load(args.model or ROOT / model_file)
     if plain.shared_check is not None:
         plain.shared_check = None
