@@ -482,9 +482,54 @@ def anneal_or_weight_no_better():
                for v in ("greedy_anneal", "greedy_request_weight_4"))
 
 
+CONTENDED_ROWS = ("n16_m2_dt120", "n11_m2_dt120", "n11_m2_dt60")
+
+
+def _learners_screen() -> dict:
+    t = tuning(seeds=(1, 2, 3))
+    assert all(t[(v, r)][2] == 3 for v in ("greedy", "greedy_response", "greedy_contended_0.5", "ppo_team_share_0.5",
+                                          "dapg_0.5", "messaging", "messaging_planner_labels")
+               for r in CONTENDED_ROWS), "the screen has three seeds of each variant on each contended row"
+    return t
+
+
+def response_labels_lower():
+    t = _learners_screen()
+    return all(t[("greedy_response", r)][0] < t[("greedy", r)][0] for r in CONTENDED_ROWS)
+
+
+def contended_draw_mixed():
+    t = _learners_screen()
+    diff = {r: t[("greedy_contended_0.5", r)][0] - t[("greedy", r)][0] for r in CONTENDED_ROWS}
+    return (diff["n16_m2_dt120"] > 0 and diff["n11_m2_dt120"] > 0 and round(diff["n11_m2_dt60"], 1) == -5.2
+            and t[("greedy_contended_0.5", "n11_m2_dt60")][1] == 10)
+
+
+def dapg_lower():
+    t = _learners_screen()
+    return all(t[("dapg_0.5", r)][0] < t[("ppo_team_share_0.5", r)][0] for r in CONTENDED_ROWS)
+
+
+def messaging_labels():
+    t, a = _learners_screen(), ablation()
+    clean = all(t[(v, r)][1] == 0 for v in ("messaging", "messaging_planner_labels") for r in CONTENDED_ROWS)
+    higher = all(t[("messaging_planner_labels", r)][0] > t[("messaging", r)][0] for r in CONTENDED_ROWS)
+    gap = t[("messaging_planner_labels", "n16_m2_dt120")][0] - t[("messaging", "n16_m2_dt120")][0]
+    below = all(t[("messaging_planner_labels", r)][0] < a[("reference", r)]["return"] for r in CONTENDED_ROWS)
+    same_episodes = all(a[("reference", r)]["episodes"] == 30 for r in CONTENDED_ROWS)
+    return clean and higher and round(gap, 1) == 1.1 and below and same_episodes
+
+
 def _with_own_check(variant: str) -> bool:
-    hp = json.loads((ROOT / "results" / "dagger_tuning" / "tuning.json").read_text())["variants"][variant]["hp"]
-    return any(h.startswith("own_check_risk=") for h in hp)
+    """The variant's students carry the agents' own check: its --hp sets one, or its method's defaults do
+    (dagger_checked_agents and dagger_messaging_agents)."""
+    from containergym_marl.training.dagger import CHECKED_SETTINGS, MESSAGING_SETTINGS
+
+    saved = json.loads((ROOT / "results" / "dagger_tuning" / "tuning.json").read_text())["variants"][variant]
+    defaults = {"dagger_checked_agents": CHECKED_SETTINGS, "dagger_messaging_agents": MESSAGING_SETTINGS}
+    risk = dict(defaults.get(saved["method"], {}), **{h.split("=")[0]: float(h.split("=")[1]) for h in saved["hp"]
+                                                       if h.startswith("own_check_risk=")}).get("own_check_risk", 0)
+    return risk > 0
 
 
 def every_setting_overflows():
@@ -1017,6 +1062,17 @@ def messaging_decision_time():
 
 
 PLANNER_CLAIMS = {
+    "Labels that answer the other agents' requests (`greedy_response`, `dagger_response_agents`) score below "
+    "`dagger_agents` on all three rows.": response_labels_lower,
+    "Half of every minibatch drawn from the contended states (`greedy_contended_0.5`, `dagger_contended_agents`) "
+    "scores higher on `n16_m2_dt120` and `n11_m2_dt120`, and 5.2 lower on `n11_m2_dt60`, where it overflows in 10 "
+    "of 90 episodes.": contended_draw_mixed,
+    "The decaying behaviour-cloning term (`dapg_0.5`, `dagger_dapg_agents`) scores below the fine-tuning without it "
+    "on all three rows.": dapg_lower,
+    "`dagger_messaging_agents` (`messaging`, its published runs of these seeds) overflows in none of its 270 "
+    "episodes. Imitating `planner_agents` instead of the reference (`messaging_planner_labels`) overflows in none "
+    "either and scores higher on all three rows, by 1.1 on `n16_m2_dt120`, yet stays below `planner_agents`' "
+    "return on the same episodes on each": messaging_labels,
     "None of its requests is denied and none of the 30 episodes overflows, yet it decides differently from the "
     "planner in 12 % of the steps: 1,412 requests the planner would not make, every one granted, and 1,008 the "
     "planner would make with a PU free.": messaging_decisions_on_n16,
