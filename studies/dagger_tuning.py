@@ -1,5 +1,7 @@
-"""Choosing the imitation's settings on validation episodes: ``dagger_agents``' and the PPO
-fine-tuning of ``dagger_ppo_agents`` (issue 27).
+"""Choosing the imitation's settings on validation episodes: ``dagger_agents``', the PPO fine-tuning of
+``dagger_ppo_agents`` (issue 27), and the learners aimed at the contended rows (issue 38:
+``dagger_response_agents``, ``dagger_contended_agents``, ``dagger_dapg_agents``, ``dagger_checked_agents``,
+``dagger_messaging_agents``).
 
     python studies/dagger_tuning.py                       # the variants below, n11_m2 at δ = 60 and 120, seeds 1-2
     python studies/dagger_tuning.py --variants greedy --rows n11_m2_dt60 --seeds 1 --workers 1
