@@ -285,3 +285,16 @@ def test_shared_check_time_smoke_times_the_published_model_with_and_without_the_
     assert result["shared_check"] == SHARED_CHECK and "dagger_checked_agents_n11_m2_dt120_s" in result["model"]
     assert len(result["rounds"]) == 2 and result["ratio_wall_median"] > 0 and result["ratio_cpu"] > 0
     assert all(r[side]["ms_median"] > 0 for r in result["rounds"] for side in ("network", "shared_check"))
+
+
+def test_shared_check_time_times_another_published_method_and_names_one_that_is_not(tmp_path):
+    """--method picks that method's published best model (here dagger_messaging_agents, trained with the rule);
+    a method with no published row is refused by name before anything is timed."""
+    script = str(REPO / "benchmarks" / "shared_check_time.py")
+    out_json = tmp_path / "messaging.json"
+    subprocess.run([sys.executable, script, "--method", "dagger_messaging_agents", "--steps", "20", "--rounds", "1",
+                    "--json", str(out_json)], capture_output=True, text=True, timeout=300, check=True, cwd=tmp_path)
+    assert "dagger_messaging_agents_n11_m2_dt120_s" in json.loads(out_json.read_text())["model"]
+    proc = subprocess.run([sys.executable, script, "--method", "no_such_method", "--json", str(tmp_path / "x.json")],
+                          capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode != 0 and "no_such_method" in proc.stderr and not (tmp_path / "x.json").exists()
