@@ -484,9 +484,6 @@ def anneal_or_weight_no_better():
                for v in ("greedy_anneal", "greedy_request_weight_4"))
 
 
-CONTENDED_ROWS = ("n16_m2_dt120", "n11_m2_dt120", "n11_m2_dt60")
-
-
 def _learners_screen() -> dict:
     t = tuning(seeds=(1, 2, 3))
     assert all(t[(v, r)][2] == 3 for v in ("greedy", "greedy_response", "greedy_contended_0.5", "ppo_team_share_0.5",
