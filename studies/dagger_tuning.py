@@ -113,6 +113,11 @@ VARIANTS: dict[str, Variant] = {
     # the overflows the cheap planner's labels allow?
     "messaging": Variant((), "dagger_messaging_agents"),
     "messaging_planner_labels": Variant(("safety_risk=0",), "dagger_messaging_agents"),
+    # the same taught by a costlier teacher (64 futures: planner_agents' labels with less noise), and by it with a
+    # wider student: can a student that pays none of the labelling at decision time pass the cheap planner?
+    "messaging_planner_labels_k64": Variant(("safety_risk=0", "futures=64"), "dagger_messaging_agents"),
+    "messaging_planner_labels_k64_wide": Variant(("safety_risk=0", "futures=64", "hidden=128,128"),
+                                                 "dagger_messaging_agents"),
     # the fine-tuning with a decaying behaviour-cloning term (DAPG), at two starting weights
     "dapg_0.5": Variant(("imitation_share=0.5", "bc_coef=0.5", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
     "dapg_2": Variant(("imitation_share=0.5", "bc_coef=2", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
