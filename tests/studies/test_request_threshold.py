@@ -5,6 +5,7 @@ and a centralised run is refused before anything is written."""
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -54,6 +55,18 @@ def test_a_centralised_run_is_refused_before_anything_is_written(tmp_path):
     done = subprocess.run([sys.executable, SCRIPT, str(run), "--out", str(out)], capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 2 and "fast_ppo run" in done.stderr
+    assert not out.exists()
+
+
+def test_two_runs_of_one_name_are_refused_before_anything_is_written(tmp_path):
+    # the stores key each run by its folder's name: the second run would overwrite the first's numbers
+    run, out = _run(tmp_path, "fast_shared_ppo"), tmp_path / "out"
+    twin = tmp_path / "other" / run.name
+    twin.parent.mkdir()
+    shutil.copytree(run, twin)
+    done = subprocess.run([sys.executable, SCRIPT, str(run), str(twin), "--episodes", "1", "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and f"two runs named {run.name!r}" in done.stderr, done.stderr
     assert not out.exists()
 
 
