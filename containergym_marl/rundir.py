@@ -85,6 +85,17 @@ def run_name(method: str, config: str | Path, seed: int) -> str:
     return f"{method}_{config_stem(config)}_s{seed}"
 
 
+def check_distinct_names(runs: list[Path]) -> None:
+    """A ValueError naming both where two of ``runs`` are different folders of one name: a store that keys
+    runs by their folder's name would keep only one of them."""
+    named: dict[str, Path] = {}
+    for run in runs:
+        first = named.setdefault(run.name, run)
+        if first.resolve() != run.resolve():
+            raise ValueError(f"two runs named {run.name!r} ({str(first)!r} and {str(run)!r}): the results are kept "
+                             f"by run name; give runs of distinct names, or one --out for each set")
+
+
 def seeded_runs(root: str | Path, method: str, config: str | Path) -> list[tuple[int, Path]]:
     """The run directories of ``method`` on ``config`` under ``root`` as (seed, path), by seed: the
     folders named as :func:`run_name` names them."""

@@ -86,9 +86,13 @@ def main(argv=None) -> int:
     if args.episodes < 1:
         parser.error(f"--episodes: expected at least 1, got {args.episodes}")
     from containergym_marl.algorithms import get_algorithm
-    from containergym_marl.rundir import run_args
+    from containergym_marl.rundir import check_distinct_names, run_args
 
-    for run in args.runs:  # every refusal before anything is evaluated or written
+    try:  # every refusal before anything is evaluated or written
+        check_distinct_names(args.runs)
+    except ValueError as exc:
+        parser.error(str(exc))
+    for run in args.runs:
         try:
             spec = get_algorithm(run_args(run)["algo"])
         except Exception as exc:  # noqa: BLE001 - any unreadable run is named

@@ -251,15 +251,13 @@ def main(argv=None) -> int:
         except ValueError as exc:
             parser.error(str(exc))
     from containergym_marl.algorithms import get_algorithm
-    from containergym_marl.rundir import run_args
+    from containergym_marl.rundir import check_distinct_names, run_args
 
-    named: dict[str, Path] = {}
-    for run in args.runs:  # the stores key each run by its folder's name: two of one name would overwrite
-        if run.name in named and named[run.name].resolve() != run.resolve():
-            parser.error(f"two runs named {run.name!r} ({str(named[run.name])!r} and {str(run)!r}): the results "
-                         f"are kept by run name; give runs of distinct names, or one --out for each set")
-        named[run.name] = run
-    for run in args.runs:  # every refusal before anything is evaluated or written
+    try:  # every refusal before anything is evaluated or written
+        check_distinct_names(args.runs)
+    except ValueError as exc:
+        parser.error(str(exc))
+    for run in args.runs:
         try:
             spec = get_algorithm(run_args(run)["algo"])
         except Exception as exc:  # noqa: BLE001 - any unreadable run is named

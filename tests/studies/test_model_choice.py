@@ -53,3 +53,24 @@ def test_a_run_without_a_validated_model_is_refused_before_anything_is_written(t
     done = subprocess.run([sys.executable, SCRIPT, str(run), "--out", str(tmp_path / "out")],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode != 0 and "has no validated_model.pt" in done.stderr and not (tmp_path / "out").exists()
+
+
+def test_two_runs_of_one_name_are_refused_before_anything_is_written(tmp_path):
+    # its store keys runs by their folder's name: the second would replace the first's numbers
+    first, second = tmp_path / "a" / "run_s1", tmp_path / "b" / "run_s1"
+    first.mkdir(parents=True)
+    second.mkdir(parents=True)
+    done = subprocess.run([sys.executable, SCRIPT, str(first), str(second), "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "two runs named 'run_s1'" in done.stderr and str(second) in done.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_same_run_twice_is_one_run(tmp_path):
+    from containergym_marl.rundir import check_distinct_names
+
+    run = tmp_path / "run_s1"
+    run.mkdir()
+    check_distinct_names([run, tmp_path / "." / "run_s1"])  # one folder, two spellings: nothing to refuse
+    with pytest.raises(ValueError, match="two runs named 'run_s1'"):
+        check_distinct_names([run, tmp_path / "copy" / "run_s1"])
