@@ -519,6 +519,21 @@ def messaging_labels():
     return clean and higher and round(gap, 1) == 1.1 and below and same_episodes
 
 
+def costlier_teacher_no_better():
+    """The 64-future teacher's students on n16_m2_dt120 (three seeds, best models; the wide one's final models
+    too) against the 16-future teacher's and planner_agents' return on the same episodes (the ablation's)."""
+    t, a, row = tuning(seeds=(1, 2, 3)), ablation(), "n16_m2_dt120"
+    finals = [e for e in json.loads((ROOT / "results" / "dagger_tuning" / "tuning.json").read_text())["evaluations"]
+              if (e["variant"], e["row"], e["model"]) == ("messaging_planner_labels_k64_wide", row, "final")]
+    final = [e["return_mean"] for e in finals if e["overflowing_episodes"] == 0]
+    k64, wide, k16 = (t[(v, row)] for v in ("messaging_planner_labels_k64", "messaging_planner_labels_k64_wide",
+                                             "messaging_planner_labels"))
+    return (k64[2] == wide[2] == len(final) == 3 and k64[1] == wide[1] == 0 and k64[0] <= k16[0]
+            and (round(k64[0], 2), round(k16[0], 2), round(wide[0], 2), round(float(np.mean(final)), 2))
+            == (106.74, 107.02, 105.91, 107.38)
+            and round(a[("reference", row)]["return"], 2) == 111.77 and a[("reference", row)]["episodes"] == 30)
+
+
 def _with_own_check(variant: str) -> bool:
     """The variant's students carry the agents' own check: its --hp sets one, or its method's defaults do
     (dagger_checked_agents and dagger_messaging_agents)."""
@@ -1116,6 +1131,10 @@ PLANNER_CLAIMS = {
     "No seed of any learned method scores above `planner_agents` (K = 16, H = 8) on the fresh episodes of a "
     "contended row: the closest is a seed of `dagger_messaging_agents` on `n16_m2_dt120`, 107.84 against 109.70.":
         no_learned_seed_above_the_cheap_planner,
+    "A less noisy teacher does not close that gap on `n16_m2_dt120`: labelled by `planner_agents` with 64 futures "
+    "instead of 16 (`messaging_planner_labels_k64`), the students score 106.74, no higher than with 16 (107.02), and "
+    "with 128 × 128 hidden units as well (`messaging_planner_labels_k64_wide`) 105.91, its final models 107.38, none "
+    "of them overflowing; `planner_agents` scores 111.77 on the same episodes.": costlier_teacher_no_better,
     "None of its requests is denied and none of the 30 episodes overflows, yet it decides differently from the "
     "planner in 12 % of the steps: 1,412 requests the planner would not make, every one granted, and 1,008 the "
     "planner would make with a PU free.": messaging_decisions_on_n16,
