@@ -118,6 +118,9 @@ VARIANTS: dict[str, Variant] = {
     "messaging_planner_labels_k64": Variant(("safety_risk=0", "futures=64"), "dagger_messaging_agents"),
     "messaging_planner_labels_k64_wide": Variant(("safety_risk=0", "futures=64", "hidden=128,128"),
                                                  "dagger_messaging_agents"),
+    # the wider student of the cheap teacher, at the paper's budget and (--timesteps) at four times it: is the gap
+    # to the planner a matter of samples?
+    "messaging_planner_labels_wide": Variant(("safety_risk=0", "hidden=128,128"), "dagger_messaging_agents"),
     # the fine-tuning with a decaying behaviour-cloning term (DAPG), at two starting weights
     "dapg_0.5": Variant(("imitation_share=0.5", "bc_coef=0.5", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
     "dapg_2": Variant(("imitation_share=0.5", "bc_coef=2", "bc_half_life=0.2"), "dagger_dapg_agents", "team"),
