@@ -534,6 +534,20 @@ def costlier_teacher_no_better():
             and round(a[("reference", row)]["return"], 2) == 111.77 and a[("reference", row)]["episodes"] == 30)
 
 
+def more_samples_no_better():
+    """messaging_planner_labels_wide on n16_m2_dt120, best models: seeds 1-3 at the paper's 5M samples, seeds 1-2
+    at 20M (results/dagger_tuning/budget_20m/), and seeds 1-2 at 5M."""
+    row, variant = "n16_m2_dt120", "messaging_planner_labels_wide"
+    paper = tuning(seeds=(1, 2, 3))[(variant, row)]
+    paper_12 = tuning(seeds=(1, 2))[(variant, row)]
+    long = [e for e in json.loads((ROOT / "results" / "dagger_tuning" / "budget_20m" / "tuning.json").read_text())[
+        "evaluations"] if (e["variant"], e["row"], e["model"]) == (variant, row, "best")]
+    return (paper[2] == 3 and sorted(e["seed"] for e in long) == [1, 2]
+            and all(e["trained_samples"] >= 20_000_000 and e["overflowing_episodes"] == 0 for e in long)
+            and (round(paper[0], 2), round(float(np.mean([e["return_mean"] for e in long])), 2), round(paper_12[0], 2))
+            == (107.61, 107.46, 107.27))
+
+
 def _with_own_check(variant: str) -> bool:
     """The variant's students carry the agents' own check: its --hp sets one, or its method's defaults do
     (dagger_checked_agents and dagger_messaging_agents)."""
@@ -1135,6 +1149,9 @@ PLANNER_CLAIMS = {
     "instead of 16 (`messaging_planner_labels_k64`), the students score 106.74, no higher than with 16 (107.02), and "
     "with 128 × 128 hidden units as well (`messaging_planner_labels_k64_wide`) 105.91, its final models 107.38, none "
     "of them overflowing; `planner_agents` scores 111.77 on the same episodes.": costlier_teacher_no_better,
+    "Nor do more samples: the wider student of the 16-future teacher (`messaging_planner_labels_wide`) scores "
+    "107.61 at the paper's 5M samples and 107.46 at 20M (seeds 1–2, `results/dagger_tuning/budget_20m/`), where its "
+    "seeds 1–2 score 107.27 at 5M.": more_samples_no_better,
     "None of its requests is denied and none of the 30 episodes overflows, yet it decides differently from the "
     "planner in 12 % of the steps: 1,412 requests the planner would not make, every one granted, and 1,008 the "
     "planner would make with a PU free.": messaging_decisions_on_n16,
