@@ -249,6 +249,8 @@ def table(entries: list[dict], variants: list[str], rows: list[str], note: str =
                               f"{sum(e['overflowing_episodes'] for e in found)}/{sum(e['episodes'] for e in found)}"]
                 else:
                     cells += ["–", "–"]
+            if not seeds:  # a variant not run on this row
+                continue
             settings = VARIANTS[variant].settings()
             span = f"{min(samples) / 1e6:.1f}–{max(samples) / 1e6:.1f}M" if samples else "–"
             lines.append(f"| {variant} | {settings} | {row} | {seeds} | {span} | " + " | ".join(cells) + " |")
