@@ -519,13 +519,19 @@ def messaging_labels():
     return clean and higher and round(gap, 1) == 1.1 and below and same_episodes
 
 
+def tuning_evaluations(variant: str, row: str, model: str, folder: str = "") -> list[dict]:
+    """studies/dagger_tuning.py's evaluations of one variant's ``model`` on ``row`` (``folder``: a study beside
+    the main one, e.g. budget_20m)."""
+    path = ROOT / "results" / "dagger_tuning" / folder / "tuning.json"
+    return [e for e in json.loads(path.read_text())["evaluations"] if (e["variant"], e["row"], e["model"]) == (variant, row, model)]
+
+
 def costlier_teacher_no_better():
     """The 64-future teacher's students on n16_m2_dt120 (three seeds, best models; the wide one's final models
     too) against the 16-future teacher's and planner_agents' return on the same episodes (the ablation's)."""
     t, a, row = tuning(seeds=(1, 2, 3)), ablation(), "n16_m2_dt120"
-    finals = [e for e in json.loads((ROOT / "results" / "dagger_tuning" / "tuning.json").read_text())["evaluations"]
-              if (e["variant"], e["row"], e["model"]) == ("messaging_planner_labels_k64_wide", row, "final")]
-    final = [e["return_mean"] for e in finals if e["overflowing_episodes"] == 0]
+    final = [e["return_mean"] for e in tuning_evaluations("messaging_planner_labels_k64_wide", row, "final")
+             if e["overflowing_episodes"] == 0]
     k64, wide, k16 = (t[(v, row)] for v in ("messaging_planner_labels_k64", "messaging_planner_labels_k64_wide",
                                              "messaging_planner_labels"))
     return (k64[2] == wide[2] == len(final) == 3 and k64[1] == wide[1] == 0 and k64[0] <= k16[0]
@@ -540,8 +546,7 @@ def more_samples_no_better():
     row, variant = "n16_m2_dt120", "messaging_planner_labels_wide"
     paper = tuning(seeds=(1, 2, 3))[(variant, row)]
     paper_12 = tuning(seeds=(1, 2))[(variant, row)]
-    long = [e for e in json.loads((ROOT / "results" / "dagger_tuning" / "budget_20m" / "tuning.json").read_text())[
-        "evaluations"] if (e["variant"], e["row"], e["model"]) == (variant, row, "best")]
+    long = tuning_evaluations(variant, row, "best", folder="budget_20m")
     return (paper[2] == 3 and sorted(e["seed"] for e in long) == [1, 2]
             and all(e["trained_samples"] >= 20_000_000 and e["overflowing_episodes"] == 0 for e in long)
             and (round(paper[0], 2), round(float(np.mean([e["return_mean"] for e in long])), 2), round(paper_12[0], 2))
@@ -551,9 +556,9 @@ def more_samples_no_better():
 def labels_alike_off_the_contended_rows():
     """messaging and messaging_planner_labels on the six rows other than the contended ones: three seeds each,
     best models within 0.1 of each other, no overflowing episode."""
-    t = tuning(seeds=(1, 2, 3))
     from containergym_marl.orchestration.compare_args import PAPER_ROWS
 
+    t = tuning(seeds=(1, 2, 3))
     others = [row for row in PAPER_ROWS if row not in CONTENDED_ROWS]
     pairs = [(t[("messaging", row)], t[("messaging_planner_labels", row)]) for row in others]
     return (len(others) == 6 and all(a[2] == b[2] == 3 and a[1] == b[1] == 0 for a, b in pairs)
@@ -702,7 +707,8 @@ LEARNERS = ("dagger_contended_agents", "dagger_dapg_agents", "dagger_response_ag
 def learners_against_the_reference():
     """issue 38's three learners in results/planner/reference_shares.json: five seeds on every row, the bar met on
     the six rows where PUs are not scarce and missed by overflows on the contended ones, where each overflows less
-    often than dagger_agents and dagger_contended_agents' IQM share is higher than dagger_agents'."""
+    often than dagger_agents and dagger_contended_agents' and dagger_response_agents' IQM shares are higher than
+    dagger_agents'."""
     report = json.loads((PLANNER / "reference_shares.json").read_text())
     cells = {e["config"]: e["methods"] for e in report["rows"]}
     rates = [cells[row][m]["fresh_overflow_rate"] for row in CONTENDED_ROWS for m in LEARNERS]
@@ -714,6 +720,7 @@ def learners_against_the_reference():
                     for row in CONTENDED_ROWS for m in LEARNERS)
             and all(cells[row][m]["iqm_share"] > cells[row]["dagger_agents"]["iqm_share"]
                     for row in CONTENDED_ROWS for m in ("dagger_contended_agents", "dagger_response_agents")))
+
 
 def no_learned_seed_above_the_cheap_planner():
     """results/paper_rows/fresh/<row>/: every learned seed's fresh mean on the contended rows below planner_agents'

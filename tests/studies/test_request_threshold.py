@@ -5,7 +5,6 @@ and a centralised run is refused before anything is written."""
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -59,11 +58,11 @@ def test_a_centralised_run_is_refused_before_anything_is_written(tmp_path):
 
 
 def test_two_runs_of_one_name_are_refused_before_anything_is_written(tmp_path):
-    # the stores key each run by its folder's name: the second run would overwrite the first's numbers
-    run, out = _run(tmp_path, "fast_shared_ppo"), tmp_path / "out"
-    twin = tmp_path / "other" / run.name
-    twin.parent.mkdir()
-    shutil.copytree(run, twin)
+    # the stores key each run by its folder's name: the second run would overwrite the first's numbers (refused
+    # before either folder is read, so two empty folders stand for the runs)
+    run, twin, out = tmp_path / "a" / "tiny_run_s3", tmp_path / "other" / "tiny_run_s3", tmp_path / "out"
+    run.mkdir(parents=True)
+    twin.mkdir(parents=True)
     done = subprocess.run([sys.executable, SCRIPT, str(run), str(twin), "--episodes", "1", "--out", str(out)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and f"two runs named {run.name!r}" in done.stderr, done.stderr
